@@ -1,1 +1,13 @@
-//! MuJoCo 3.3.7 through a thin, safe wrapper, and the Meta-World v3 tasks built on it.
+//! MuJoCo 3.3.7 through a thin, safe wrapper, and the Meta-World v3 task suite built on it.
+//!
+//! `mujoco` is the only module with `unsafe`; everything above it (tasks, vectorised envs, trace
+//! replay) is safe Rust.
+
+mod error;
+mod ffi;
+pub mod mujoco;
+
+pub use error::{Result, SimError};
+pub use mujoco::Simulation;
+pub mod metaworld;
+pub mod trace;

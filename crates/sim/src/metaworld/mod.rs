@@ -1,0 +1,365 @@
+//! Meta-World v3 tasks in Rust, behaving like `metaworld==3.1.1` on MuJoCo 3.3.7 (checked by
+//! replaying Python traces, see `tests/parity.rs`).
+//!
+//! An [`Env`] is one task instance: fully observable 39-dim observation (hand xyz, gripper
+//! opening, two objects as position + quaternion, the previous frame's 18 values, goal), 4-dim
+//! action (mocap delta in [-1, 1] scaled by 1 cm, gripper effort), frame skip 5, the task's
+//! v2-style reward and success rule, truncation at 500 steps.
+//!
+//! Reset takes an explicit `rand_vec` (Meta-World's goal/object randomisation vector) or draws
+//! one: [`goal_variations`] gives the 50 reproducible variations of a task for a seed.
+
+pub mod reward;
+pub mod scene;
+pub mod tasks;
+
+use std::collections::HashMap;
+use std::path::PathBuf;
+use std::sync::{Mutex, OnceLock};
+
+use rand::{Rng, SeedableRng};
+
+use crate::error::{Result, SimError};
+use crate::mujoco::Simulation;
+pub use scene::{Density, Scene, FRAME_SKIP, TARGET_RADIUS};
+pub use tasks::{task_names, task_set, task_set_names, TaskSpec};
+
+/// Observation length (fully observable Meta-World).
+pub const OBS_DIM: usize = 39;
+/// Action length.
+pub const ACT_DIM: usize = 4;
+/// Episode length (`max_path_length`).
+pub const MAX_PATH_LENGTH: u32 = 500;
+/// Goal variations per task, as in the Meta-World benchmarks.
+pub const NUM_VARIATIONS: usize = 50;
+
+const HAND_SPACE_LOW: [f64; 3] = [-0.525, 0.348, -0.0525];
+const HAND_SPACE_HIGH: [f64; 3] = [0.525, 1.025, 0.7];
+
+/// The outcome of one step's reward computation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Eval {
+    pub reward: f64,
+    pub success: bool,
+}
+
+/// Behaviour of one Meta-World task on top of the shared [`Scene`].
+pub trait Task: Send + std::fmt::Debug {
+    /// Static description: model file, bounds, randomisation ranges.
+    fn spec(&self) -> &'static TaskSpec;
+    /// `reset_model` without the final `_get_obs`. Must set `scene.target_pos` and
+    /// `scene.obj_init_pos`.
+    fn reset_model(&mut self, scene: &mut Scene, rand_vec: &[f64]) -> Result<()>;
+    /// Object positions and quaternions, zero padded (obs[4..18]).
+    fn objects(&self, scene: &Scene, out: &mut [f64; 14]);
+    /// Reward and success of the (clipped) observation and the action as given.
+    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], action: &[f32; ACT_DIM]) -> Eval;
+}
+
+/// What [`Env::step`] returns.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Step {
+    pub obs: [f64; OBS_DIM],
+    pub reward: f64,
+    pub success: bool,
+    /// The 500-step time limit was reached (or the physics went unstable).
+    pub truncated: bool,
+    /// MuJoCo reported a non-finite state during this step; the episode was cut short.
+    pub unstable: bool,
+}
+
+/// Folder with Meta-World's XML/STL assets.
+pub fn assets_dir() -> PathBuf {
+    std::env::var_os("TERL_METAWORLD_ASSETS")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("TERL_METAWORLD_ASSETS_DEFAULT")))
+}
+
+/// Compiled models, one per task, copied for every new environment (compiling the XML costs
+/// tens of milliseconds, copying microseconds).
+fn compiled_model(xml: &str) -> Result<Simulation> {
+    static CACHE: OnceLock<Mutex<HashMap<String, Simulation>>> = OnceLock::new();
+    let cache = CACHE.get_or_init(Default::default);
+    let mut cache = cache.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some(sim) = cache.get(xml) {
+        return sim.clone_model();
+    }
+    let dir = assets_dir();
+    let path = dir.join(xml);
+    if !path.exists() {
+        return Err(SimError::AssetsMissing { path: dir });
+    }
+    let sim = Simulation::from_xml(&path)?;
+    let copy = sim.clone_model()?;
+    cache.insert(xml.to_string(), sim);
+    Ok(copy)
+}
+
+/// One Meta-World task instance.
+#[derive(Debug)]
+pub struct Env {
+    scene: Scene,
+    task: Box<dyn Task>,
+    spec: &'static TaskSpec,
+    prev: [f64; 18],
+    steps: u32,
+    rand_vec: Vec<f64>,
+    needs_reset: bool,
+    instability_events: u64,
+}
+
+impl Env {
+    /// Creates the task by its Meta-World v3 name (e.g. `"reach-v3"`); reset before stepping.
+    pub fn new(task: &str) -> Result<Self> {
+        let make = tasks::constructor(task)?;
+        let spec = make.spec;
+        let sim = compiled_model(spec.xml)?;
+        let mut scene = Scene::new(sim, spec.mocap_low(), spec.mocap_high())?;
+        scene.hand_init_pos = spec.hand_init_pos;
+        let task = (make.build)(&scene)?;
+        Ok(Self {
+            scene,
+            task,
+            spec,
+            prev: [0.0; 18],
+            steps: 0,
+            rand_vec: Vec::new(),
+            needs_reset: true,
+            instability_events: 0,
+        })
+    }
+
+    pub fn spec(&self) -> &'static TaskSpec {
+        self.spec
+    }
+    pub fn name(&self) -> &'static str {
+        self.spec.name
+    }
+    /// The `rand_vec` of the current episode.
+    pub fn rand_vec(&self) -> &[f64] {
+        &self.rand_vec
+    }
+    /// Steps taken in the current episode.
+    pub fn steps(&self) -> u32 {
+        self.steps
+    }
+    /// Times the physics went unstable (and the episode was cut short) since creation.
+    pub fn instability_events(&self) -> u64 {
+        self.instability_events
+    }
+    pub fn scene(&self) -> &Scene {
+        &self.scene
+    }
+    /// Current goal (obs[36..39]).
+    pub fn goal(&self) -> [f64; 3] {
+        self.scene.target_pos
+    }
+
+    /// Checks a `rand_vec` against the task's length, ranges and rejection rule.
+    pub fn validate_rand_vec(&self, rand_vec: &[f64]) -> Result<()> {
+        validate_rand_vec(self.spec, rand_vec)
+    }
+
+    /// Resets to the state Meta-World reaches with this `rand_vec`; returns the observation.
+    pub fn reset(&mut self, rand_vec: &[f64]) -> Result<[f64; OBS_DIM]> {
+        self.validate_rand_vec(rand_vec)?;
+        self.rand_vec.clear();
+        self.rand_vec.extend_from_slice(rand_vec);
+        // Python runs reset_model on the old data, then mj_resetData, then reset_model again;
+        // the first pass matters only through the model fields it writes.
+        self.scene.physics = false;
+        let first = self.task.reset_model(&mut self.scene, rand_vec);
+        self.scene.physics = true;
+        first?;
+        self.scene.sim.reset_data();
+        self.task.reset_model(&mut self.scene, rand_vec)?;
+        self.steps = 0;
+        self.needs_reset = false;
+        let mut obs = [0.0; OBS_DIM];
+        self.current_frame(&mut obs);
+        let (cur, rest) = obs.split_at_mut(18);
+        rest[..18].copy_from_slice(cur);
+        self.prev.copy_from_slice(cur);
+        obs[36..39].copy_from_slice(&self.scene.target_pos);
+        Ok(obs)
+    }
+
+    /// Resets with a fresh `rand_vec` drawn from the task's ranges.
+    pub fn reset_random(&mut self, rng: &mut impl Rng) -> Result<[f64; OBS_DIM]> {
+        let rv = sample_rand_vec(self.spec, rng);
+        self.reset(&rv)
+    }
+
+    /// Resets to goal variation `index` (0..50) of [`goal_variations`]`(task, seed)`.
+    pub fn reset_variation(&mut self, seed: u64, index: usize) -> Result<[f64; OBS_DIM]> {
+        let vars = goal_variations(self.spec.name, seed)?;
+        let rv = vars.get(index).ok_or_else(|| SimError::OutOfRange {
+            what: "goal variation index",
+            detail: format!("{index} not in 0..{NUM_VARIATIONS}"),
+        })?;
+        self.reset(rv)
+    }
+
+    fn current_frame(&self, out: &mut [f64]) {
+        out[..3].copy_from_slice(&self.scene.hand_pos());
+        out[3] = self.scene.gripper_distance_apart();
+        let mut objects = [0.0; 14];
+        self.task.objects(&self.scene, &mut objects);
+        out[4..18].copy_from_slice(&objects);
+    }
+
+    /// Applies one action (length 4, finite; xyz clipped to [-1, 1], gripper as given).
+    pub fn step(&mut self, action: &[f32]) -> Result<Step> {
+        if action.len() != ACT_DIM {
+            return Err(SimError::Length {
+                what: "action",
+                got: action.len(),
+                expected: ACT_DIM,
+            });
+        }
+        if let Some(index) = action.iter().position(|a| !a.is_finite()) {
+            return Err(SimError::NonFinite {
+                what: "action",
+                index,
+            });
+        }
+        if self.needs_reset {
+            return Err(SimError::EpisodeOver(self.steps));
+        }
+        let action: [f32; ACT_DIM] = action.try_into().expect("length checked");
+        let before = self.scene.sim.instability_count();
+        self.scene
+            .apply_xyz_action([action[0], action[1], action[2]]);
+        let grip = f64::from(action[3]);
+        self.scene.do_simulation([grip, -grip], FRAME_SKIP);
+        self.steps += 1;
+        self.scene.sim.forward();
+
+        let mut obs = [0.0; OBS_DIM];
+        self.current_frame(&mut obs);
+        obs[18..36].copy_from_slice(&self.prev);
+        obs[36..39].copy_from_slice(&self.scene.target_pos);
+        self.prev.copy_from_slice(&obs[..18]);
+        clip_observation(&mut obs, self.spec);
+
+        let unstable =
+            self.scene.sim.instability_count() > before || obs.iter().any(|v| !v.is_finite());
+        if unstable {
+            self.instability_events += 1;
+            self.needs_reset = true;
+            tracing::warn!(
+                task = self.spec.name,
+                step = self.steps,
+                "physics went unstable; the episode is cut short and the env must reset"
+            );
+            for v in obs.iter_mut().filter(|v| !v.is_finite()) {
+                *v = 0.0;
+            }
+            return Ok(Step {
+                obs,
+                reward: 0.0,
+                success: false,
+                truncated: true,
+                unstable: true,
+            });
+        }
+        let eval = self.task.evaluate(&self.scene, &obs, &action);
+        let truncated = self.steps >= MAX_PATH_LENGTH;
+        self.needs_reset = truncated;
+        Ok(Step {
+            obs,
+            reward: eval.reward,
+            success: eval.success,
+            truncated,
+            unstable: false,
+        })
+    }
+}
+
+fn clip_observation(obs: &mut [f64; OBS_DIM], spec: &TaskSpec) {
+    for half in [0, 18] {
+        for i in 0..3 {
+            obs[half + i] = obs[half + i].clamp(HAND_SPACE_LOW[i], HAND_SPACE_HIGH[i]);
+        }
+        obs[half + 3] = obs[half + 3].clamp(-1.0, 1.0);
+    }
+    for i in 0..3 {
+        obs[36 + i] = obs[36 + i].clamp(spec.goal_low[i], spec.goal_high[i]);
+    }
+}
+
+fn validate_rand_vec(spec: &TaskSpec, rv: &[f64]) -> Result<()> {
+    let expected = spec.rand_low.len();
+    if rv.len() != expected {
+        return Err(SimError::Length {
+            what: "rand_vec",
+            got: rv.len(),
+            expected,
+        });
+    }
+    if let Some(index) = rv.iter().position(|v| !v.is_finite()) {
+        return Err(SimError::NonFinite {
+            what: "rand_vec",
+            index,
+        });
+    }
+    for (i, v) in rv.iter().enumerate() {
+        if *v < spec.rand_low[i] || *v > spec.rand_high[i] {
+            return Err(SimError::OutOfRange {
+                what: "rand_vec",
+                detail: format!(
+                    "{}: entry {i} = {v} not in [{}, {}]",
+                    spec.name, spec.rand_low[i], spec.rand_high[i]
+                ),
+            });
+        }
+    }
+    if !(spec.rand_vec_ok)(rv) {
+        return Err(SimError::OutOfRange {
+            what: "rand_vec",
+            detail: format!(
+                "{}: violates the task's placement rule (object and goal too close)",
+                spec.name
+            ),
+        });
+    }
+    Ok(())
+}
+
+fn sample_rand_vec(spec: &TaskSpec, rng: &mut impl Rng) -> Vec<f64> {
+    loop {
+        let rv: Vec<f64> = spec
+            .rand_low
+            .iter()
+            .zip(spec.rand_high)
+            .map(|(lo, hi)| {
+                if lo < hi {
+                    rng.gen_range(*lo..*hi)
+                } else {
+                    *lo
+                }
+            })
+            .collect();
+        if (spec.rand_vec_ok)(&rv) {
+            return rv;
+        }
+    }
+}
+
+fn name_hash(name: &str) -> u64 {
+    // FNV-1a: stable across platforms and releases (unlike std's hasher).
+    name.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
+    })
+}
+
+/// The 50 goal variations of a task for a seed: `rand_vec`s drawn uniformly from Meta-World's
+/// object/goal ranges with the task's rejection rule, by ChaCha8 seeded with
+/// `seed ^ fnv1a(task name)`. Same task and seed give the same list on every machine.
+pub fn goal_variations(task: &str, seed: u64) -> Result<Vec<Vec<f64>>> {
+    let spec = tasks::constructor(task)?.spec;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ name_hash(spec.name));
+    Ok((0..NUM_VARIATIONS)
+        .map(|_| sample_rand_vec(spec, &mut rng))
+        .collect())
+}
