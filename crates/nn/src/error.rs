@@ -1,0 +1,37 @@
+//! Errors of this crate: shape and dtype mismatches when loading tensors, malformed files.
+
+use thiserror::Error;
+
+/// Everything that can go wrong when (de)serialising networks and optimiser state.
+#[derive(Debug, Error)]
+pub enum NnError {
+    /// A tensor that the network needs is not in the file.
+    #[error("tensor `{name}` is missing")]
+    MissingTensor { name: String },
+    /// A tensor has a different shape than the network expects.
+    #[error("tensor `{name}` has shape {found:?}, expected {expected:?}")]
+    ShapeMismatch {
+        name: String,
+        expected: Vec<usize>,
+        found: Vec<usize>,
+    },
+    /// A tensor has a different element type than the network expects.
+    #[error("tensor `{name}` has dtype {found}, expected {expected}")]
+    DtypeMismatch {
+        name: String,
+        expected: String,
+        found: String,
+    },
+    /// The bytes are not a valid safetensors file.
+    #[error("invalid safetensors data: {0}")]
+    Format(String),
+    /// A value could not be represented (for example a non-finite weight was asked to load).
+    #[error("invalid value: {0}")]
+    InvalidValue(String),
+    /// Reading or writing a file failed.
+    #[error("i/o error on `{path}`: {source}")]
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
+}

@@ -1,0 +1,496 @@
+//! Multilayer perceptrons with hand-written, cache-based forward and backward passes.
+//!
+//! Layout: a batch is a row-major `rows × features` matrix (PyTorch's layout); layer `l` has a
+//! row-major weight `[out, in]` followed by its bias `[out]` in one flat parameter vector, so the
+//! optimiser, Polyak averaging and serialisation are single loops over contiguous memory. A layer
+//! is one faer GEMM into a preallocated buffer followed by one fused bias + activation pass;
+//! backward is one fused activation-derivative + bias-gradient pass and two GEMMs.
+
+use crate::error::NnError;
+use crate::scalar::Float;
+use crate::tensors::{Tensor, TensorFile};
+use faer::linalg::matmul::matmul;
+use faer::{Accum, MatMut, MatRef, Par};
+use rand::Rng;
+use std::ops::Range;
+
+/// Element-wise non-linearity after a layer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Activation {
+    Identity,
+    Relu,
+    Tanh,
+}
+
+/// Shape of an MLP: `input → hidden[0] → … → output`.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct MlpSpec {
+    pub input: usize,
+    pub hidden: Vec<usize>,
+    pub output: usize,
+    pub hidden_activation: Activation,
+    pub output_activation: Activation,
+}
+
+/// Which gradient w.r.t. the network input a backward pass computes.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum InputGrad {
+    /// None (the first layer's input gradient GEMM is skipped).
+    None,
+    /// All input columns.
+    All,
+    /// Only these input columns (for example the action part of a critic's input).
+    Cols(Range<usize>),
+}
+
+/// A dense MLP; parameters in one flat vector (see the module docs for the layout).
+#[derive(Clone, Debug)]
+pub struct Mlp<T> {
+    sizes: Vec<usize>,
+    activations: Vec<Activation>,
+    offsets: Vec<usize>,
+    /// All parameters: per layer `weight [out, in]` row-major, then `bias [out]`.
+    pub params: Vec<T>,
+}
+
+/// Activations and gradients of one MLP for up to `capacity` rows, allocated once.
+#[derive(Clone, Debug)]
+pub struct MlpCache<T> {
+    capacity: usize,
+    sizes: Vec<usize>,
+    input: Vec<T>,
+    outs: Vec<Vec<T>>,
+    grads: Vec<Vec<T>>,
+    grad_input: Vec<T>,
+}
+
+impl<T: Float> Mlp<T> {
+    /// A network initialised like PyTorch's `nn.Linear`: weights and biases uniform in
+    /// `±1/sqrt(fan_in)` (what `kaiming_uniform_(a=sqrt(5))` reduces to).
+    pub fn new(spec: &MlpSpec, rng: &mut impl Rng) -> Self {
+        let mut sizes = vec![spec.input];
+        sizes.extend_from_slice(&spec.hidden);
+        sizes.push(spec.output);
+        assert!(
+            sizes.iter().all(|&s| s > 0),
+            "MLP layer sizes must be positive: {sizes:?}"
+        );
+        let layers = sizes.len() - 1;
+        let mut activations = vec![spec.hidden_activation; layers];
+        activations[layers - 1] = spec.output_activation;
+        let mut offsets = Vec::with_capacity(layers);
+        let mut total = 0;
+        for l in 0..layers {
+            offsets.push(total);
+            total += sizes[l + 1] * sizes[l] + sizes[l + 1];
+        }
+        let mut params = Vec::with_capacity(total);
+        for l in 0..layers {
+            let bound = 1.0 / (sizes[l] as f64).sqrt();
+            for _ in 0..(sizes[l + 1] * sizes[l] + sizes[l + 1]) {
+                params.push(T::of(rng.gen_range(-bound..bound)));
+            }
+        }
+        Self {
+            sizes,
+            activations,
+            offsets,
+            params,
+        }
+    }
+
+    /// Layer widths `[input, hidden…, output]`.
+    pub fn sizes(&self) -> &[usize] {
+        &self.sizes
+    }
+
+    pub fn num_layers(&self) -> usize {
+        self.sizes.len() - 1
+    }
+
+    pub fn input_dim(&self) -> usize {
+        self.sizes[0]
+    }
+
+    pub fn output_dim(&self) -> usize {
+        self.sizes[self.sizes.len() - 1]
+    }
+
+    pub fn num_params(&self) -> usize {
+        self.params.len()
+    }
+
+    /// Range of layer `l`'s weight in the flat parameter vector.
+    pub fn weight_range(&self, l: usize) -> Range<usize> {
+        let start = self.offsets[l];
+        start..start + self.sizes[l + 1] * self.sizes[l]
+    }
+
+    /// Range of layer `l`'s bias in the flat parameter vector.
+    pub fn bias_range(&self, l: usize) -> Range<usize> {
+        let start = self.weight_range(l).end;
+        start..start + self.sizes[l + 1]
+    }
+
+    fn weight(&self, l: usize) -> MatRef<'_, T> {
+        MatRef::from_row_major_slice(
+            &self.params[self.weight_range(l)],
+            self.sizes[l + 1],
+            self.sizes[l],
+        )
+    }
+
+    /// Forward pass over the first `rows` rows of `cache`'s input (written by the caller with
+    /// [`MlpCache::input_mut`]); the result is [`MlpCache::output`].
+    pub fn forward(&self, cache: &mut MlpCache<T>, rows: usize, par: Par) {
+        assert_eq!(
+            cache.sizes, self.sizes,
+            "cache was built for another network shape"
+        );
+        assert!(
+            rows <= cache.capacity,
+            "batch of {rows} rows exceeds cache capacity {}",
+            cache.capacity
+        );
+        if rows == 0 {
+            return;
+        }
+        for l in 0..self.num_layers() {
+            let (n_in, n_out) = (self.sizes[l], self.sizes[l + 1]);
+            let (before, rest) = cache.outs.split_at_mut(l);
+            let x: &[T] = if l == 0 {
+                &cache.input[..rows * n_in]
+            } else {
+                &before[l - 1][..rows * n_in]
+            };
+            let y = &mut rest[0][..rows * n_out];
+            matmul(
+                MatMut::from_row_major_slice_mut(y, rows, n_out),
+                Accum::Replace,
+                MatRef::from_row_major_slice(x, rows, n_in),
+                self.weight(l).transpose(),
+                T::of(1.0),
+                par,
+            );
+            bias_activation(y, &self.params[self.bias_range(l)], self.activations[l]);
+        }
+    }
+
+    /// Backward pass over `rows` of the last forward pass. The caller writes the loss gradient
+    /// w.r.t. the output rows into [`MlpCache::grad_output_mut`] first (it is overwritten).
+    ///
+    /// With `param_grads`, the gradients of all parameters from these rows are *written* (not
+    /// accumulated) into it, in the flat parameter layout. `input_grad` selects which input
+    /// gradient to compute into [`MlpCache::grad_input`].
+    pub fn backward(
+        &self,
+        cache: &mut MlpCache<T>,
+        rows: Range<usize>,
+        mut param_grads: Option<&mut [T]>,
+        input_grad: InputGrad,
+        par: Par,
+    ) {
+        assert_eq!(
+            cache.sizes, self.sizes,
+            "cache was built for another network shape"
+        );
+        assert!(
+            rows.end <= cache.capacity && rows.start <= rows.end,
+            "bad row range {rows:?}"
+        );
+        if let Some(g) = param_grads.as_deref() {
+            assert_eq!(
+                g.len(),
+                self.params.len(),
+                "gradient buffer has the wrong length"
+            );
+        }
+        let n = rows.len();
+        if n == 0 {
+            if let Some(g) = param_grads {
+                g.fill(T::of(0.0));
+            }
+            return;
+        }
+        for l in (0..self.num_layers()).rev() {
+            let (n_in, n_out) = (self.sizes[l], self.sizes[l + 1]);
+            let out_rows = rows.start * n_out..rows.end * n_out;
+            let in_rows = rows.start * n_in..rows.end * n_in;
+            let (g_before, g_rest) = cache.grads.split_at_mut(l);
+            let dz = &mut g_rest[0][out_rows.clone()];
+            let y = &cache.outs[l][out_rows];
+            let x: &[T] = if l == 0 {
+                &cache.input[in_rows.clone()]
+            } else {
+                &cache.outs[l - 1][in_rows.clone()]
+            };
+            match param_grads.as_deref_mut() {
+                Some(grads) => {
+                    let (gw, gb) =
+                        grads[self.offsets[l]..self.bias_range(l).end].split_at_mut(n_out * n_in);
+                    activation_grad_with_bias(dz, y, gb, self.activations[l]);
+                    matmul(
+                        MatMut::from_row_major_slice_mut(gw, n_out, n_in),
+                        Accum::Replace,
+                        MatRef::from_row_major_slice(dz, n, n_out).transpose(),
+                        MatRef::from_row_major_slice(x, n, n_in),
+                        T::of(1.0),
+                        par,
+                    );
+                }
+                None => activation_grad(dz, y, self.activations[l]),
+            }
+            let dz = MatRef::from_row_major_slice(&*dz, n, n_out);
+            if l > 0 {
+                let dx = &mut g_before[l - 1][in_rows];
+                matmul(
+                    MatMut::from_row_major_slice_mut(dx, n, n_in),
+                    Accum::Replace,
+                    dz,
+                    self.weight(l),
+                    T::of(1.0),
+                    par,
+                );
+            } else {
+                let cols = match &input_grad {
+                    InputGrad::None => continue,
+                    InputGrad::All => 0..n_in,
+                    InputGrad::Cols(c) => c.clone(),
+                };
+                assert!(
+                    cols.end <= n_in,
+                    "input gradient columns {cols:?} out of range"
+                );
+                let dx = MatMut::from_row_major_slice_mut(&mut cache.grad_input[in_rows], n, n_in);
+                matmul(
+                    dx.subcols_mut(cols.start, cols.len()),
+                    Accum::Replace,
+                    dz,
+                    self.weight(0).subcols(cols.start, cols.len()),
+                    T::of(1.0),
+                    par,
+                );
+            }
+        }
+    }
+
+    /// Polyak averaging `self ← (1 − tau)·self + tau·source` (PyTorch's order of operations).
+    pub fn polyak_from(&mut self, source: &Mlp<T>, tau: T) {
+        assert_eq!(
+            self.sizes, source.sizes,
+            "Polyak averaging between different shapes"
+        );
+        let keep = T::of(1.0) - tau;
+        for (t, &s) in self.params.iter_mut().zip(&source.params) {
+            *t = *t * keep + tau * s;
+        }
+    }
+
+    /// FLOPs of a forward pass over `rows` rows (2 per multiply-add of the GEMMs).
+    pub fn forward_flops(&self, rows: usize) -> u64 {
+        (0..self.num_layers())
+            .map(|l| 2 * (rows * self.sizes[l] * self.sizes[l + 1]) as u64)
+            .sum()
+    }
+
+    /// FLOPs of a backward pass over `rows` rows with or without parameter gradients and with
+    /// `input_cols` columns of input gradient.
+    pub fn backward_flops(&self, rows: usize, param_grads: bool, input_cols: usize) -> u64 {
+        let mut f = 0u64;
+        for l in 0..self.num_layers() {
+            let (i, o) = (self.sizes[l], self.sizes[l + 1]);
+            if param_grads {
+                f += 2 * (rows * i * o) as u64;
+            }
+            let dx_cols = if l == 0 { input_cols } else { i };
+            f += 2 * (rows * dx_cols * o) as u64;
+        }
+        f
+    }
+
+    /// Weights as tensors `{prefix}.{l}.weight [out, in]` and `{prefix}.{l}.bias [out]`, the
+    /// names `torch.nn.Sequential` of `Linear` layers would have with index `l` per layer.
+    pub fn export(&self, prefix: &str, out: &mut Vec<Tensor>) {
+        self.export_values(prefix, &self.params, out);
+    }
+
+    /// Like [`Mlp::export`] for another vector in the parameter layout (gradients, Adam moments).
+    pub fn export_values(&self, prefix: &str, values: &[T], out: &mut Vec<Tensor>) {
+        assert_eq!(values.len(), self.params.len());
+        for l in 0..self.num_layers() {
+            let shape_w = vec![self.sizes[l + 1], self.sizes[l]];
+            out.push(Tensor::from_values(
+                format!("{prefix}.{l}.weight"),
+                shape_w,
+                &values[self.weight_range(l)],
+            ));
+            out.push(Tensor::from_values(
+                format!("{prefix}.{l}.bias"),
+                vec![self.sizes[l + 1]],
+                &values[self.bias_range(l)],
+            ));
+        }
+    }
+
+    /// Loads weights written by [`Mlp::export`]; shapes and dtype must match exactly and values
+    /// must be finite. On error `self` is unchanged.
+    pub fn import(&mut self, prefix: &str, file: &TensorFile) -> Result<(), NnError> {
+        let mut params = self.params.clone();
+        self.import_values(prefix, file, &mut params)?;
+        if let Some(bad) = params.iter().position(|v| !v.is_finite()) {
+            return Err(NnError::InvalidValue(format!(
+                "`{prefix}` has a non-finite weight at flat index {bad}"
+            )));
+        }
+        self.params = params;
+        Ok(())
+    }
+
+    /// Like [`Mlp::import`] into another vector in the parameter layout.
+    pub fn import_values(
+        &self,
+        prefix: &str,
+        file: &TensorFile,
+        values: &mut [T],
+    ) -> Result<(), NnError> {
+        assert_eq!(values.len(), self.params.len());
+        for l in 0..self.num_layers() {
+            let w = file.get(
+                &format!("{prefix}.{l}.weight"),
+                &[self.sizes[l + 1], self.sizes[l]],
+            )?;
+            w.copy_into(&mut values[self.weight_range(l)])?;
+            let b = file.get(&format!("{prefix}.{l}.bias"), &[self.sizes[l + 1]])?;
+            b.copy_into(&mut values[self.bias_range(l)])?;
+        }
+        Ok(())
+    }
+}
+
+impl<T: Float> MlpCache<T> {
+    /// Buffers for `capacity` rows of `mlp`.
+    pub fn new(mlp: &Mlp<T>, capacity: usize) -> Self {
+        let sizes = mlp.sizes.clone();
+        let zeros = |n: usize| vec![T::of(0.0); n];
+        Self {
+            capacity,
+            input: zeros(capacity * sizes[0]),
+            outs: sizes[1..].iter().map(|&s| zeros(capacity * s)).collect(),
+            grads: sizes[1..].iter().map(|&s| zeros(capacity * s)).collect(),
+            grad_input: zeros(capacity * sizes[0]),
+            sizes,
+        }
+    }
+
+    pub fn capacity(&self) -> usize {
+        self.capacity
+    }
+
+    /// Input rows `rows` (row-major), to be filled before [`Mlp::forward`].
+    pub fn input_mut(&mut self, rows: Range<usize>) -> &mut [T] {
+        let w = self.sizes[0];
+        &mut self.input[rows.start * w..rows.end * w]
+    }
+
+    /// Input rows as last written.
+    pub fn input(&self, rows: Range<usize>) -> &[T] {
+        let w = self.sizes[0];
+        &self.input[rows.start * w..rows.end * w]
+    }
+
+    /// Output rows of the last forward pass.
+    pub fn output(&self, rows: Range<usize>) -> &[T] {
+        let w = self.sizes[self.sizes.len() - 1];
+        &self.outs[self.outs.len() - 1][rows.start * w..rows.end * w]
+    }
+
+    /// Loss gradient w.r.t. output rows, to be filled before [`Mlp::backward`].
+    pub fn grad_output_mut(&mut self, rows: Range<usize>) -> &mut [T] {
+        let w = self.sizes[self.sizes.len() - 1];
+        let last = self.grads.len() - 1;
+        &mut self.grads[last][rows.start * w..rows.end * w]
+    }
+
+    /// Output rows and their gradient buffer together (for losses that need both).
+    pub fn output_and_grad_mut(&mut self, rows: Range<usize>) -> (&[T], &mut [T]) {
+        let w = self.sizes[self.sizes.len() - 1];
+        let last = self.grads.len() - 1;
+        let r = rows.start * w..rows.end * w;
+        (&self.outs[last][r.clone()], &mut self.grads[last][r])
+    }
+
+    /// Input gradient rows of the last backward pass (only the columns it was asked for are
+    /// meaningful).
+    pub fn grad_input(&self, rows: Range<usize>) -> &[T] {
+        let w = self.sizes[0];
+        &self.grad_input[rows.start * w..rows.end * w]
+    }
+}
+
+/// `y ← act(y + bias)` row by row, in one pass.
+fn bias_activation<T: Float>(y: &mut [T], bias: &[T], act: Activation) {
+    let zero = T::of(0.0);
+    let rows = y.chunks_exact_mut(bias.len());
+    match act {
+        Activation::Identity => {
+            rows.for_each(|r| r.iter_mut().zip(bias).for_each(|(v, &b)| *v += b))
+        }
+        // `if v < 0 { 0 } else { v }` keeps NaN visible instead of clamping it to zero.
+        Activation::Relu => rows.for_each(|r| {
+            r.iter_mut().zip(bias).for_each(|(v, &b)| {
+                let s = *v + b;
+                *v = if s < zero { zero } else { s };
+            })
+        }),
+        Activation::Tanh => rows.for_each(|r| {
+            r.iter_mut()
+                .zip(bias)
+                .for_each(|(v, &b)| *v = (*v + b).tanh())
+        }),
+    }
+}
+
+/// `dz ← dy · act'(y)` in place, with `y` the activation output.
+fn activation_grad<T: Float>(dz: &mut [T], y: &[T], act: Activation) {
+    let (zero, one) = (T::of(0.0), T::of(1.0));
+    match act {
+        Activation::Identity => {}
+        Activation::Relu => dz
+            .iter_mut()
+            .zip(y)
+            .for_each(|(d, &y)| *d = if y > zero { *d } else { zero }),
+        Activation::Tanh => dz.iter_mut().zip(y).for_each(|(d, &y)| *d *= one - y * y),
+    }
+}
+
+/// [`activation_grad`] fused with the bias gradient `db = Σ_rows dz` (written, not accumulated).
+fn activation_grad_with_bias<T: Float>(dz: &mut [T], y: &[T], db: &mut [T], act: Activation) {
+    let (zero, one) = (T::of(0.0), T::of(1.0));
+    db.fill(zero);
+    let width = db.len();
+    for (dr, yr) in dz.chunks_exact_mut(width).zip(y.chunks_exact(width)) {
+        match act {
+            Activation::Identity => db.iter_mut().zip(dr.iter()).for_each(|(b, &d)| *b += d),
+            Activation::Relu => {
+                db.iter_mut()
+                    .zip(dr.iter_mut())
+                    .zip(yr)
+                    .for_each(|((b, d), &y)| {
+                        let g = if y > zero { *d } else { zero };
+                        *d = g;
+                        *b += g;
+                    })
+            }
+            Activation::Tanh => {
+                db.iter_mut()
+                    .zip(dr.iter_mut())
+                    .zip(yr)
+                    .for_each(|((b, d), &y)| {
+                        let g = *d * (one - y * y);
+                        *d = g;
+                        *b += g;
+                    })
+            }
+        }
+    }
+}

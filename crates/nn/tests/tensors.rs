@@ -1,0 +1,98 @@
+//! Safetensors round trips and the errors on mismatched files.
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use std::collections::BTreeMap;
+use terl_nn::tensors::{to_safetensors, Tensor, TensorFile};
+use terl_nn::{Activation, Adam, AdamConfig, Mlp, MlpSpec, NnError};
+
+fn spec(hidden: usize) -> MlpSpec {
+    MlpSpec {
+        input: 4,
+        hidden: vec![hidden, hidden],
+        output: 2,
+        hidden_activation: Activation::Relu,
+        output_activation: Activation::Identity,
+    }
+}
+
+#[test]
+fn weights_and_adam_state_round_trip_bit_exactly() {
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let mlp: Mlp<f32> = Mlp::new(&spec(8), &mut rng);
+    let mut adam = Adam::<f32>::new(mlp.num_params(), AdamConfig::with_lr(1e-3));
+    let mut p = mlp.params.clone();
+    let g = vec![0.1; p.len()];
+    adam.step(&mut p, &g);
+    let mut tensors = Vec::new();
+    mlp.export("policy", &mut tensors);
+    adam.export("policy_adam", &mut tensors);
+    let meta = BTreeMap::from([("format".to_string(), "pt".to_string())]);
+    let bytes = to_safetensors(&tensors, &meta).unwrap();
+    let file = TensorFile::from_bytes(&bytes).unwrap();
+    assert_eq!(file.metadata.get("format").map(String::as_str), Some("pt"));
+    assert_eq!(file.tensors["policy.0.weight"].shape, vec![8, 4]);
+
+    let mut other: Mlp<f32> = Mlp::new(&spec(8), &mut ChaCha8Rng::seed_from_u64(2));
+    other.import("policy", &file).unwrap();
+    assert_eq!(other.params, mlp.params);
+    let mut adam2 = Adam::<f32>::new(mlp.num_params(), AdamConfig::with_lr(1e-3));
+    adam2.import("policy_adam", &file).unwrap();
+    assert_eq!(adam2.steps(), 1);
+    let (mut a, mut b) = (p.clone(), p.clone());
+    let g2 = vec![0.2; p.len()];
+    adam.step(&mut a, &g2);
+    adam2.step(&mut b, &g2);
+    assert_eq!(a, b);
+}
+
+#[test]
+fn shape_dtype_and_missing_tensor_errors_name_the_tensor() {
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let small: Mlp<f32> = Mlp::new(&spec(8), &mut rng);
+    let mut tensors = Vec::new();
+    small.export("q", &mut tensors);
+    let file = TensorFile::from_tensors(tensors.clone());
+
+    let mut big: Mlp<f32> = Mlp::new(&spec(16), &mut rng);
+    let before = big.params.clone();
+    match big.import("q", &file) {
+        Err(NnError::ShapeMismatch {
+            name,
+            expected,
+            found,
+        }) => {
+            assert_eq!(name, "q.0.weight");
+            assert_eq!((expected, found), (vec![16, 4], vec![8, 4]));
+        }
+        other => panic!("expected a shape mismatch, got {other:?}"),
+    }
+    assert_eq!(
+        big.params, before,
+        "a failed load must not change the weights"
+    );
+
+    let mut as_f64: Mlp<f64> = Mlp::new(&spec(8), &mut rng);
+    let err = as_f64.import("q", &file).unwrap_err();
+    assert!(matches!(err, NnError::DtypeMismatch { .. }), "{err}");
+    assert!(err.to_string().contains("expected F64"), "{err}");
+
+    let err = small.clone().import("pi", &file).unwrap_err();
+    assert!(
+        matches!(err, NnError::MissingTensor { ref name } if name == "pi.0.weight"),
+        "{err}"
+    );
+
+    let mut bad = tensors;
+    bad[0] = Tensor::from_values("q.0.weight", vec![8, 4], &[f32::NAN; 32]);
+    let err = small
+        .clone()
+        .import("q", &TensorFile::from_tensors(bad))
+        .unwrap_err();
+    assert!(matches!(err, NnError::InvalidValue(_)), "{err}");
+
+    assert!(matches!(
+        TensorFile::from_bytes(b"not a file"),
+        Err(NnError::Format(_))
+    ));
+}
