@@ -11,3 +11,8 @@ pub use error::{Result, SimError};
 pub use mujoco::Simulation;
 pub mod metaworld;
 pub mod trace;
+pub mod bench;
+pub mod vec_env;
+
+pub use metaworld::{Env, Step, ACT_DIM, OBS_DIM};
+pub use vec_env::{EpisodeEnd, VecEnv};

@@ -286,6 +286,13 @@ impl Simulation {
         unsafe { self.api.mj_forward(self.model.as_ptr(), self.data.as_ptr()) }
     }
 
+    /// Position kinematics only (`mj_kinematics`): body, geom and site poses from qpos and the
+    /// mocap poses. Far cheaper than `mj_forward` (no collision or constraint solve).
+    pub fn kinematics(&mut self) {
+        // SAFETY: as in `step`.
+        unsafe { self.api.mj_kinematics(self.model.as_ptr(), self.data.as_ptr()) }
+    }
+
     /// Resets the data to the model defaults (`mj_resetData`).
     pub fn reset_data(&mut self) {
         // SAFETY: as in `step`.

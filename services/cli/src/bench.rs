@@ -1,0 +1,45 @@
+//! `terl bench ...`: benchmarks that print one JSON object.
+
+use std::process::ExitCode;
+
+use anyhow::Result;
+use clap::Subcommand;
+use terl_sim::metaworld::task_set;
+
+#[derive(Debug, Subcommand)]
+pub enum BenchCommand {
+    /// Env steps/s per task against the bare physics rate of the same model.
+    Env {
+        /// Task set or comma-separated task names.
+        #[arg(long, default_value = "mt10")]
+        tasks: String,
+        /// Seconds per measurement.
+        #[arg(long, default_value_t = 2.0)]
+        seconds: f64,
+        /// Print JSON (the default output is JSON too; the flag is accepted for scripts).
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+/// Expands "mt10" or "reach-v3,push-v3" into task names.
+pub fn resolve_tasks(spec: &str) -> Result<Vec<&'static str>> {
+    let mut out = Vec::new();
+    for part in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        out.extend(task_set(part)?);
+    }
+    anyhow::ensure!(!out.is_empty(), "no tasks given");
+    Ok(out)
+}
+
+pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
+    match cmd {
+        BenchCommand::Env { tasks, seconds, .. } => {
+            anyhow::ensure!(seconds > 0.0 && seconds.is_finite(), "--seconds must be positive");
+            let tasks = resolve_tasks(&tasks)?;
+            let report = terl_sim::bench::env_bench(&tasks, seconds)?;
+            println!("{}", serde_json::to_string_pretty(&report)?);
+            Ok(ExitCode::SUCCESS)
+        }
+    }
+}
