@@ -6,6 +6,8 @@
 use super::{Scene, Task};
 use crate::error::{Result, SimError};
 
+mod faucet_close;
+mod faucet_open;
 mod reach;
 
 /// Static description of a task, mirroring the constants in its Python constructor.
@@ -65,7 +67,7 @@ macro_rules! registry {
     };
 }
 
-static REGISTRY: &[Constructor] = registry![reach];
+static REGISTRY: &[Constructor] = registry![reach, faucet_open, faucet_close];
 
 /// Names of all implemented tasks.
 pub fn task_names() -> Vec<&'static str> {
