@@ -8,6 +8,8 @@ use crate::error::{Result, SimError};
 
 mod faucet_close;
 mod faucet_open;
+mod handle_press;
+mod plate_slide;
 mod reach;
 
 /// Static description of a task, mirroring the constants in its Python constructor.
@@ -67,7 +69,8 @@ macro_rules! registry {
     };
 }
 
-static REGISTRY: &[Constructor] = registry![reach, faucet_open, faucet_close];
+static REGISTRY: &[Constructor] =
+    registry![reach, faucet_open, faucet_close, handle_press, plate_slide];
 
 /// Names of all implemented tasks.
 pub fn task_names() -> Vec<&'static str> {
