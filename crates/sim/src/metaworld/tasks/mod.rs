@@ -6,7 +6,14 @@
 use super::{Scene, Task};
 use crate::error::{Result, SimError};
 
+mod faucet_close;
+mod faucet_open;
+mod handle_press;
+mod lever_pull;
+mod plate_slide;
 mod reach;
+mod shelf_place;
+mod sweep_into;
 
 /// Static description of a task, mirroring the constants in its Python constructor.
 #[derive(Debug)]
@@ -65,7 +72,16 @@ macro_rules! registry {
     };
 }
 
-static REGISTRY: &[Constructor] = registry![reach];
+static REGISTRY: &[Constructor] = registry![
+    reach,
+    faucet_open,
+    faucet_close,
+    handle_press,
+    plate_slide,
+    sweep_into,
+    shelf_place,
+    lever_pull,
+];
 
 /// Names of all implemented tasks.
 pub fn task_names() -> Vec<&'static str> {
