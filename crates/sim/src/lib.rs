@@ -9,9 +9,9 @@ pub mod mujoco;
 
 pub use error::{Result, SimError};
 pub use mujoco::Simulation;
+pub mod bench;
 pub mod metaworld;
 pub mod trace;
-pub mod bench;
 pub mod vec_env;
 
 pub use metaworld::{Env, Step, ACT_DIM, OBS_DIM};

@@ -290,7 +290,10 @@ impl Simulation {
     /// mocap poses. Far cheaper than `mj_forward` (no collision or constraint solve).
     pub fn kinematics(&mut self) {
         // SAFETY: as in `step`.
-        unsafe { self.api.mj_kinematics(self.model.as_ptr(), self.data.as_ptr()) }
+        unsafe {
+            self.api
+                .mj_kinematics(self.model.as_ptr(), self.data.as_ptr())
+        }
     }
 
     /// Resets the data to the model defaults (`mj_resetData`).

@@ -184,6 +184,15 @@ impl VecEnv {
         Ok(())
     }
 
+    /// The environments, e.g. to inspect one (see also [`Env`]).
+    pub fn env(&self, i: usize) -> &Env {
+        &self.envs[i]
+    }
+    #[doc(hidden)]
+    pub fn env_mut(&mut self, i: usize) -> &mut Env {
+        &mut self.envs[i]
+    }
+
     pub fn num_envs(&self) -> usize {
         self.envs.len()
     }

@@ -35,7 +35,10 @@ pub fn resolve_tasks(spec: &str) -> Result<Vec<&'static str>> {
 pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
     match cmd {
         BenchCommand::Env { tasks, seconds, .. } => {
-            anyhow::ensure!(seconds > 0.0 && seconds.is_finite(), "--seconds must be positive");
+            anyhow::ensure!(
+                seconds > 0.0 && seconds.is_finite(),
+                "--seconds must be positive"
+            );
             let tasks = resolve_tasks(&tasks)?;
             let report = terl_sim::bench::env_bench(&tasks, seconds)?;
             println!("{}", serde_json::to_string_pretty(&report)?);

@@ -7,7 +7,11 @@ use anyhow::Result;
 use clap::{Parser, Subcommand};
 
 #[derive(Debug, Parser)]
-#[command(name = "terl", version, about = "Multi-task robot-manipulation RL on Meta-World v3")]
+#[command(
+    name = "terl",
+    version,
+    about = "Multi-task robot-manipulation RL on Meta-World v3"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,

@@ -204,9 +204,17 @@ impl Env {
     /// `mj_step`s, without observation, reward or bookkeeping. The lower bound of a step's
     /// cost, used by the benchmark.
     pub fn physics_only_step(&mut self, action: &[f32; ACT_DIM]) {
-        self.scene.apply_xyz_action([action[0], action[1], action[2]]);
+        self.scene
+            .apply_xyz_action([action[0], action[1], action[2]]);
         let grip = f64::from(action[3]);
         self.scene.do_simulation([grip, -grip], FRAME_SKIP);
+    }
+
+    /// Fault injection for tests of the instability path: puts a NaN into the velocities, which
+    /// MuJoCo detects on the next step (`mjWARN_BADQVEL`) and answers by resetting its data.
+    #[doc(hidden)]
+    pub fn inject_nan_velocity(&mut self) {
+        self.scene.sim.qvel_mut()[0] = f64::NAN;
     }
 
     fn current_frame(&self, out: &mut [f64]) {

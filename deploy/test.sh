@@ -1,0 +1,29 @@
+#!/usr/bin/env bash
+# Runs every check a change must pass: formatting, clippy, and the whole test suite (unit,
+# parity with Python Meta-World, learning tests, integration) in release mode.
+#
+#   ./deploy/test.sh            everything
+#   ./deploy/test.sh parity     only tests whose name matches "parity" (nextest filter)
+set -euo pipefail
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+cd "$ROOT"
+
+"$ROOT/deploy/setup.sh"
+
+say() { printf '\n[test] %s\n' "$*" >&2; }
+start=$(date +%s)
+
+say "cargo fmt --check"
+cargo fmt --all -- --check
+
+say "cargo clippy (all targets, warnings are errors)"
+cargo clippy --workspace --all-targets --release -- -D warnings
+
+say "tests (release)"
+if cargo nextest --version >/dev/null 2>&1; then
+    cargo nextest run --workspace --release --no-fail-fast "$@"
+else
+    cargo test --workspace --release --no-fail-fast -- "$@"
+fi
+
+say "all checks passed in $(( $(date +%s) - start )) s"
