@@ -6,6 +6,7 @@
 use super::{Scene, Task};
 use crate::error::{Result, SimError};
 
+mod push;
 mod reach;
 
 /// Static description of a task, mirroring the constants in its Python constructor.
@@ -65,7 +66,10 @@ macro_rules! registry {
     };
 }
 
-static REGISTRY: &[Constructor] = registry![reach];
+static REGISTRY: &[Constructor] = registry![
+    reach,
+    push,
+];
 
 /// Names of all implemented tasks.
 pub fn task_names() -> Vec<&'static str> {
