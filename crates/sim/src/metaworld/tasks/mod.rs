@@ -6,6 +6,7 @@
 use super::{Scene, Task};
 use crate::error::{Result, SimError};
 
+mod door_open;
 mod push;
 mod reach;
 
@@ -69,6 +70,7 @@ macro_rules! registry {
 static REGISTRY: &[Constructor] = registry![
     reach,
     push,
+    door_open,
 ];
 
 /// Names of all implemented tasks.
