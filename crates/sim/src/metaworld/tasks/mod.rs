@@ -7,6 +7,7 @@ use super::{Scene, Task};
 use crate::error::{Result, SimError};
 
 mod door_open;
+mod drawer_open;
 mod push;
 mod reach;
 
@@ -71,6 +72,7 @@ static REGISTRY: &[Constructor] = registry![
     reach,
     push,
     door_open,
+    drawer_open,
 ];
 
 /// Names of all implemented tasks.
