@@ -7,6 +7,7 @@ use super::{Scene, Task};
 use crate::error::{Result, SimError};
 
 mod door_open;
+mod drawer_close;
 mod drawer_open;
 mod push;
 mod reach;
@@ -73,6 +74,7 @@ static REGISTRY: &[Constructor] = registry![
     push,
     door_open,
     drawer_open,
+    drawer_close,
 ];
 
 /// Names of all implemented tasks.
