@@ -6,6 +6,7 @@
 use super::{Scene, Task};
 use crate::error::{Result, SimError};
 
+mod button_press_topdown;
 mod door_open;
 mod drawer_close;
 mod drawer_open;
@@ -75,6 +76,7 @@ static REGISTRY: &[Constructor] = registry![
     door_open,
     drawer_open,
     drawer_close,
+    button_press_topdown,
 ];
 
 /// Names of all implemented tasks.
