@@ -10,6 +10,7 @@ mod button_press_topdown;
 mod door_open;
 mod drawer_close;
 mod drawer_open;
+mod pick_place;
 mod push;
 mod reach;
 
@@ -73,6 +74,7 @@ macro_rules! registry {
 static REGISTRY: &[Constructor] = registry![
     reach,
     push,
+    pick_place,
     door_open,
     drawer_open,
     drawer_close,
