@@ -10,6 +10,7 @@ mod button_press_topdown;
 mod door_open;
 mod drawer_close;
 mod drawer_open;
+mod peg_insert_side;
 mod pick_place;
 mod push;
 mod reach;
@@ -79,6 +80,7 @@ static REGISTRY: &[Constructor] = registry![
     drawer_open,
     drawer_close,
     button_press_topdown,
+    peg_insert_side,
 ];
 
 /// Names of all implemented tasks.
