@@ -466,6 +466,12 @@ impl Simulation {
         // SAFETY: site_xpos has 3*nsite entries.
         vec3(unsafe { slice(self.d().site_xpos, 3 * self.nsite()) }, site)
     }
+    /// World rotation matrix (row-major) of a site.
+    pub fn site_xmat(&self, site: usize) -> [f64; 9] {
+        // SAFETY: site_xmat has 9*nsite entries.
+        let m = unsafe { slice(self.d().site_xmat, 9 * self.nsite()) };
+        m[9 * site..9 * site + 9].try_into().expect("9 entries")
+    }
     /// Overwrites a site's world position in the data (until the next kinematics pass).
     pub fn set_site_xpos(&mut self, site: usize, pos: [f64; 3]) {
         let n = 3 * self.nsite();

@@ -133,7 +133,7 @@ fn goal_variations_are_reproducible_and_in_range() {
         assert_eq!(a.len(), 50);
         assert_eq!(a, b);
         assert_ne!(a, c);
-        let mut env = Env::new(task).unwrap();
+        let env = Env::new(task).unwrap();
         for rv in &a {
             env.validate_rand_vec(rv).unwrap();
         }

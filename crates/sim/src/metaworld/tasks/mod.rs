@@ -6,11 +6,18 @@
 use super::{Scene, Task};
 use crate::error::{Result, SimError};
 
+mod button_press_topdown;
+mod door_open;
+mod drawer_close;
+mod drawer_open;
 mod faucet_close;
 mod faucet_open;
 mod handle_press;
 mod lever_pull;
+mod peg_insert_side;
+mod pick_place;
 mod plate_slide;
+mod push;
 mod reach;
 mod shelf_place;
 mod sweep_into;
@@ -74,6 +81,13 @@ macro_rules! registry {
 
 static REGISTRY: &[Constructor] = registry![
     reach,
+    push,
+    pick_place,
+    door_open,
+    drawer_open,
+    drawer_close,
+    button_press_topdown,
+    peg_insert_side,
     faucet_open,
     faucet_close,
     handle_press,
