@@ -1,0 +1,31 @@
+//! Multi-task SAC (MTSAC), pure: no I/O except the explicit checkpoint functions.
+//!
+//! Why this crate exists: it is the learning core shared by the single-process trainer, the
+//! learner service and the benchmarks. It owns the algorithm and its data (replay), not where
+//! data comes from: environments plug in through [`env::VecEnvironment`], weights leave as flat
+//! `f32` vectors or named tensors, and losses are plain functions of a [`Batch`].
+//!
+//! - [`SacConfig`]: every hyper-parameter, serde/TOML;
+//! - [`Sac`]: networks, optimisers and the update (critics, actor, per-task temperature, targets);
+//! - [`Policy`]: inference-only policy for actors (fast small-batch `act`);
+//! - [`replay::MultiTaskReplay`]: per-task ring buffers in contiguous `f32` storage;
+//! - [`train`]: the single-process training loop over a [`env::VecEnvironment`];
+//! - [`toy`]: a multi-task 2-D point-mass environment for fast learning tests;
+//! - [`bench`]: update throughput, achieved GFLOP/s against faer's GEMM rate, inference latency.
+
+pub mod batch;
+pub mod bench;
+pub mod config;
+pub mod env;
+pub mod error;
+pub mod policy;
+pub mod replay;
+pub mod sac;
+pub mod toy;
+pub mod train;
+
+pub use batch::Batch;
+pub use config::SacConfig;
+pub use error::SacError;
+pub use policy::{Policy, PolicySpec};
+pub use sac::{Sac, UpdateStats};

@@ -1,0 +1,162 @@
+//! Inference-only policy for actors: the same network as the learner's, `f32`, sequential GEMMs
+//! (actors run one per core), buffers preallocated for a fixed maximum batch.
+
+use crate::config::SacConfig;
+use crate::error::SacError;
+use rand::Rng;
+use serde::{Deserialize, Serialize};
+use terl_nn::tensors::TensorFile;
+use terl_nn::{gaussian, Activation, Mlp, MlpCache, MlpSpec};
+
+/// What an actor needs to rebuild the policy network: sizes only.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PolicySpec {
+    pub obs_dim: usize,
+    pub act_dim: usize,
+    pub num_tasks: usize,
+    pub hidden: Vec<usize>,
+}
+
+impl PolicySpec {
+    pub fn from_config(cfg: &SacConfig) -> Self {
+        Self {
+            obs_dim: cfg.obs_dim,
+            act_dim: cfg.act_dim,
+            num_tasks: cfg.num_tasks,
+            hidden: cfg.policy_hidden.clone(),
+        }
+    }
+
+    pub(crate) fn mlp_spec(&self) -> MlpSpec {
+        MlpSpec {
+            input: self.obs_dim + self.num_tasks,
+            hidden: self.hidden.clone(),
+            output: 2 * self.act_dim,
+            hidden_activation: Activation::Relu,
+            output_activation: Activation::Identity,
+        }
+    }
+
+    /// A network of this shape with placeholder weights.
+    pub(crate) fn build_mlp(&self) -> Mlp<f32> {
+        use rand::SeedableRng;
+        Mlp::new(
+            &self.mlp_spec(),
+            &mut rand_chacha::ChaCha8Rng::seed_from_u64(0),
+        )
+    }
+
+    /// Number of `f32` parameters of the flat weight vector.
+    pub fn num_params(&self) -> usize {
+        let mut sizes = vec![self.obs_dim + self.num_tasks];
+        sizes.extend_from_slice(&self.hidden);
+        sizes.push(2 * self.act_dim);
+        sizes.windows(2).map(|w| w[0] * w[1] + w[1]).sum()
+    }
+}
+
+/// A policy for acting: `act(obs, task_ids, deterministic)` on up to `max_batch` rows.
+#[derive(Clone, Debug)]
+pub struct Policy {
+    spec: PolicySpec,
+    net: Mlp<f32>,
+    cache: MlpCache<f32>,
+    eps: Vec<f32>,
+    log_prob: Vec<f32>,
+    /// Version of the loaded weights (set by the caller, e.g. the learner's update count).
+    pub version: u64,
+}
+
+impl Policy {
+    /// A policy of this shape for batches of up to `max_batch` observations; weights are a
+    /// placeholder until [`Policy::set_params`] or [`Policy::load`].
+    pub fn new(spec: PolicySpec, max_batch: usize) -> Self {
+        let net = spec.build_mlp();
+        let cache = MlpCache::new(&net, max_batch);
+        Self {
+            eps: vec![0.0; max_batch * spec.act_dim],
+            log_prob: vec![0.0; max_batch],
+            spec,
+            net,
+            cache,
+            version: 0,
+        }
+    }
+
+    pub fn spec(&self) -> &PolicySpec {
+        &self.spec
+    }
+
+    /// Replaces the weights with a flat vector from [`crate::Sac::policy_params_f32`].
+    pub fn set_params(&mut self, params: &[f32], version: u64) -> Result<(), SacError> {
+        if params.len() != self.net.num_params() {
+            return Err(SacError::Shape(format!(
+                "policy weights have {} values, this policy needs {}",
+                params.len(),
+                self.net.num_params()
+            )));
+        }
+        if params.iter().any(|v| !v.is_finite()) {
+            return Err(SacError::Shape(
+                "policy weights contain a non-finite value".into(),
+            ));
+        }
+        self.net.params.copy_from_slice(params);
+        self.version = version;
+        Ok(())
+    }
+
+    /// Loads `policy.{layer}.weight|bias` tensors (as written by [`crate::Sac::policy_tensors`]).
+    pub fn load(&mut self, file: &TensorFile, version: u64) -> Result<(), SacError> {
+        self.net.import("policy", file)?;
+        self.version = version;
+        Ok(())
+    }
+
+    /// Actions for `obs` (rows × obs_dim, row-major) of tasks `task_ids`, written to `actions`
+    /// (rows × act_dim). Stochastic actions draw their noise from `rng`; deterministic ones are
+    /// `tanh(mean)`.
+    pub fn act(
+        &mut self,
+        obs: &[f32],
+        task_ids: &[usize],
+        deterministic: bool,
+        rng: &mut impl Rng,
+        actions: &mut [f32],
+    ) -> Result<(), SacError> {
+        let (od, a, nt) = (self.spec.obs_dim, self.spec.act_dim, self.spec.num_tasks);
+        let rows = task_ids.len();
+        if obs.len() != rows * od || actions.len() != rows * a || rows > self.cache.capacity() {
+            return Err(SacError::Shape(format!(
+                "act: {} obs values, {} tasks, {} action slots for obs_dim {od}, act_dim {a}, max batch {}",
+                obs.len(),
+                rows,
+                actions.len(),
+                self.cache.capacity()
+            )));
+        }
+        if let Some(&t) = task_ids.iter().find(|&&t| t >= nt) {
+            return Err(SacError::Shape(format!(
+                "task id {t} out of range for {nt} tasks"
+            )));
+        }
+        let w = od + nt;
+        let input = self.cache.input_mut(0..rows);
+        for (i, &task) in task_ids.iter().enumerate() {
+            let row = &mut input[i * w..(i + 1) * w];
+            row[..od].copy_from_slice(&obs[i * od..(i + 1) * od]);
+            row[od..].fill(0.0);
+            row[od + task] = 1.0;
+        }
+        self.net.forward(&mut self.cache, rows, faer::Par::Seq);
+        let head = self.cache.output(0..rows);
+        if deterministic {
+            gaussian::mean_action(head, a, actions);
+        } else {
+            let eps = &mut self.eps[..rows * a];
+            gaussian::fill_standard_normal(rng, eps);
+            gaussian::sample(head, eps, a, actions, &mut self.log_prob[..rows]);
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,710 @@
+//! The MTSAC learner: twin Q critics with Polyak targets, a tanh-Gaussian policy and one learned
+//! temperature per task, all on an observation with the one-hot task id appended.
+//!
+//! One update ([`Sac::update`]) computes all three losses from the parameters as they were at the
+//! start of the update, then steps all optimisers and the targets:
+//!
+//! - critics: `y = r + γ·(1 − terminated)·(min_k Q̄_k(s', a') − α_task·log π(a'|s'))`,
+//!   `L_Q = mean (Q_1(s,a) − y)² + mean (Q_2(s,a) − y)²`, `a' ~ π(·|s')`;
+//! - actor: `L_π = mean (α_task·log π(ã|s) − min_k Q_k(s, ã))`, `ã ~ π(·|s)` reparameterised;
+//! - temperature: `L_α = mean (−ln α_task · (log π(ã|s) + H̄))` with `H̄ = −|A|` by default.
+//!
+//! Computing every loss before any step is what lets a non-finite loss or gradient stop the
+//! update with all weights untouched. It also lets the policy run `s'` and `s` as one stacked
+//! GEMM per layer, and each critic run `(s, a)` and `(s, ã)` as one: fewer, larger GEMMs. With
+//! more than one thread the two critics run concurrently (each with sequential GEMMs), which
+//! beats splitting small GEMMs across cores.
+
+use crate::batch::Batch;
+use crate::config::SacConfig;
+use crate::error::SacError;
+use crate::policy::PolicySpec;
+use faer::Par;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::Path;
+use terl_nn::tensors::{save_file, Tensor, TensorFile};
+use terl_nn::{
+    gaussian, par_for_threads, Activation, Adam, AdamConfig, Float, InputGrad, Mlp, MlpCache,
+    MlpSpec,
+};
+
+/// Losses and diagnostics of one update (names follow cleanrl's metric names).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct UpdateStats {
+    pub qf1_loss: f64,
+    pub qf2_loss: f64,
+    pub actor_loss: f64,
+    pub alpha_loss: f64,
+    /// Mean of `Q_1(s, a)` over the batch.
+    pub qf1_mean: f64,
+    /// Mean `log π(ã|s)` over the batch (minus the policy entropy estimate).
+    pub log_prob_mean: f64,
+    /// Mean temperature over the batch's rows.
+    pub alpha_mean: f64,
+}
+
+/// One critic with its target, optimiser, gradient and activation buffers.
+#[derive(Debug)]
+struct Critic<T> {
+    net: Mlp<T>,
+    target: Mlp<T>,
+    adam: Adam<T>,
+    grads: Vec<T>,
+    /// Rows `0..B`: `(s, a)`; rows `B..2B`: `(s, ã)`.
+    cache: MlpCache<T>,
+    /// Rows `0..B`: `(s', a')` for the target network.
+    target_cache: MlpCache<T>,
+}
+
+/// Multi-task SAC: networks, optimiser state, update buffers, counters.
+#[derive(Debug)]
+pub struct Sac<T: Float = f32> {
+    config: SacConfig,
+    policy: Mlp<T>,
+    policy_adam: Adam<T>,
+    policy_grads: Vec<T>,
+    /// Rows `0..B`: `s'`; rows `B..2B`: `s`.
+    policy_cache: MlpCache<T>,
+    critics: [Critic<T>; 2],
+    log_alpha: Vec<T>,
+    alpha_adam: Adam<T>,
+    alpha_grads: Vec<T>,
+    rng: ChaCha8Rng,
+    pool: Option<rayon::ThreadPool>,
+    // Per-update buffers, sized for the batch capacity.
+    eps: Vec<T>,
+    pi_actions: Vec<T>,
+    log_prob: Vec<T>,
+    alpha_rows: Vec<T>,
+    targets: Vec<T>,
+    d_actions: Vec<T>,
+    d_log_prob: Vec<T>,
+    updates: u64,
+    rejected_batches: u64,
+}
+
+fn policy_spec(cfg: &SacConfig) -> MlpSpec {
+    MlpSpec {
+        input: cfg.policy_input(),
+        hidden: cfg.policy_hidden.clone(),
+        output: 2 * cfg.act_dim,
+        hidden_activation: Activation::Relu,
+        output_activation: Activation::Identity,
+    }
+}
+
+fn critic_spec(cfg: &SacConfig) -> MlpSpec {
+    MlpSpec {
+        input: cfg.critic_input(),
+        hidden: cfg.critic_hidden.clone(),
+        output: 1,
+        hidden_activation: Activation::Relu,
+        output_activation: Activation::Identity,
+    }
+}
+
+/// Writes `[obs, one_hot(task)]` (and `action` if given) into one input row.
+#[inline]
+fn write_input<T: Float>(
+    row: &mut [T],
+    obs: &[f32],
+    task: usize,
+    num_tasks: usize,
+    action: Option<&[T]>,
+) {
+    let (o, rest) = row.split_at_mut(obs.len());
+    for (d, &s) in o.iter_mut().zip(obs) {
+        *d = T::of_f32(s);
+    }
+    let (onehot, act) = rest.split_at_mut(num_tasks);
+    onehot.fill(T::of(0.0));
+    onehot[task] = T::of(1.0);
+    if let Some(a) = action {
+        act.copy_from_slice(a);
+    }
+}
+
+impl<T: Float> Critic<T> {
+    fn new(cfg: &SacConfig, rng: &mut ChaCha8Rng) -> Self {
+        let net = Mlp::new(&critic_spec(cfg), rng);
+        let b = cfg.batch_size;
+        Self {
+            target: net.clone(),
+            adam: Adam::new(net.num_params(), AdamConfig::with_lr(cfg.critic_lr)),
+            grads: vec![T::of(0.0); net.num_params()],
+            cache: MlpCache::new(&net, 2 * b),
+            target_cache: MlpCache::new(&net, b),
+            net,
+        }
+    }
+
+    /// Fills inputs and runs the target on `(s', a')` and the critic on `(s, a)`, `(s, ã)`.
+    fn forward(&mut self, cfg: &SacConfig, batch: &Batch, pi_actions: &[T], par: Par) {
+        let (b, od, a, nt) = (batch.len(), cfg.obs_dim, cfg.act_dim, cfg.num_tasks);
+        let w = cfg.critic_input();
+        let tin = self.target_cache.input_mut(0..b);
+        for i in 0..b {
+            let task = batch.task_ids[i] as usize;
+            let next_obs = &batch.next_obs[i * od..(i + 1) * od];
+            write_input(
+                &mut tin[i * w..(i + 1) * w],
+                next_obs,
+                task,
+                nt,
+                Some(&pi_actions[i * a..(i + 1) * a]),
+            );
+        }
+        self.target.forward(&mut self.target_cache, b, par);
+        let cin = self.cache.input_mut(0..2 * b);
+        for i in 0..b {
+            let task = batch.task_ids[i] as usize;
+            let obs = &batch.obs[i * od..(i + 1) * od];
+            let row = &mut cin[i * w..(i + 1) * w];
+            write_input(row, obs, task, nt, None);
+            for (d, &s) in row[od + nt..]
+                .iter_mut()
+                .zip(&batch.actions[i * a..(i + 1) * a])
+            {
+                *d = T::of_f32(s);
+            }
+            let new_action = &pi_actions[(b + i) * a..(b + i + 1) * a];
+            write_input(
+                &mut cin[(b + i) * w..(b + i + 1) * w],
+                obs,
+                task,
+                nt,
+                Some(new_action),
+            );
+        }
+        self.net.forward(&mut self.cache, 2 * b, par);
+    }
+
+    /// Critic-loss parameter gradients from rows `0..B` and the actor's action gradients from
+    /// rows `B..2B` (gradient of the loss w.r.t. the outputs already written by the caller).
+    fn backward(&mut self, cfg: &SacConfig, b: usize, par: Par) {
+        self.net.backward(
+            &mut self.cache,
+            0..b,
+            Some(&mut self.grads),
+            InputGrad::None,
+            par,
+        );
+        let acts = cfg.obs_dim + cfg.num_tasks..cfg.critic_input();
+        self.net
+            .backward(&mut self.cache, b..2 * b, None, InputGrad::Cols(acts), par);
+    }
+
+    fn step(&mut self, tau: T) {
+        self.adam.step(&mut self.net.params, &self.grads);
+        self.target.polyak_from(&self.net, tau);
+    }
+}
+
+/// Runs `f` on both critics, concurrently when a pool is present.
+fn both<T: Float>(critics: &mut [Critic<T>; 2], parallel: bool, f: impl Fn(&mut Critic<T>) + Sync) {
+    let [c1, c2] = critics;
+    if parallel {
+        rayon::join(|| f(c1), || f(c2));
+    } else {
+        f(c1);
+        f(c2);
+    }
+}
+
+impl<T: Float> Sac<T> {
+    /// Builds networks (seeded by `config.seed`), optimisers and all update buffers.
+    pub fn new(config: SacConfig) -> Result<Self, SacError> {
+        config.validate()?;
+        let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
+        let policy = Mlp::new(&policy_spec(&config), &mut rng);
+        let critics = [
+            Critic::new(&config, &mut rng),
+            Critic::new(&config, &mut rng),
+        ];
+        let pool = if config.threads > 1 {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(config.threads)
+                .thread_name(|i| format!("sac-update-{i}"))
+                .build()
+                .map_err(|e| {
+                    SacError::Config(format!(
+                        "cannot start {} update threads: {e}",
+                        config.threads
+                    ))
+                })?;
+            Some(pool)
+        } else {
+            None
+        };
+        let (b, a, nt) = (config.batch_size, config.act_dim, config.num_tasks);
+        let zeros = |n: usize| vec![T::of(0.0); n];
+        Ok(Self {
+            policy_adam: Adam::new(policy.num_params(), AdamConfig::with_lr(config.actor_lr)),
+            policy_grads: zeros(policy.num_params()),
+            policy_cache: MlpCache::new(&policy, 2 * b),
+            policy,
+            critics,
+            log_alpha: vec![T::of(config.initial_log_alpha); nt],
+            alpha_adam: Adam::new(nt, AdamConfig::with_lr(config.alpha_lr)),
+            alpha_grads: zeros(nt),
+            rng,
+            pool,
+            eps: zeros(2 * b * a),
+            pi_actions: zeros(2 * b * a),
+            log_prob: zeros(2 * b),
+            alpha_rows: zeros(b),
+            targets: zeros(b),
+            d_actions: zeros(b * a),
+            d_log_prob: zeros(b),
+            updates: 0,
+            rejected_batches: 0,
+            config,
+        })
+    }
+
+    pub fn config(&self) -> &SacConfig {
+        &self.config
+    }
+
+    /// Updates applied so far.
+    pub fn updates(&self) -> u64 {
+        self.updates
+    }
+
+    /// Batches rejected for non-finite values so far.
+    pub fn rejected_batches(&self) -> u64 {
+        self.rejected_batches
+    }
+
+    /// Per-task `ln α`.
+    pub fn log_alpha(&self) -> &[T] {
+        &self.log_alpha
+    }
+
+    pub fn log_alpha_mut(&mut self) -> &mut [T] {
+        &mut self.log_alpha
+    }
+
+    pub fn policy_net(&self) -> &Mlp<T> {
+        &self.policy
+    }
+
+    pub fn policy_net_mut(&mut self) -> &mut Mlp<T> {
+        &mut self.policy
+    }
+
+    /// Critic `k` (0 or 1).
+    pub fn critic_net(&self, k: usize) -> &Mlp<T> {
+        &self.critics[k].net
+    }
+
+    pub fn critic_net_mut(&mut self, k: usize) -> &mut Mlp<T> {
+        &mut self.critics[k].net
+    }
+
+    /// Target critic `k` (0 or 1).
+    pub fn target_net(&self, k: usize) -> &Mlp<T> {
+        &self.critics[k].target
+    }
+
+    /// Gradients of the last [`Sac::compute_gradients`]: policy, critic 0, critic 1, `ln α`.
+    pub fn gradients(&self) -> (&[T], &[T], &[T], &[T]) {
+        (
+            &self.policy_grads,
+            &self.critics[0].grads,
+            &self.critics[1].grads,
+            &self.alpha_grads,
+        )
+    }
+
+    /// The shape of the policy, for building an inference [`crate::Policy`].
+    pub fn policy_spec(&self) -> PolicySpec {
+        PolicySpec::from_config(&self.config)
+    }
+
+    /// One full update: reject a non-finite batch (counted), draw the sampling noise, compute
+    /// all losses and gradients, and only if all are finite step the critics, the policy, the
+    /// temperatures and the targets.
+    pub fn update(&mut self, batch: &Batch) -> Result<UpdateStats, SacError> {
+        self.check_batch(batch)?;
+        if let Err(e) = batch.check_finite() {
+            self.rejected_batches += 1;
+            return Err(e);
+        }
+        self.resample_noise(batch.len());
+        let pool = self.pool.take();
+        let result = match &pool {
+            Some(pool) => pool.install(|| self.compute_and_apply(batch)),
+            None => self.compute_and_apply(batch),
+        };
+        self.pool = pool;
+        result
+    }
+
+    fn compute_and_apply(&mut self, batch: &Batch) -> Result<UpdateStats, SacError> {
+        let stats = self.compute_gradients_inner(batch)?;
+        self.apply_gradients();
+        Ok(stats)
+    }
+
+    fn check_batch(&self, batch: &Batch) -> Result<(), SacError> {
+        let c = &self.config;
+        if batch.obs_dim != c.obs_dim || batch.act_dim != c.act_dim {
+            return Err(SacError::Shape(format!(
+                "batch has obs/act dims {}/{}, config {}/{}",
+                batch.obs_dim, batch.act_dim, c.obs_dim, c.act_dim
+            )));
+        }
+        if batch.is_empty() || batch.len() > c.batch_size {
+            return Err(SacError::Shape(format!(
+                "batch of {} rows; capacity is {}",
+                batch.len(),
+                c.batch_size
+            )));
+        }
+        batch.check_shape(c.num_tasks)
+    }
+
+    /// Draws new reparameterisation noise for `rows` rows (`s'` then `s`).
+    pub fn resample_noise(&mut self, rows: usize) {
+        let n = 2 * rows * self.config.act_dim;
+        gaussian::fill_standard_normal(&mut self.rng, &mut self.eps[..n]);
+    }
+
+    /// Computes losses and gradients with the current noise, without changing any parameter
+    /// (for gradient checks and diagnostics; [`Sac::update`] is the training entry point).
+    pub fn compute_gradients(&mut self, batch: &Batch) -> Result<UpdateStats, SacError> {
+        self.check_batch(batch)?;
+        batch.check_finite()?;
+        let pool = self.pool.take();
+        let result = match &pool {
+            Some(pool) => pool.install(|| self.compute_gradients_inner(batch)),
+            None => self.compute_gradients_inner(batch),
+        };
+        self.pool = pool;
+        result
+    }
+
+    fn compute_gradients_inner(&mut self, batch: &Batch) -> Result<UpdateStats, SacError> {
+        let cfg = &self.config;
+        let (b, od, a, nt) = (batch.len(), cfg.obs_dim, cfg.act_dim, cfg.num_tasks);
+        let threads = cfg.threads;
+        let parallel = threads > 1;
+        let par = par_for_threads(threads);
+        let inv_b = T::of(1.0 / b as f64);
+        let gamma = T::of(cfg.gamma);
+        let target_entropy = T::of(cfg.target_entropy());
+
+        // Policy on s' (rows 0..B) and s (rows B..2B), then reparameterised samples.
+        let pw = cfg.policy_input();
+        let pin = self.policy_cache.input_mut(0..2 * b);
+        for i in 0..b {
+            let task = batch.task_ids[i] as usize;
+            write_input(
+                &mut pin[i * pw..(i + 1) * pw],
+                &batch.next_obs[i * od..(i + 1) * od],
+                task,
+                nt,
+                None,
+            );
+            write_input(
+                &mut pin[(b + i) * pw..(b + i + 1) * pw],
+                &batch.obs[i * od..(i + 1) * od],
+                task,
+                nt,
+                None,
+            );
+        }
+        self.policy.forward(&mut self.policy_cache, 2 * b, par);
+        let (eps, pi_actions, log_prob) = (
+            &self.eps[..2 * b * a],
+            &mut self.pi_actions[..2 * b * a],
+            &mut self.log_prob[..2 * b],
+        );
+        gaussian::sample(
+            self.policy_cache.output(0..2 * b),
+            eps,
+            a,
+            pi_actions,
+            log_prob,
+        );
+        for i in 0..b {
+            self.alpha_rows[i] = self.log_alpha[batch.task_ids[i] as usize].exp();
+        }
+
+        // Both critics: targets on (s', a'), critics on (s, a) and (s, ã).
+        let pi_actions = &self.pi_actions[..2 * b * a];
+        let critic_par = if parallel { Par::Seq } else { par };
+        both(&mut self.critics, parallel, |c| {
+            c.forward(cfg, batch, pi_actions, critic_par)
+        });
+
+        // Targets and the gradients of all losses w.r.t. the critic outputs.
+        let mut stats = UpdateStats::default();
+        for i in 0..b {
+            let q_next = self.critics[0].target_cache.output(i..i + 1)[0]
+                .min(self.critics[1].target_cache.output(i..i + 1)[0]);
+            let soft = q_next - self.alpha_rows[i] * self.log_prob[i];
+            let not_done = T::of(1.0) - T::of_f32(batch.terminated[i]);
+            self.targets[i] = T::of_f32(batch.rewards[i]) + gamma * not_done * soft;
+        }
+        let mut critic_losses = [0.0f64; 2];
+        for (k, critic) in self.critics.iter_mut().enumerate() {
+            let (q, dq) = critic.cache.output_and_grad_mut(0..b);
+            let mut loss = 0.0f64;
+            for i in 0..b {
+                let err = q[i] - self.targets[i];
+                loss += (err * err).f64();
+                dq[i] = T::of(2.0) * err * inv_b;
+            }
+            critic_losses[k] = loss / b as f64;
+            if k == 0 {
+                stats.qf1_mean = q.iter().map(|v| v.f64()).sum::<f64>() / b as f64;
+            }
+        }
+        let mut actor_loss = 0.0f64;
+        {
+            let [c1, c2] = &mut self.critics;
+            let (q1, d1) = c1.cache.output_and_grad_mut(b..2 * b);
+            let (q2, d2) = c2.cache.output_and_grad_mut(b..2 * b);
+            for i in 0..b {
+                let first = q1[i] <= q2[i];
+                let q_min = if first { q1[i] } else { q2[i] };
+                actor_loss += (self.alpha_rows[i] * self.log_prob[b + i] - q_min).f64();
+                d1[i] = if first { -inv_b } else { T::of(0.0) };
+                d2[i] = if first { T::of(0.0) } else { -inv_b };
+            }
+        }
+        stats.qf1_loss = critic_losses[0];
+        stats.qf2_loss = critic_losses[1];
+        stats.actor_loss = actor_loss / b as f64;
+        self.alpha_grads.fill(T::of(0.0));
+        let mut alpha_loss = 0.0f64;
+        for i in 0..b {
+            let task = batch.task_ids[i] as usize;
+            let slack = self.log_prob[b + i] + target_entropy;
+            alpha_loss -= (self.log_alpha[task] * slack).f64();
+            self.alpha_grads[task] -= slack * inv_b;
+        }
+        stats.alpha_loss = alpha_loss / b as f64;
+        stats.log_prob_mean =
+            self.log_prob[b..2 * b].iter().map(|v| v.f64()).sum::<f64>() / b as f64;
+        stats.alpha_mean = self.alpha_rows[..b].iter().map(|v| v.f64()).sum::<f64>() / b as f64;
+        for (loss, value) in [
+            ("qf1", stats.qf1_loss),
+            ("qf2", stats.qf2_loss),
+            ("actor", stats.actor_loss),
+            ("alpha", stats.alpha_loss),
+        ] {
+            if !value.is_finite() {
+                return Err(SacError::NonFiniteLoss { loss, value });
+            }
+        }
+
+        // Backward: critics (parameters from the critic loss, actions from the actor loss).
+        both(&mut self.critics, parallel, |c| {
+            c.backward(cfg, b, critic_par)
+        });
+        let act_cols = od + nt..cfg.critic_input();
+        let qw = cfg.critic_input();
+        for i in 0..b {
+            let g1 = &self.critics[0].cache.grad_input(b + i..b + i + 1)[act_cols.clone()];
+            let g2 = &self.critics[1].cache.grad_input(b + i..b + i + 1)[act_cols.clone()];
+            debug_assert_eq!(g1.len() + od + nt, qw);
+            for j in 0..a {
+                self.d_actions[i * a + j] = g1[j] + g2[j];
+            }
+            self.d_log_prob[i] = self.alpha_rows[i] * inv_b;
+        }
+        let (head, d_head) = self.policy_cache.output_and_grad_mut(b..2 * b);
+        gaussian::sample_backward(
+            head,
+            &self.eps[b * a..2 * b * a],
+            &self.pi_actions[b * a..2 * b * a],
+            &self.d_actions[..b * a],
+            &self.d_log_prob[..b],
+            a,
+            d_head,
+        );
+        self.policy.backward(
+            &mut self.policy_cache,
+            b..2 * b,
+            Some(&mut self.policy_grads),
+            InputGrad::None,
+            par,
+        );
+
+        for (network, g) in [
+            ("policy", &self.policy_grads),
+            ("critic 1", &self.critics[0].grads),
+            ("critic 2", &self.critics[1].grads),
+            ("log alpha", &self.alpha_grads),
+        ] {
+            if !g.iter().all(|v| v.is_finite()) {
+                return Err(SacError::NonFiniteGradient { network });
+            }
+        }
+        Ok(stats)
+    }
+
+    /// Steps all optimisers with the gradients of the last computation and moves the targets.
+    fn apply_gradients(&mut self) {
+        let parallel = self.config.threads > 1;
+        let tau = T::of(self.config.tau);
+        let policy = &mut self.policy;
+        let policy_adam = &mut self.policy_adam;
+        let policy_grads = &self.policy_grads;
+        let critics = &mut self.critics;
+        if parallel {
+            rayon::join(
+                || both(critics, true, |c| c.step(tau)),
+                || policy_adam.step(&mut policy.params, policy_grads),
+            );
+        } else {
+            both(critics, false, |c| c.step(tau));
+            policy_adam.step(&mut policy.params, policy_grads);
+        }
+        self.alpha_adam.step(&mut self.log_alpha, &self.alpha_grads);
+        self.updates += 1;
+    }
+
+    /// FLOPs of the GEMMs of one update with `batch` rows (what the benchmark divides by time).
+    pub fn update_flops(&self, batch: usize) -> u64 {
+        let b = batch;
+        let q = &self.critics[0].net;
+        let policy = self.policy.forward_flops(2 * b) + self.policy.backward_flops(b, true, 0);
+        let critic = q.forward_flops(b) // target on (s', a')
+            + q.forward_flops(2 * b)
+            + q.backward_flops(b, true, 0)
+            + q.backward_flops(b, false, self.config.act_dim);
+        policy + 2 * critic
+    }
+
+    /// Policy weights as flat `f32` in the [`Mlp`] layout (per layer `weight [out, in]`, bias),
+    /// for broadcasting to actors ([`crate::Policy::set_params`]).
+    pub fn policy_params_f32(&self) -> Vec<f32> {
+        self.policy.params.iter().map(|v| v.f32()).collect()
+    }
+
+    /// Policy weights as named `f32` tensors `policy.{layer}.weight|bias`.
+    pub fn policy_tensors(&self) -> Vec<Tensor> {
+        let mut out = Vec::new();
+        let as_f32: Vec<f32> = self.policy_params_f32();
+        let spec = self.policy_spec();
+        let shell = spec.build_mlp();
+        shell.export_values("policy", &as_f32, &mut out);
+        out
+    }
+
+    /// All state of the learner as named tensors: networks, targets, Adam moments and steps,
+    /// temperatures, counters. Metadata holds the config (TOML) and the noise generator state.
+    pub fn checkpoint_tensors(&self) -> (Vec<Tensor>, BTreeMap<String, String>) {
+        let mut t = Vec::new();
+        self.policy.export("policy", &mut t);
+        self.policy_adam.export("policy_adam", &mut t);
+        for (k, c) in self.critics.iter().enumerate() {
+            c.net.export(&format!("qf{}", k + 1), &mut t);
+            c.target.export(&format!("qf{}_target", k + 1), &mut t);
+            c.adam.export(&format!("qf{}_adam", k + 1), &mut t);
+        }
+        t.push(Tensor::from_values(
+            "log_alpha",
+            vec![self.log_alpha.len()],
+            &self.log_alpha,
+        ));
+        self.alpha_adam.export("log_alpha_adam", &mut t);
+        t.push(Tensor::from_i64(
+            "counters",
+            vec![2],
+            &[self.updates as i64, self.rejected_batches as i64],
+        ));
+        let mut meta = BTreeMap::new();
+        meta.insert("format".to_string(), "pt".to_string());
+        meta.insert("terl.sac_config".to_string(), self.config.to_toml());
+        let seed: String = self
+            .rng
+            .get_seed()
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect();
+        meta.insert("terl.rng_seed".to_string(), seed);
+        meta.insert(
+            "terl.rng_word_pos".to_string(),
+            self.rng.get_word_pos().to_string(),
+        );
+        (t, meta)
+    }
+
+    /// Restores state written by [`Sac::checkpoint_tensors`]. Shapes and dtypes must match this
+    /// learner's config; on error nothing is changed.
+    pub fn restore_checkpoint(&mut self, file: &TensorFile) -> Result<(), SacError> {
+        let mut policy = self.policy.clone();
+        policy.import("policy", file)?;
+        let mut policy_adam = self.policy_adam.clone();
+        policy_adam.import("policy_adam", file)?;
+        let mut critics = Vec::new();
+        for (k, c) in self.critics.iter().enumerate() {
+            let (mut net, mut target, mut adam) = (c.net.clone(), c.target.clone(), c.adam.clone());
+            net.import(&format!("qf{}", k + 1), file)?;
+            target.import(&format!("qf{}_target", k + 1), file)?;
+            adam.import(&format!("qf{}_adam", k + 1), file)?;
+            critics.push((net, target, adam));
+        }
+        let log_alpha = file.values::<T>("log_alpha", &[self.log_alpha.len()])?;
+        let mut alpha_adam = self.alpha_adam.clone();
+        alpha_adam.import("log_alpha_adam", file)?;
+        let counters = file.i64_values("counters", &[2])?;
+        let rng = match (
+            file.metadata.get("terl.rng_seed"),
+            file.metadata.get("terl.rng_word_pos"),
+        ) {
+            (Some(seed), Some(pos)) => {
+                let bytes: Vec<u8> = (0..seed.len() / 2)
+                    .filter_map(|i| u8::from_str_radix(seed.get(2 * i..2 * i + 2)?, 16).ok())
+                    .collect();
+                let seed: [u8; 32] = bytes
+                    .try_into()
+                    .map_err(|_| SacError::Config("bad terl.rng_seed in checkpoint".into()))?;
+                let pos: u128 = pos
+                    .parse()
+                    .map_err(|_| SacError::Config("bad terl.rng_word_pos in checkpoint".into()))?;
+                let mut rng = ChaCha8Rng::from_seed(seed);
+                rng.set_word_pos(pos);
+                Some(rng)
+            }
+            _ => None,
+        };
+        self.policy = policy;
+        self.policy_adam = policy_adam;
+        for (c, (net, target, adam)) in self.critics.iter_mut().zip(critics) {
+            c.net = net;
+            c.target = target;
+            c.adam = adam;
+        }
+        self.log_alpha = log_alpha;
+        self.alpha_adam = alpha_adam;
+        self.updates = counters[0].max(0) as u64;
+        self.rejected_batches = counters[1].max(0) as u64;
+        if let Some(rng) = rng {
+            self.rng = rng;
+        }
+        Ok(())
+    }
+
+    /// Saves a checkpoint as a safetensors file (the only file I/O of this crate, with
+    /// [`Sac::load_checkpoint`]).
+    pub fn save_checkpoint(&self, path: &Path) -> Result<(), SacError> {
+        let (tensors, meta) = self.checkpoint_tensors();
+        save_file(path, &tensors, &meta)?;
+        Ok(())
+    }
+
+    /// Loads a checkpoint written by [`Sac::save_checkpoint`] into this learner.
+    pub fn load_checkpoint(&mut self, path: &Path) -> Result<(), SacError> {
+        let file = TensorFile::load(path)?;
+        self.restore_checkpoint(&file)
+    }
+}
