@@ -126,6 +126,12 @@ impl VecEnv {
         Ok(())
     }
 
+    /// Re-seeds the episode-to-variation draws, then resets every environment.
+    pub fn reset_all_seeded(&mut self, seed: u64) -> Result<()> {
+        self.rng = ChaCha8Rng::seed_from_u64(seed.wrapping_add(0x9e37_79b9_7f4a_7c15));
+        self.reset_all()
+    }
+
     /// Resets every environment (new variations).
     pub fn reset_all(&mut self) -> Result<()> {
         for i in 0..self.envs.len() {

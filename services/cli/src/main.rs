@@ -2,6 +2,7 @@
 
 mod bench;
 mod env;
+mod train;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
@@ -25,6 +26,8 @@ enum Command {
     /// Benchmarks (JSON output).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// Single-process training (Meta-World envs + MTSAC in one process).
+    Train(train::TrainArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -49,5 +52,6 @@ fn run(cli: Cli) -> Result<std::process::ExitCode> {
     match cli.command {
         Command::Env(c) => env::run(c),
         Command::Bench(c) => bench::run(c),
+        Command::Train(a) => train::run(a),
     }
 }
