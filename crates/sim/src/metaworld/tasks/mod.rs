@@ -6,7 +6,10 @@
 use super::{Scene, Task};
 use crate::error::{Result, SimError};
 
+mod door_close;
 mod reach;
+mod window_close;
+mod window_open;
 
 /// Static description of a task, mirroring the constants in its Python constructor.
 #[derive(Debug)]
@@ -65,7 +68,7 @@ macro_rules! registry {
     };
 }
 
-static REGISTRY: &[Constructor] = registry![reach];
+static REGISTRY: &[Constructor] = registry![reach, window_open, window_close, door_close];
 
 /// Names of all implemented tasks.
 pub fn task_names() -> Vec<&'static str> {
