@@ -7,6 +7,8 @@ use super::{Scene, Task};
 use crate::error::{Result, SimError};
 
 mod door_close;
+mod door_lock;
+mod door_unlock;
 mod reach;
 mod window_close;
 mod window_open;
@@ -68,7 +70,14 @@ macro_rules! registry {
     };
 }
 
-static REGISTRY: &[Constructor] = registry![reach, window_open, window_close, door_close];
+static REGISTRY: &[Constructor] = registry![
+    reach,
+    window_open,
+    window_close,
+    door_close,
+    door_lock,
+    door_unlock
+];
 
 /// Names of all implemented tasks.
 pub fn task_names() -> Vec<&'static str> {
