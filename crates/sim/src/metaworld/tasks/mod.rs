@@ -6,6 +6,9 @@
 use super::{Scene, Task};
 use crate::error::{Result, SimError};
 
+mod button_press;
+mod coffee_button;
+mod dial_turn;
 mod door_close;
 mod door_lock;
 mod door_unlock;
@@ -76,7 +79,10 @@ static REGISTRY: &[Constructor] = registry![
     window_close,
     door_close,
     door_lock,
-    door_unlock
+    door_unlock,
+    button_press,
+    coffee_button,
+    dial_turn,
 ];
 
 /// Names of all implemented tasks.
