@@ -203,6 +203,14 @@ impl Scene {
         self.forward();
     }
 
+    /// The `_set_obj_xyz` of tasks whose object is one hinge/slide joint: `qpos[qpos_adr] =
+    /// value`, `qvel[dof_adr] = 0`, then `mj_forward` (as `set_state` does).
+    pub fn set_scalar_joint(&mut self, qpos_adr: usize, dof_adr: usize, value: f64) {
+        self.sim.qpos_mut()[qpos_adr] = value;
+        self.sim.qvel_mut()[dof_adr] = 0.0;
+        self.forward();
+    }
+
     /// Sets the goal site of the model (`model.site("goal").pos = ...`).
     pub fn set_site_pos(&mut self, name: &str, pos: [f64; 3]) -> Result<()> {
         let s = self.sim.site(name)?;

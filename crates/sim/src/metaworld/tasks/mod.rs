@@ -6,8 +6,14 @@
 use super::{Scene, Task};
 use crate::error::{Result, SimError};
 
+mod button_press;
 mod button_press_topdown;
+mod coffee_button;
+mod dial_turn;
+mod door_close;
+mod door_lock;
 mod door_open;
+mod door_unlock;
 mod drawer_close;
 mod drawer_open;
 mod faucet_close;
@@ -21,6 +27,8 @@ mod push;
 mod reach;
 mod shelf_place;
 mod sweep_into;
+mod window_close;
+mod window_open;
 
 /// Static description of a task, mirroring the constants in its Python constructor.
 #[derive(Debug)]
@@ -88,6 +96,14 @@ static REGISTRY: &[Constructor] = registry![
     drawer_close,
     button_press_topdown,
     peg_insert_side,
+    window_open,
+    window_close,
+    door_close,
+    door_lock,
+    door_unlock,
+    button_press,
+    coffee_button,
+    dial_turn,
     faucet_open,
     faucet_close,
     handle_press,
