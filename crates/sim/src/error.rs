@@ -25,6 +25,8 @@ pub enum SimError {
     UnknownTask { name: String, valid: String },
     #[error("unknown task set {name:?}; valid sets: {valid}")]
     UnknownTaskSet { name: String, valid: String },
+    #[error("no scripted policy for task {name:?}; policies exist for: {available}")]
+    NoPolicy { name: String, available: String },
     #[error("{what} has length {got}, expected {expected}")]
     Length {
         what: &'static str,

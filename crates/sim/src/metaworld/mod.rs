@@ -9,6 +9,7 @@
 //! Reset takes an explicit `rand_vec` (Meta-World's goal/object randomisation vector) or draws
 //! one: [`goal_variations`] gives the 50 reproducible variations of a task for a seed.
 
+pub mod policies;
 pub mod reward;
 pub mod scene;
 pub mod tasks;

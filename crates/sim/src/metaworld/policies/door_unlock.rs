@@ -1,0 +1,21 @@
+//! `SawyerDoorUnlockV3Policy`: come down beside the lock, then push it along +x.
+
+use super::{act, add, hand, object, xy_dist, V3};
+use crate::metaworld::{ACT_DIM, OBS_DIM};
+
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+    let hand = hand(obs);
+    act(hand, desired_pos(hand, object(obs)), 25.0, 1.0)
+}
+
+fn desired_pos(hand: V3, lock: V3) -> V3 {
+    let lock = add(lock, [-0.04, -0.02, -0.03]);
+    if xy_dist(hand, lock) > 0.02 {
+        if hand[2] > 0.15 {
+            return add(hand, [0.0, -0.1, -0.1]);
+        }
+        lock
+    } else {
+        add(lock, [0.1, 0.0, 0.01])
+    }
+}

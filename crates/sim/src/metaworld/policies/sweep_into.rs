@@ -1,0 +1,33 @@
+//! `SawyerSweepIntoV3Policy`: above the cube, down around it, sweep it to the goal.
+
+use super::{act, add, goal, hand, object, xy_dist, V3};
+use crate::metaworld::{ACT_DIM, OBS_DIM};
+
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+    let (hand, cube) = (hand(obs), object(obs));
+    act(
+        hand,
+        desired_pos(hand, cube, goal(obs)),
+        25.0,
+        grab_effort(hand, cube),
+    )
+}
+
+fn desired_pos(hand: V3, cube: V3, goal: V3) -> V3 {
+    let cube = add(cube, [-0.005, 0.0, 0.01]);
+    if xy_dist(hand, cube) > 0.04 {
+        add(cube, [0.0, 0.0, 0.3])
+    } else if (hand[2] - cube[2]).abs() > 0.04 {
+        cube
+    } else {
+        goal
+    }
+}
+
+fn grab_effort(hand: V3, cube: V3) -> f64 {
+    if xy_dist(hand, cube) > 0.04 || (hand[2] - cube[2]).abs() > 0.15 {
+        -1.0
+    } else {
+        0.7
+    }
+}
