@@ -3,10 +3,12 @@
 
 use crate::config::SacConfig;
 use crate::error::SacError;
+use faer::linalg::matmul::matmul;
+use faer::{Accum, MatMut, MatRef, Par};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 use terl_nn::tensors::TensorFile;
-use terl_nn::{gaussian, Activation, Mlp, MlpCache, MlpSpec};
+use terl_nn::{gaussian, Activation, Mlp, MlpSpec};
 
 /// What an actor needs to rebuild the policy network: sizes only.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -56,11 +58,23 @@ impl PolicySpec {
 }
 
 /// A policy for acting: `act(obs, task_ids, deterministic)` on up to `max_batch` rows.
+///
+/// Small batches are a different GEMM regime from training: every weight is read once per call
+/// for only a few rows. The policy therefore keeps its own copy of each weight packed for
+/// small-batch products: transposed to `[in, out]` row-major, which faer multiplies without
+/// repacking (about 1.4x faster than the training layout at 8 rows), and it skips the one-hot
+/// columns of the first layer: multiplying by a one-hot vector is adding one weight column.
 #[derive(Clone, Debug)]
 pub struct Policy {
     spec: PolicySpec,
     net: Mlp<f32>,
-    cache: MlpCache<f32>,
+    max_batch: usize,
+    /// Per layer, the weight transposed to `[in, out]` (layer 0: observation rows only).
+    weights_t: Vec<Vec<f32>>,
+    /// First-layer weight columns of the one-hot inputs, `[task][out]`.
+    onehot_cols: Vec<f32>,
+    /// Per layer, activations of up to `max_batch` rows.
+    acts: Vec<Vec<f32>>,
     eps: Vec<f32>,
     log_prob: Vec<f32>,
     /// Version of the loaded weights (set by the caller, e.g. the learner's update count).
@@ -72,14 +86,45 @@ impl Policy {
     /// placeholder until [`Policy::set_params`] or [`Policy::load`].
     pub fn new(spec: PolicySpec, max_batch: usize) -> Self {
         let net = spec.build_mlp();
-        let cache = MlpCache::new(&net, max_batch);
-        Self {
+        let sizes = net.sizes().to_vec();
+        let mut policy = Self {
             eps: vec![0.0; max_batch * spec.act_dim],
             log_prob: vec![0.0; max_batch],
+            weights_t: Vec::new(),
+            onehot_cols: Vec::new(),
+            acts: sizes[1..]
+                .iter()
+                .map(|&s| vec![0.0; max_batch * s])
+                .collect(),
+            max_batch,
             spec,
             net,
-            cache,
             version: 0,
+        };
+        policy.pack_weights();
+        policy
+    }
+
+    fn pack_weights(&mut self) {
+        let sizes = self.net.sizes().to_vec();
+        let od = self.spec.obs_dim;
+        self.weights_t.clear();
+        for l in 0..sizes.len() - 1 {
+            let (n_in, n_out) = (sizes[l], sizes[l + 1]);
+            let w = &self.net.params[self.net.weight_range(l)];
+            let used_in = if l == 0 { od } else { n_in };
+            let mut wt = vec![0.0; used_in * n_out];
+            for o in 0..n_out {
+                for i in 0..used_in {
+                    wt[i * n_out + o] = w[o * n_in + i];
+                }
+            }
+            self.weights_t.push(wt);
+            if l == 0 {
+                self.onehot_cols = (0..self.spec.num_tasks)
+                    .flat_map(|t| (0..n_out).map(move |o| w[o * n_in + od + t]))
+                    .collect();
+            }
         }
     }
 
@@ -102,6 +147,7 @@ impl Policy {
             ));
         }
         self.net.params.copy_from_slice(params);
+        self.pack_weights();
         self.version = version;
         Ok(())
     }
@@ -109,6 +155,7 @@ impl Policy {
     /// Loads `policy.{layer}.weight|bias` tensors (as written by [`crate::Sac::policy_tensors`]).
     pub fn load(&mut self, file: &TensorFile, version: u64) -> Result<(), SacError> {
         self.net.import("policy", file)?;
+        self.pack_weights();
         self.version = version;
         Ok(())
     }
@@ -126,13 +173,13 @@ impl Policy {
     ) -> Result<(), SacError> {
         let (od, a, nt) = (self.spec.obs_dim, self.spec.act_dim, self.spec.num_tasks);
         let rows = task_ids.len();
-        if obs.len() != rows * od || actions.len() != rows * a || rows > self.cache.capacity() {
+        if obs.len() != rows * od || actions.len() != rows * a || rows > self.max_batch {
             return Err(SacError::Shape(format!(
                 "act: {} obs values, {} tasks, {} action slots for obs_dim {od}, act_dim {a}, max batch {}",
                 obs.len(),
                 rows,
                 actions.len(),
-                self.cache.capacity()
+                self.max_batch
             )));
         }
         if let Some(&t) = task_ids.iter().find(|&&t| t >= nt) {
@@ -140,16 +187,48 @@ impl Policy {
                 "task id {t} out of range for {nt} tasks"
             )));
         }
-        let w = od + nt;
-        let input = self.cache.input_mut(0..rows);
-        for (i, &task) in task_ids.iter().enumerate() {
-            let row = &mut input[i * w..(i + 1) * w];
-            row[..od].copy_from_slice(&obs[i * od..(i + 1) * od]);
-            row[od..].fill(0.0);
-            row[od + task] = 1.0;
+        let sizes = self.net.sizes();
+        let layers = sizes.len() - 1;
+        for l in 0..layers {
+            let (n_in, n_out) = (sizes[l], sizes[l + 1]);
+            let (before, rest) = self.acts.split_at_mut(l);
+            let y = &mut rest[0][..rows * n_out];
+            let bias = &self.net.params[self.net.bias_range(l)];
+            let hidden = l + 1 < layers;
+            if l == 0 {
+                matmul(
+                    MatMut::from_row_major_slice_mut(y, rows, n_out),
+                    Accum::Replace,
+                    MatRef::from_row_major_slice(obs, rows, od),
+                    MatRef::from_row_major_slice(&self.weights_t[0], od, n_out),
+                    1.0f32,
+                    Par::Seq,
+                );
+                for (row, &task) in y.chunks_exact_mut(n_out).zip(task_ids) {
+                    let onehot_col = &self.onehot_cols[task * n_out..(task + 1) * n_out];
+                    for ((v, &w), &b) in row.iter_mut().zip(onehot_col).zip(bias) {
+                        let s = *v + w + b;
+                        *v = if hidden && s < 0.0 { 0.0 } else { s };
+                    }
+                }
+            } else {
+                matmul(
+                    MatMut::from_row_major_slice_mut(y, rows, n_out),
+                    Accum::Replace,
+                    MatRef::from_row_major_slice(&before[l - 1][..rows * n_in], rows, n_in),
+                    MatRef::from_row_major_slice(&self.weights_t[l], n_in, n_out),
+                    1.0f32,
+                    Par::Seq,
+                );
+                for row in y.chunks_exact_mut(n_out) {
+                    for (v, &b) in row.iter_mut().zip(bias) {
+                        let s = *v + b;
+                        *v = if hidden && s < 0.0 { 0.0 } else { s };
+                    }
+                }
+            }
         }
-        self.net.forward(&mut self.cache, rows, faer::Par::Seq);
-        let head = self.cache.output(0..rows);
+        let head = &self.acts[layers - 1][..rows * 2 * a];
         if deterministic {
             gaussian::mean_action(head, a, actions);
         } else {

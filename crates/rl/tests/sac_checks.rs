@@ -417,3 +417,38 @@ fn the_benchmark_runs_and_counts_flops_consistently() {
     let json = serde_json::to_string(&report).unwrap();
     assert!(json.contains("\"updates_per_s\""));
 }
+
+#[test]
+fn inference_policy_matches_the_training_network() {
+    let cfg = SacConfig {
+        obs_dim: 5,
+        policy_hidden: vec![40, 24],
+        num_tasks: 3,
+        ..small_config(8)
+    };
+    let sac: Sac<f32> = Sac::new(cfg.clone()).unwrap();
+    let net = sac.policy_net();
+    let rows = 7;
+    let mut rng = ChaCha8Rng::seed_from_u64(4);
+    let obs: Vec<f32> = (0..rows * 5).map(|_| rng.gen_range(-2.0..2.0)).collect();
+    let tasks: Vec<usize> = (0..rows).map(|i| i % 3).collect();
+    let mut cache = terl_nn::MlpCache::new(net, rows);
+    let input = cache.input_mut(0..rows);
+    for r in 0..rows {
+        input[r * 8..r * 8 + 5].copy_from_slice(&obs[r * 5..(r + 1) * 5]);
+        input[r * 8 + 5..(r + 1) * 8].fill(0.0);
+        input[r * 8 + 5 + tasks[r]] = 1.0;
+    }
+    net.forward(&mut cache, rows, faer::Par::Seq);
+    let mut expected = vec![0.0; rows * 2];
+    terl_nn::gaussian::mean_action(cache.output(0..rows), 2, &mut expected);
+    let mut policy = Policy::new(sac.policy_spec(), 8);
+    policy.set_params(&sac.policy_params_f32(), 0).unwrap();
+    let mut actions = vec![0.0; rows * 2];
+    policy
+        .act(&obs, &tasks, true, &mut rng, &mut actions)
+        .unwrap();
+    for (a, e) in actions.iter().zip(&expected) {
+        assert!((a - e).abs() < 1e-5, "{a} vs {e}");
+    }
+}
