@@ -26,9 +26,18 @@ fn smoke_run_writes_progress_checkpoints_and_report() {
     assert_eq!(last["env_steps"].as_u64(), Some(4000));
     assert!(last["updates"].as_u64().unwrap() > 1000, "{last}");
     assert!(last["eval"]["episodes"].as_u64().unwrap() >= 2, "{last}");
-    assert!(out.join("checkpoints/final.safetensors").metadata().unwrap().len() > 10_000);
+    assert!(
+        out.join("checkpoints/final.safetensors")
+            .metadata()
+            .unwrap()
+            .len()
+            > 10_000
+    );
     let cfg = std::fs::read_to_string(out.join("config.toml")).unwrap();
-    assert!(cfg.contains("num_tasks = 2"), "resolved config records the task count: {cfg}");
+    assert!(
+        cfg.contains("num_tasks = 2"),
+        "resolved config records the task count: {cfg}"
+    );
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
     assert!(report["final_progress"].is_object());
@@ -40,7 +49,10 @@ fn malformed_configs_fail_clearly() {
     let cases = [
         ("tasks = \"mt10\"\nnum_envs = 0\n", "num_envs"),
         ("tasks = \"mt11\"\nnum_envs = 2\n", "mt11"),
-        ("tasks = \"reach-v3\"\nnum_envs = 2\n[sac]\nbatch_size = 0\n", "batch_size"),
+        (
+            "tasks = \"reach-v3\"\nnum_envs = 2\n[sac]\nbatch_size = 0\n",
+            "batch_size",
+        ),
         ("tasks = \"reach-v3\"\nnum_envs = 2\nbogus = 1\n", "bogus"),
         ("tasks = [1, 2\n", "invalid config"),
     ];
@@ -56,6 +68,9 @@ fn malformed_configs_fail_clearly() {
             .unwrap();
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(!o.status.success(), "case {i} should fail");
-        assert!(err.contains(expect), "case {i}: expected {expect:?} in {err}");
+        assert!(
+            err.contains(expect),
+            "case {i}: expected {expect:?} in {err}"
+        );
     }
 }

@@ -251,8 +251,8 @@ impl Env {
         let grip = f64::from(action[3]);
         self.scene.do_simulation([grip, -grip], FRAME_SKIP);
         self.steps += 1;
-        // Python calls mj_forward here. Observations and rewards read only poses (the contact
-        // forces `touching_object` needs feed Python's info dict, not reward or success), and
+        // Python calls mj_forward here. Observations and rewards read only poses (contact
+        // forces feed only Python's `grasp_success` info, not reward or success), and
         // mj_forward changes no state the next mj_step uses, so the kinematics pass suffices;
         // the parity traces check both claims on every task.
         self.scene.sim.kinematics();

@@ -21,8 +21,6 @@ pub struct Scene {
     left_claw: usize,
     left_pad: usize,
     right_pad: usize,
-    left_pad_geom: usize,
-    right_pad_geom: usize,
     right_end_effector: usize,
     left_end_effector: usize,
     mocap: usize,
@@ -34,9 +32,6 @@ pub struct Scene {
     pub obj_init_pos: [f64; 3],
     /// Goal of the current episode (`_target_pos`, obs[36..39]).
     pub target_pos: [f64; 3],
-    /// Pad positions at construction (`init_left_pad`, `init_right_pad`).
-    pub init_left_pad: [f64; 3],
-    pub init_right_pad: [f64; 3],
     pub mocap_low: [f64; 3],
     pub mocap_high: [f64; 3],
     /// False during the first of Python's two `reset_model` passes: that pass only matters
@@ -76,8 +71,6 @@ impl Scene {
             left_claw: sim.body("leftclaw")?,
             left_pad: sim.body("leftpad")?,
             right_pad: sim.body("rightpad")?,
-            left_pad_geom: sim.geom("leftpad_geom")?,
-            right_pad_geom: sim.geom("rightpad_geom")?,
             right_end_effector: sim.site("rightEndEffector")?,
             left_end_effector: sim.site("leftEndEffector")?,
             mocap,
@@ -85,16 +78,12 @@ impl Scene {
             init_tcp: [0.0; 3],
             obj_init_pos: [0.0; 3],
             target_pos: [0.0; 3],
-            init_left_pad: [0.0; 3],
-            init_right_pad: [0.0; 3],
             mocap_low,
             mocap_high,
             physics: true,
             sim,
         };
         scene.sim.forward();
-        scene.init_left_pad = scene.sim.body_xpos(scene.left_pad);
-        scene.init_right_pad = scene.sim.body_xpos(scene.right_pad);
         Ok(scene)
     }
 
@@ -219,30 +208,6 @@ impl Scene {
     }
 
     // ------------------------------------------------------------------ reward helpers
-
-    /// `touching_object`: both finger pads press on the geom (positive summed normal force).
-    /// A contact outside the constraint set (`efc_address == -1`) reads the last constraint
-    /// force, exactly as Python's negative indexing does.
-    pub fn touching_object(&self, object_geom: usize) -> bool {
-        let force = self.sim.efc_force();
-        let pad_force = |pad: usize| -> f64 {
-            let (pad, obj) = (pad as i32, object_geom as i32);
-            self.sim
-                .contacts()
-                .filter(|c| {
-                    (c.geom1 == pad || c.geom2 == pad) && (c.geom1 == obj || c.geom2 == obj)
-                })
-                .map(|c| {
-                    if c.efc_address >= 0 {
-                        force[c.efc_address as usize]
-                    } else {
-                        force.last().copied().unwrap_or(0.0)
-                    }
-                })
-                .sum()
-        };
-        0.0 < pad_force(self.left_pad_geom) && 0.0 < pad_force(self.right_pad_geom)
-    }
 
     /// `_gripper_caging_reward`: reward for surrounding and closing on an object.
     #[allow(clippy::too_many_arguments)]
