@@ -452,3 +452,31 @@ fn inference_policy_matches_the_training_network() {
         assert!((a - e).abs() < 1e-5, "{a} vs {e}");
     }
 }
+
+#[test]
+fn two_threads_compute_the_same_update_as_one() {
+    let run = |threads: usize| {
+        let cfg = SacConfig {
+            threads,
+            policy_hidden: vec![64, 64],
+            critic_hidden: vec![64, 64],
+            ..small_config(48)
+        };
+        let mut sac: Sac<f32> = Sac::new(cfg.clone()).unwrap();
+        for s in 0..5 {
+            sac.update(&random_batch(48, &cfg, s)).unwrap();
+        }
+        (
+            sac.policy_net().params.clone(),
+            sac.critic_net(1).params.clone(),
+            sac.log_alpha().to_vec(),
+        )
+    };
+    let (one, two) = (run(1), run(2));
+    let close = |a: &[f32], b: &[f32]| {
+        a.iter()
+            .zip(b)
+            .all(|(x, y)| (x - y).abs() <= 1e-5 * (1.0 + x.abs()))
+    };
+    assert!(close(&one.0, &two.0) && close(&one.1, &two.1) && close(&one.2, &two.2));
+}
