@@ -570,6 +570,66 @@ impl Simulation {
     }
 }
 
+impl Simulation {
+    fn state_size(&self) -> usize {
+        // SAFETY: model valid; the signature is a valid state signature.
+        let n = unsafe { self.api.mj_stateSize(self.model.as_ptr(), ffi::mjSTATE_INTEGRATION) };
+        n.max(0) as usize
+    }
+
+    /// MuJoCo's integration state (`mj_getState` with `mjSTATE_INTEGRATION`: time, qpos, qvel,
+    /// act, warm start, controls, applied forces, mocap poses, ...): everything the next
+    /// `mj_step` depends on besides the model.
+    pub fn integration_state(&self, out: &mut Vec<f64>) {
+        out.clear();
+        out.resize(self.state_size(), 0.0);
+        // SAFETY: `out` has exactly mj_stateSize entries for this signature.
+        unsafe {
+            self.api.mj_getState(
+                self.model.as_ptr(),
+                self.data.as_ptr(),
+                out.as_mut_ptr(),
+                ffi::mjSTATE_INTEGRATION,
+            )
+        };
+    }
+
+    /// Writes an integration state taken from a simulation of the same model (derived
+    /// quantities are not recomputed). Returns false and changes nothing on a length mismatch.
+    pub fn set_integration_state(&mut self, state: &[f64]) -> bool {
+        if state.len() != self.state_size() {
+            return false;
+        }
+        // SAFETY: `state` has exactly mj_stateSize entries for this signature.
+        unsafe {
+            self.api.mj_setState(
+                self.model.as_ptr(),
+                self.data.as_ptr(),
+                state.as_ptr(),
+                ffi::mjSTATE_INTEGRATION,
+            )
+        };
+        true
+    }
+
+    /// Everything the next steps depend on, as exact bit patterns: MuJoCo's integration state
+    /// (time, qpos, qvel, act, warm start, controls, applied forces, mocap poses, ...) and the
+    /// body placements of the model, which tasks move at reset.
+    pub fn dynamics_key(&self, out: &mut Vec<u64>) {
+        let mut state = Vec::new();
+        self.integration_state(&mut state);
+        // SAFETY: body_pos and body_quat have 3*nbody and 4*nbody entries.
+        let (pos, quat) = unsafe {
+            (
+                slice(self.m().body_pos, 3 * self.nbody()),
+                slice(self.m().body_quat, 4 * self.nbody()),
+            )
+        };
+        out.clear();
+        out.extend(state.iter().chain(pos).chain(quat).map(|v| v.to_bits()));
+    }
+}
+
 /// `mjtEq` value of a weld constraint.
 pub const EQ_WELD: i32 = ffi::mjEQ_WELD as i32;
 /// Values per equality constraint in `eq_data`.

@@ -117,6 +117,7 @@ impl Env {
         let sim = compiled_model(spec.xml)?;
         let mut scene = Scene::new(sim, spec.mocap_low(), spec.mocap_high())?;
         scene.hand_init_pos = spec.hand_init_pos;
+        scene.model_id = name_hash(spec.xml);
         let task = (make.build)(&scene)?;
         Ok(Self {
             scene,
@@ -209,6 +210,12 @@ impl Env {
             .apply_xyz_action([action[0], action[1], action[2]]);
         let grip = f64::from(action[3]);
         self.scene.do_simulation([grip, -grip], FRAME_SKIP);
+    }
+
+    /// Turns the process-wide hand-reset cache on or off for this env (on by default). Off,
+    /// every reset runs the hand reset's 250 physics steps; results are identical either way.
+    pub fn set_hand_reset_cache(&mut self, enabled: bool) {
+        self.scene.hand_reset_cache = enabled;
     }
 
     /// Fault injection for tests of the instability path: puts a NaN into the velocities, which

@@ -1,9 +1,37 @@
 //! The Sawyer scene every Meta-World task shares: mocap-driven hand, two-finger gripper, and the
 //! state `SawyerXYZEnv` keeps between calls (initial TCP, object start, goal).
 
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex, OnceLock};
+
 use super::reward::{self, dist, hamacher_product, tolerance, Sigmoid};
 use crate::error::Result;
 use crate::mujoco::Simulation;
+
+/// Entries the hand-reset cache may hold, process-wide (each about 2 KiB).
+const HAND_RESET_CACHE_ENTRIES: usize = 65_536;
+
+/// Outcome of one hand reset: the integration state before its last `mj_step` and after it.
+struct HandReset {
+    before_last_step: Vec<f64>,
+    after: Vec<f64>,
+}
+
+/// Results of `_reset_hand`, keyed by everything they depend on (model, exact dynamical state,
+/// hand target). The hand reset is 250 physics steps in every episode reset. A hit replays
+/// only the last one's effect: set the state before the last step, `mj_forward` (which
+/// computes exactly what that step computed before integrating), then set the state after it.
+/// The data then matches a real run bit for bit, including the kinematics one substep behind
+/// the state that Meta-World's reset observation shows.
+#[derive(Default)]
+struct HandResetCache {
+    entries: HashMap<Vec<u64>, Arc<HandReset>>,
+}
+
+fn hand_reset_cache() -> &'static Mutex<HandResetCache> {
+    static CACHE: OnceLock<Mutex<HandResetCache>> = OnceLock::new();
+    CACHE.get_or_init(Default::default)
+}
 
 /// Meta-World's frame skip: physics steps per env step.
 pub const FRAME_SKIP: usize = 5;
@@ -34,6 +62,10 @@ pub struct Scene {
     pub target_pos: [f64; 3],
     pub mocap_low: [f64; 3],
     pub mocap_high: [f64; 3],
+    /// Identifies the model in cache keys.
+    pub(crate) model_id: u64,
+    /// Whether hand resets use the process-wide cache (on by default; off runs every step).
+    pub(crate) hand_reset_cache: bool,
     /// False during the first of Python's two `reset_model` passes: that pass only matters
     /// through the model fields it writes, so its physics is skipped.
     pub(crate) physics: bool,
@@ -81,6 +113,8 @@ impl Scene {
             mocap_low,
             mocap_high,
             physics: true,
+            model_id: 0,
+            hand_reset_cache: true,
             sim,
         };
         scene.sim.forward();
@@ -155,11 +189,60 @@ impl Scene {
 
     pub fn reset_hand_steps(&mut self, steps: usize) {
         if self.physics {
-            let m = self.mocap;
-            for _ in 0..steps {
-                self.sim.mocap_pos_mut()[3 * m..3 * m + 3].copy_from_slice(&self.hand_init_pos);
-                self.sim.mocap_quat_mut()[4 * m..4 * m + 4].copy_from_slice(&MOCAP_QUAT);
-                self.do_simulation([-1.0, 1.0], FRAME_SKIP);
+            let mut key = Vec::new();
+            self.sim.dynamics_key(&mut key);
+            key.push(self.model_id);
+            key.push(steps as u64);
+            key.extend(self.hand_init_pos.map(f64::to_bits));
+            let cached = if self.hand_reset_cache {
+                hand_reset_cache()
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .entries
+                    .get(&key)
+                    .cloned()
+            } else {
+                None
+            };
+            let restored = cached.is_some_and(|hit| {
+                self.sim.set_integration_state(&hit.before_last_step) && {
+                    self.sim.forward();
+                    self.sim.set_integration_state(&hit.after)
+                }
+            });
+            if !restored && steps > 0 {
+                let m = self.mocap;
+                let mut before_last_step = Vec::new();
+                for i in 0..steps {
+                    self.sim.mocap_pos_mut()[3 * m..3 * m + 3]
+                        .copy_from_slice(&self.hand_init_pos);
+                    self.sim.mocap_quat_mut()[4 * m..4 * m + 4].copy_from_slice(&MOCAP_QUAT);
+                    self.sim.ctrl_mut()[..2].copy_from_slice(&[-1.0, 1.0]);
+                    if i + 1 < steps {
+                        self.sim.step_n(FRAME_SKIP);
+                    } else {
+                        self.sim.step_n(FRAME_SKIP - 1);
+                        self.sim.integration_state(&mut before_last_step);
+                        self.sim.step();
+                    }
+                }
+                let mut after = Vec::new();
+                self.sim.integration_state(&mut after);
+                let mut cache = hand_reset_cache().lock().unwrap_or_else(|e| e.into_inner());
+                if !self.hand_reset_cache {
+                    // Leave the cache as it is.
+                } else if cache.entries.len() >= HAND_RESET_CACHE_ENTRIES {
+                    cache.entries.clear();
+                }
+                if self.hand_reset_cache {
+                    cache.entries.insert(
+                        key,
+                        Arc::new(HandReset {
+                            before_last_step,
+                            after,
+                        }),
+                    );
+                }
             }
         }
         self.init_tcp = self.tcp_center();
