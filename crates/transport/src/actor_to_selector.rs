@@ -1,0 +1,112 @@
+//! Actor → selector (and learner): one finished episode with the trajectory the selector
+//! scores (GAE + entropy priority), as fixed-size plain data.
+
+use iceoryx2::prelude::*;
+
+use crate::{ACTION_DIM, OBS_DIM};
+
+/// Meta-World episodes are 500 steps; the trajectory array holds one full episode.
+pub const MAX_EPISODE_STEPS: usize = 500;
+
+/// One step of a stored trajectory: the state, the executed action and its reward.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[repr(C)]
+pub struct TrajectoryStep {
+    pub obs: [f32; OBS_DIM],
+    pub action: [f32; ACTION_DIM],
+    pub reward: f32,
+}
+
+const _: () = assert!(core::mem::size_of::<TrajectoryStep>() == 4 * (OBS_DIM + ACTION_DIM + 1));
+
+impl TrajectoryStep {
+    pub const ZERO: TrajectoryStep = TrajectoryStep {
+        obs: [0.0; OBS_DIM],
+        action: [0.0; ACTION_DIM],
+        reward: 0.0,
+    };
+}
+
+/// A finished episode: summary statistics plus up to [`MAX_EPISODE_STEPS`] steps.
+#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[repr(C)]
+pub struct EpisodeSummary {
+    /// Policy version the episode started with (actors may pick up new weights mid-episode).
+    pub policy_version: u64,
+    /// Per-actor episode counter, starting at 0.
+    pub episode_index: u64,
+    /// Sum of rewards.
+    pub episode_return: f32,
+    /// Number of steps taken (≥ `trajectory_len`; equal unless the trajectory was cut).
+    pub length: u32,
+    /// Number of valid entries in `trajectory`.
+    pub trajectory_len: u32,
+    pub actor_id: u16,
+    pub env_index: u16,
+    pub task: u16,
+    /// 1 if the task reported success at any step, else 0.
+    pub success: u8,
+    pub reserved: [u8; 5],
+    /// Observation after the last step (s_T), so GAE can bootstrap on truncation.
+    pub final_obs: [f32; OBS_DIM],
+    pub trajectory: [TrajectoryStep; MAX_EPISODE_STEPS],
+}
+
+const _: () = assert!(
+    core::mem::size_of::<EpisodeSummary>()
+        == 40 + 4 * OBS_DIM + 4 + MAX_EPISODE_STEPS * core::mem::size_of::<TrajectoryStep>()
+);
+
+impl EpisodeSummary {
+    pub const EMPTY: EpisodeSummary = EpisodeSummary {
+        policy_version: 0,
+        episode_index: 0,
+        episode_return: 0.0,
+        length: 0,
+        trajectory_len: 0,
+        actor_id: 0,
+        env_index: 0,
+        task: 0,
+        success: 0,
+        reserved: [0; 5],
+        final_obs: [0.0; OBS_DIM],
+        trajectory: [TrajectoryStep::ZERO; MAX_EPISODE_STEPS],
+    };
+
+    /// The valid trajectory steps.
+    pub fn steps(&self) -> &[TrajectoryStep] {
+        &self.trajectory[..(self.trajectory_len as usize).min(MAX_EPISODE_STEPS)]
+    }
+
+    pub fn succeeded(&self) -> bool {
+        self.success != 0
+    }
+
+    /// Appends a step; `false` (and nothing changes) when the trajectory is full.
+    #[must_use = "a full trajectory drops the step"]
+    pub fn push_step(&mut self, step: TrajectoryStep) -> bool {
+        let len = self.trajectory_len as usize;
+        if len >= MAX_EPISODE_STEPS {
+            return false;
+        }
+        self.trajectory[len] = step;
+        self.trajectory_len += 1;
+        true
+    }
+}
+
+impl PartialEq for EpisodeSummary {
+    /// Equal when summary fields and the valid steps match.
+    fn eq(&self, other: &Self) -> bool {
+        self.policy_version == other.policy_version
+            && self.episode_index == other.episode_index
+            && self.episode_return == other.episode_return
+            && self.length == other.length
+            && self.actor_id == other.actor_id
+            && self.env_index == other.env_index
+            && self.task == other.task
+            && self.success == other.success
+            && self.final_obs == other.final_obs
+            && self.steps() == other.steps()
+    }
+}

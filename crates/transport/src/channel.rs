@@ -1,0 +1,142 @@
+//! The narrow seam: what actors, learner and selector see of the transport.
+//!
+//! Code above this seam is written against [`MessageSink`]/[`MessageSource`] (or the named
+//! aliases [`TransitionSink`], [`EpisodeSource`], …) and a [`Transport`] that creates them,
+//! so the same loop runs over shared memory in production and over the in-memory twin in
+//! unit tests — and over a network tunnel later, as one more implementation.
+
+use core::fmt::Debug;
+use std::time::Duration;
+
+use iceoryx2::prelude::ZeroCopySend;
+
+use crate::actor_to_learner::TransitionBatch;
+use crate::actor_to_selector::EpisodeSummary;
+use crate::error::TransportError;
+use crate::flow::{SendOutcome, StatsSnapshot};
+use crate::selector_to_learner::SelectedBatch;
+
+/// The three streams of a run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Topic {
+    /// Actor → learner [`TransitionBatch`]es.
+    Transitions,
+    /// Actor → selector and learner [`EpisodeSummary`]s.
+    Episodes,
+    /// Selector → learner [`SelectedBatch`]es.
+    Selected,
+}
+
+impl Topic {
+    pub const ALL: [Topic; 3] = [Topic::Transitions, Topic::Episodes, Topic::Selected];
+
+    /// Last component of the service name `terl/<run_id>/<name>`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Topic::Transitions => "transitions",
+            Topic::Episodes => "episodes",
+            Topic::Selected => "selected",
+        }
+    }
+}
+
+/// A fixed-layout message that can travel through shared memory.
+pub trait Message: ZeroCopySend + Copy + Debug + Send + 'static {
+    /// The stream this message type travels on.
+    const TOPIC: Topic;
+    /// A valid all-zero value, heap allocated (messages are tens to hundreds of KiB).
+    fn empty() -> Box<Self>;
+}
+
+impl Message for TransitionBatch {
+    const TOPIC: Topic = Topic::Transitions;
+    fn empty() -> Box<Self> {
+        Box::new(TransitionBatch::EMPTY)
+    }
+}
+
+impl Message for EpisodeSummary {
+    const TOPIC: Topic = Topic::Episodes;
+    fn empty() -> Box<Self> {
+        Box::new(EpisodeSummary::EMPTY)
+    }
+}
+
+impl Message for SelectedBatch {
+    const TOPIC: Topic = Topic::Selected;
+    fn empty() -> Box<Self> {
+        Box::new(SelectedBatch::EMPTY)
+    }
+}
+
+/// The sending end of one stream.
+pub trait MessageSink<M: Message>: Send + Debug {
+    /// Delivers `message` to every connected receiver, following the sink's
+    /// [`OverflowPolicy`](crate::OverflowPolicy) when one is full. Never loses a message
+    /// without saying so: see [`SendOutcome`].
+    fn send(&mut self, message: &M) -> Result<SendOutcome, TransportError>;
+
+    /// Number of receivers currently connected.
+    fn receivers(&self) -> usize;
+
+    /// Waits until at least `count` receivers are connected (start-up ordering: actors may
+    /// come up before the learner). Errors with `TransportError::Timeout`.
+    fn wait_for_receivers(&self, count: usize, timeout: Duration) -> Result<(), TransportError> {
+        let start = std::time::Instant::now();
+        while self.receivers() < count {
+            if start.elapsed() >= timeout {
+                return Err(TransportError::Timeout {
+                    what: format!("{count} receiver(s) on {:?}", M::TOPIC),
+                    after: timeout,
+                });
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        Ok(())
+    }
+
+    fn stats(&self) -> StatsSnapshot;
+}
+
+/// The receiving end of one stream.
+pub trait MessageSource<M: Message>: Send + Debug {
+    /// Copies the oldest pending message into `out`; `Ok(false)` when none is pending.
+    /// Never blocks.
+    fn try_receive_into(&mut self, out: &mut M) -> Result<bool, TransportError>;
+
+    /// Allocating convenience around [`try_receive_into`](Self::try_receive_into).
+    fn try_receive(&mut self) -> Result<Option<Box<M>>, TransportError> {
+        let mut out = M::empty();
+        Ok(self.try_receive_into(&mut out)?.then_some(out))
+    }
+
+    /// Number of senders currently connected.
+    fn senders(&self) -> usize;
+
+    fn stats(&self) -> StatsSnapshot;
+}
+
+/// Actor side of the transition stream.
+pub trait TransitionSink: MessageSink<TransitionBatch> {}
+impl<T: MessageSink<TransitionBatch> + ?Sized> TransitionSink for T {}
+/// Learner side of the transition stream.
+pub trait TransitionSource: MessageSource<TransitionBatch> {}
+impl<T: MessageSource<TransitionBatch> + ?Sized> TransitionSource for T {}
+/// Actor side of the episode stream.
+pub trait EpisodeSink: MessageSink<EpisodeSummary> {}
+impl<T: MessageSink<EpisodeSummary> + ?Sized> EpisodeSink for T {}
+/// Selector (and learner) side of the episode stream.
+pub trait EpisodeSource: MessageSource<EpisodeSummary> {}
+impl<T: MessageSource<EpisodeSummary> + ?Sized> EpisodeSource for T {}
+/// Selector side of the selected-sample stream.
+pub trait SelectedSink: MessageSink<SelectedBatch> {}
+impl<T: MessageSink<SelectedBatch> + ?Sized> SelectedSink for T {}
+/// Learner side of the selected-sample stream.
+pub trait SelectedSource: MessageSource<SelectedBatch> {}
+impl<T: MessageSource<SelectedBatch> + ?Sized> SelectedSource for T {}
+
+/// Creates sinks and sources for one run. One per process (or per thread in tests).
+pub trait Transport: Debug {
+    fn sink<M: Message>(&self) -> Result<Box<dyn MessageSink<M>>, TransportError>;
+    fn source<M: Message>(&self) -> Result<Box<dyn MessageSource<M>>, TransportError>;
+}

@@ -1,0 +1,214 @@
+//! Transport configuration and the iceoryx2 limits derived from it.
+//!
+//! iceoryx2's defaults (2 publishers, 2-sample buffers, safe overflow on) suit a demo, not
+//! N actors streaming into one learner; every limit here is derived from the actor count
+//! so a service created by the first process fits everyone who joins later.
+
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+
+use crate::actor_to_learner::TransitionBatch;
+use crate::actor_to_selector::EpisodeSummary;
+use crate::channel::{Message, Topic};
+use crate::error::TransportError;
+use crate::flow::{OverflowPolicy, DEFAULT_BLOCK_TIMEOUT};
+use crate::selector_to_learner::SelectedBatch;
+
+/// Everything needed to open a run's shared-memory streams.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TransportConfig {
+    /// Part of every service name (`terl/<run_id>/transitions`), so two clusters on one host
+    /// never mix. Letters, digits, `-`, `_`, `.`; at most 64 characters.
+    pub run_id: String,
+    /// Actor processes (publishers of transitions and episodes).
+    pub num_actors: usize,
+    /// Transition batches a receiver can hold before senders meet back-pressure.
+    pub buffer_batches: usize,
+    /// Episodes a receiver can hold.
+    pub buffer_episodes: usize,
+    /// Selected batches a receiver can hold.
+    pub buffer_selected: usize,
+    /// What a sender does when a receiver is full.
+    pub overflow: OverflowPolicy,
+    /// How long a `Block` send waits before failing with `BlockTimeout`.
+    #[serde(with = "secs_f64")]
+    pub block_timeout: Duration,
+    /// Check that `/dev/shm` has room for the run before creating anything.
+    pub check_shm: bool,
+}
+
+impl Default for TransportConfig {
+    fn default() -> Self {
+        Self {
+            run_id: "default".into(),
+            num_actors: 1,
+            buffer_batches: 64,
+            buffer_episodes: 8,
+            buffer_selected: 8,
+            overflow: OverflowPolicy::Block,
+            block_timeout: DEFAULT_BLOCK_TIMEOUT,
+            check_shm: true,
+        }
+    }
+}
+
+/// iceoryx2 limits of one service.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ServiceLimits {
+    pub max_publishers: usize,
+    pub max_subscribers: usize,
+    pub max_nodes: usize,
+    pub subscriber_buffer: usize,
+}
+
+/// Samples a subscriber holds at once: we copy out and release immediately.
+pub(crate) const SUBSCRIBER_MAX_BORROWED: usize = 1;
+/// Samples a publisher holds at once: loan, write, send.
+pub(crate) const PUBLISHER_MAX_LOANED: usize = 1;
+/// Slack in the publisher table for a process restarting while its predecessor is not yet
+/// cleaned up, and for tools (benchmarks, taps).
+const SPARE_PUBLISHERS: usize = 2;
+/// Per-sample header iceoryx2 adds (generous upper bound).
+const SAMPLE_HEADER_BYTES: usize = 128;
+
+impl TransportConfig {
+    /// A config for `run_id` with defaults otherwise.
+    pub fn new(run_id: impl Into<String>, num_actors: usize) -> Self {
+        Self {
+            run_id: run_id.into(),
+            num_actors,
+            ..Self::default()
+        }
+    }
+
+    pub fn validate(&self) -> Result<(), TransportError> {
+        let id = &self.run_id;
+        if id.is_empty()
+            || id.len() > 64
+            || !id
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
+        {
+            return Err(TransportError::Config(format!(
+                "run_id {id:?} must be 1..=64 characters of [A-Za-z0-9._-]"
+            )));
+        }
+        if self.num_actors == 0 {
+            return Err(TransportError::Config("num_actors must be ≥ 1".into()));
+        }
+        for (name, value) in [
+            ("buffer_batches", self.buffer_batches),
+            ("buffer_episodes", self.buffer_episodes),
+            ("buffer_selected", self.buffer_selected),
+        ] {
+            if value == 0 {
+                return Err(TransportError::Config(format!("{name} must be ≥ 1")));
+            }
+        }
+        Ok(())
+    }
+
+    /// `terl/<run_id>/<topic>`.
+    pub fn service_name(&self, topic: Topic) -> String {
+        format!("terl/{}/{}", self.run_id, topic.name())
+    }
+
+    /// Limits for `topic`. Transitions: every actor publishes, the learner subscribes.
+    /// Episodes: every actor publishes, selector and learner subscribe. Selected: the
+    /// selector publishes, the learner subscribes.
+    pub fn limits(&self, topic: Topic) -> ServiceLimits {
+        let actors = self.num_actors;
+        let (max_publishers, max_subscribers, subscriber_buffer) = match topic {
+            Topic::Transitions => (actors + SPARE_PUBLISHERS, 1, self.buffer_batches),
+            Topic::Episodes => (actors + SPARE_PUBLISHERS, 2, self.buffer_episodes),
+            Topic::Selected => (1 + SPARE_PUBLISHERS, 1, self.buffer_selected),
+        };
+        ServiceLimits {
+            max_publishers,
+            max_subscribers,
+            // actors + learner + selector, plus room for restarts and tools
+            max_nodes: actors + 2 + 2 * SPARE_PUBLISHERS,
+            subscriber_buffer,
+        }
+    }
+
+    /// Bytes of one publisher's data segment on `topic`, as iceoryx2 sizes it.
+    pub fn publisher_segment_bytes<M: Message>(&self) -> u64 {
+        let l = self.limits(M::TOPIC);
+        let samples = l.max_subscribers * (l.subscriber_buffer + SUBSCRIBER_MAX_BORROWED)
+            + PUBLISHER_MAX_LOANED;
+        (samples * (core::mem::size_of::<M>() + SAMPLE_HEADER_BYTES)) as u64
+    }
+
+    /// Shared memory the whole run needs: each actor's transition and episode segments, the
+    /// selector's segment, plus a margin for iceoryx2's management segments.
+    pub fn required_shm_bytes(&self) -> u64 {
+        let per_actor = self.publisher_segment_bytes::<TransitionBatch>()
+            + self.publisher_segment_bytes::<EpisodeSummary>();
+        let total =
+            self.num_actors as u64 * per_actor + self.publisher_segment_bytes::<SelectedBatch>();
+        total + total / 10 + (8 << 20)
+    }
+}
+
+mod secs_f64 {
+    use std::time::Duration;
+
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(d: &Duration, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_f64(d.as_secs_f64())
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Duration, D::Error> {
+        let secs = f64::deserialize(d)?;
+        Duration::try_from_secs_f64(secs).map_err(serde::de::Error::custom)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rejects_bad_run_ids_and_zero_sizes() {
+        assert!(TransportConfig::new("run-1_a.b", 2).validate().is_ok());
+        for bad in ["", "a/b", "has space", &"x".repeat(65)] {
+            assert!(TransportConfig::new(bad, 1).validate().is_err(), "{bad:?}");
+        }
+        assert!(TransportConfig::new("r", 0).validate().is_err());
+        let cfg = TransportConfig {
+            buffer_batches: 0,
+            ..TransportConfig::new("r", 1)
+        };
+        assert!(cfg.validate().is_err());
+    }
+
+    #[test]
+    fn limits_scale_with_actors() {
+        let cfg = TransportConfig::new("r", 12);
+        let t = cfg.limits(Topic::Transitions);
+        assert!(t.max_publishers >= 12 && t.max_nodes >= 14);
+        assert_eq!(t.subscriber_buffer, 64);
+        assert_eq!(cfg.limits(Topic::Episodes).max_subscribers, 2);
+        assert_eq!(cfg.service_name(Topic::Selected), "terl/r/selected");
+    }
+
+    #[test]
+    fn shm_estimate_grows_with_actors_and_fits_default_docker_for_small_runs() {
+        let small = TransportConfig::new("r", 2).required_shm_bytes();
+        let large = TransportConfig::new("r", 32).required_shm_bytes();
+        assert!(small < 64 << 20, "small run needs {small}");
+        assert!(large > small * 4, "{large} vs {small}");
+    }
+
+    #[test]
+    fn config_round_trips_through_toml_like_serde() {
+        let cfg = TransportConfig::new("abc", 3);
+        let json = serde_json::to_string(&cfg).unwrap();
+        let back: TransportConfig = serde_json::from_str(&json).unwrap();
+        assert_eq!(back, cfg);
+    }
+}

@@ -1,0 +1,346 @@
+//! Flow control: what happens when a receiver falls behind, how it is counted, and the
+//! learner's update-to-data limiter.
+//!
+//! The chain of back-pressure, end to end:
+//!
+//! 1. The learner asks its [`RateLimiter`] before draining the transition source
+//!    ([`RateLimiter::can_insert`]) and before each update ([`RateLimiter::can_sample`]).
+//!    When training falls behind the configured ratio it stops draining.
+//! 2. The subscriber's bounded buffer (`TransportConfig::buffer_batches`) fills up.
+//! 3. The actor's next send meets a full buffer. What happens is the sink's
+//!    [`OverflowPolicy`]: `Block` waits until the learner drains (the actor slows down to the
+//!    learner's pace — nothing is lost), `DropNewest` returns [`SendOutcome::Full`] at once and
+//!    the message is dropped. Either way the event is counted in [`TransportStats`]; nothing is
+//!    ever overwritten or lost without a count (iceoryx2's "safe overflow", which silently
+//!    replaces the oldest sample, is switched off).
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+
+/// What a sink does when a receiver's buffer is full.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OverflowPolicy {
+    /// Wait until the receiver has room (up to the sink's block timeout, after which `send`
+    /// fails with `TransportError::BlockTimeout` and the message is *not* delivered).
+    /// Lossless; the sender runs at the receiver's pace.
+    Block,
+    /// Do not wait: the message is not delivered to the full receiver, `send` returns
+    /// [`SendOutcome::Full`] and `dropped` is incremented.
+    DropNewest,
+}
+
+/// Result of a successful `send`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SendOutcome {
+    /// Delivered to every connected receiver.
+    Delivered,
+    /// At least one receiver's buffer was full and the policy (`DropNewest`) dropped the
+    /// message for it. Counted in `dropped` and `full_events`.
+    Full,
+    /// No receiver was connected, so nobody got the message. Counted in `no_receiver`.
+    /// Use `wait_for_receivers` at start-up so this only happens when a peer has gone.
+    NoReceiver,
+}
+
+/// Lock-free counters shared between a port and whoever reports metrics.
+#[derive(Debug, Default)]
+pub struct TransportStats {
+    sent: AtomicU64,
+    received: AtomicU64,
+    dropped: AtomicU64,
+    full_events: AtomicU64,
+    no_receiver: AtomicU64,
+}
+
+/// A point-in-time copy of [`TransportStats`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct StatsSnapshot {
+    /// Messages handed to at least one receiver.
+    pub sent: u64,
+    /// Messages taken out of a source.
+    pub received: u64,
+    /// Messages a `DropNewest` policy dropped because a receiver was full.
+    pub dropped: u64,
+    /// Sends that found a receiver's buffer full (whether they then blocked or dropped).
+    pub full_events: u64,
+    /// Sends that found no receiver connected (message reached nobody).
+    pub no_receiver: u64,
+}
+
+impl TransportStats {
+    pub fn snapshot(&self) -> StatsSnapshot {
+        StatsSnapshot {
+            sent: self.sent.load(Ordering::Relaxed),
+            received: self.received.load(Ordering::Relaxed),
+            dropped: self.dropped.load(Ordering::Relaxed),
+            full_events: self.full_events.load(Ordering::Relaxed),
+            no_receiver: self.no_receiver.load(Ordering::Relaxed),
+        }
+    }
+
+    pub(crate) fn add_received(&self, n: u64) {
+        self.received.fetch_add(n, Ordering::Relaxed);
+    }
+
+    pub(crate) fn add_full_event(&self) {
+        self.full_events.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Records the outcome of one send.
+    pub(crate) fn record(&self, outcome: SendOutcome) {
+        let counter = match outcome {
+            SendOutcome::Delivered => &self.sent,
+            SendOutcome::Full => &self.dropped,
+            SendOutcome::NoReceiver => &self.no_receiver,
+        };
+        counter.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
+/// How long a `Block` send waits for room before giving up with an error, by default.
+/// Long enough for a learner pause (checkpoint, evaluation), short enough that a wedged
+/// learner surfaces as an error rather than a hung actor.
+pub const DEFAULT_BLOCK_TIMEOUT: Duration = Duration::from_secs(30);
+
+/// Errors in the rate limiter's configuration.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RateLimiterError {
+    #[error("samples_per_insert must be finite and > 0, got {0}")]
+    SamplesPerInsert(f64),
+    #[error(
+        "error_buffer {error_buffer} is too small: it must be at least max(1, samples_per_insert) \
+         = {needed}, otherwise neither inserts nor samples can proceed (deadlock)"
+    )]
+    ErrorBuffer { error_buffer: f64, needed: f64 },
+}
+
+/// Keeps the ratio of samples (learner updates) to inserts (transitions added to replay)
+/// near `samples_per_insert`, like Reverb's `SampleToInsertRatio` limiter.
+///
+/// With `diff = inserts · samples_per_insert − samples`, the limiter keeps `diff` within
+/// `samples_per_insert · min_size_to_sample ± error_buffer` once `min_size_to_sample`
+/// inserts have happened; before that, inserts are always allowed and samples never are.
+/// A pure value: the learner calls `record_*` as it goes and asks `can_*` before acting.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RateLimiter {
+    samples_per_insert: f64,
+    min_size_to_sample: u64,
+    error_buffer: f64,
+    inserts: u64,
+    samples: u64,
+}
+
+impl RateLimiter {
+    /// `samples_per_insert`: learner updates per inserted transition (the update-to-data
+    /// ratio). `min_size_to_sample`: inserts before the first update. `error_buffer`: slack
+    /// around the target, in samples; must be ≥ max(1, samples_per_insert).
+    pub fn new(
+        samples_per_insert: f64,
+        min_size_to_sample: u64,
+        error_buffer: f64,
+    ) -> Result<Self, RateLimiterError> {
+        if !(samples_per_insert.is_finite() && samples_per_insert > 0.0) {
+            return Err(RateLimiterError::SamplesPerInsert(samples_per_insert));
+        }
+        let needed = samples_per_insert.max(1.0);
+        if error_buffer.is_nan() || error_buffer < needed {
+            return Err(RateLimiterError::ErrorBuffer {
+                error_buffer,
+                needed,
+            });
+        }
+        Ok(Self {
+            samples_per_insert,
+            min_size_to_sample,
+            error_buffer,
+            inserts: 0,
+            samples: 0,
+        })
+    }
+
+    fn diff_after(&self, inserts: u64, samples: u64) -> f64 {
+        inserts as f64 * self.samples_per_insert - samples as f64
+    }
+
+    fn target(&self) -> f64 {
+        self.samples_per_insert * self.min_size_to_sample as f64
+    }
+
+    /// May `n` more transitions be inserted without running too far ahead of training?
+    pub fn can_insert(&self, n: u64) -> bool {
+        let inserts = self.inserts + n;
+        if inserts <= self.min_size_to_sample {
+            return true;
+        }
+        self.diff_after(inserts, self.samples) <= self.target() + self.error_buffer
+    }
+
+    /// May `n` more updates run without training too often on the same data?
+    pub fn can_sample(&self, n: u64) -> bool {
+        if self.inserts < self.min_size_to_sample {
+            return false;
+        }
+        self.diff_after(self.inserts, self.samples + n) >= self.target() - self.error_buffer
+    }
+
+    pub fn record_insert(&mut self, n: u64) {
+        self.inserts += n;
+    }
+
+    pub fn record_sample(&mut self, n: u64) {
+        self.samples += n;
+    }
+
+    pub fn inserts(&self) -> u64 {
+        self.inserts
+    }
+
+    pub fn samples(&self) -> u64 {
+        self.samples
+    }
+
+    pub fn samples_per_insert(&self) -> f64 {
+        self.samples_per_insert
+    }
+}
+
+/// Running staleness of trained-on data: how many policy versions behind the learner's
+/// current version the transitions were when they were used.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct Staleness {
+    pub count: u64,
+    pub sum: u64,
+    pub max: u64,
+}
+
+impl Staleness {
+    /// Records a transition produced by `policy_version` while the learner is at `current`.
+    pub fn record(&mut self, current: u64, policy_version: u64) {
+        let behind = current.saturating_sub(policy_version);
+        self.count += 1;
+        self.sum += behind;
+        self.max = self.max.max(behind);
+    }
+
+    /// Mean versions behind (0 when nothing was recorded).
+    pub fn mean(&self) -> f64 {
+        if self.count == 0 {
+            0.0
+        } else {
+            self.sum as f64 / self.count as f64
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rejects_deadlocking_configs() {
+        assert!(RateLimiter::new(0.0, 10, 5.0).is_err());
+        assert!(RateLimiter::new(f64::NAN, 10, 5.0).is_err());
+        assert!(RateLimiter::new(4.0, 10, 3.9).is_err());
+        assert!(RateLimiter::new(0.25, 10, 0.5).is_err());
+        assert!(RateLimiter::new(0.25, 10, 1.0).is_ok());
+    }
+
+    #[test]
+    fn warm_up_allows_inserts_and_no_samples() {
+        let mut rl = RateLimiter::new(1.0, 100, 10.0).unwrap();
+        assert!(!rl.can_sample(1));
+        for _ in 0..99 {
+            assert!(rl.can_insert(1));
+            rl.record_insert(1);
+        }
+        assert!(!rl.can_sample(1));
+        rl.record_insert(1);
+        assert!(rl.can_sample(1));
+    }
+
+    #[test]
+    fn keeps_ratio_within_error_buffer() {
+        // 0.5 updates per transition, 1000 warm-up inserts, ±20 updates slack.
+        let mut rl = RateLimiter::new(0.5, 1000, 20.0).unwrap();
+        rl.record_insert(1000);
+        // An eager learner: samples as long as allowed, inserts only when forced.
+        // An eager actor: inserts as long as allowed.
+        let mut steps = 0;
+        while steps < 100_000 {
+            let mut progressed = false;
+            if rl.can_insert(1) {
+                rl.record_insert(1);
+                progressed = true;
+            }
+            if rl.can_sample(1) {
+                rl.record_sample(1);
+                progressed = true;
+            }
+            assert!(progressed, "limiter deadlocked at {rl:?}");
+            let diff = rl.inserts() as f64 * 0.5 - rl.samples() as f64;
+            assert!(
+                (diff - 500.0).abs() <= 20.0 + 0.5,
+                "diff {diff} out of band"
+            );
+            steps += 1;
+        }
+        let ratio = rl.samples() as f64 / (rl.inserts() - 1000) as f64;
+        assert!((ratio - 0.5).abs() < 0.01, "ratio {ratio}");
+    }
+
+    #[test]
+    fn blocks_inserts_when_learner_stalls() {
+        let mut rl = RateLimiter::new(2.0, 10, 4.0).unwrap();
+        rl.record_insert(10);
+        // target diff = 20, max diff = 24: two more inserts (diff 24) then stop.
+        assert!(rl.can_insert(2));
+        assert!(!rl.can_insert(3));
+        rl.record_insert(2);
+        assert!(!rl.can_insert(1));
+        rl.record_sample(2);
+        assert!(rl.can_insert(1));
+    }
+
+    #[test]
+    fn blocks_samples_when_actors_stall() {
+        let mut rl = RateLimiter::new(1.0, 10, 3.0).unwrap();
+        rl.record_insert(10);
+        // diff 10, min diff 7: three updates then stop.
+        assert!(rl.can_sample(3));
+        assert!(!rl.can_sample(4));
+        rl.record_sample(3);
+        assert!(!rl.can_sample(1));
+        rl.record_insert(1);
+        assert!(rl.can_sample(1));
+    }
+
+    #[test]
+    fn staleness_mean_and_max() {
+        let mut s = Staleness::default();
+        assert_eq!(s.mean(), 0.0);
+        s.record(10, 7);
+        s.record(10, 10);
+        s.record(3, 5); // actor ahead of a restarted learner: clamps at 0
+        assert_eq!(s.max, 3);
+        assert_eq!(s.mean(), 1.0);
+    }
+
+    #[test]
+    fn stats_count_each_outcome() {
+        let stats = TransportStats::default();
+        stats.record(SendOutcome::Delivered);
+        stats.record(SendOutcome::Delivered);
+        stats.record(SendOutcome::Full);
+        stats.record(SendOutcome::NoReceiver);
+        stats.add_full_event();
+        stats.add_received(5);
+        let s = stats.snapshot();
+        assert_eq!(
+            (s.sent, s.dropped, s.no_receiver, s.full_events, s.received),
+            (2, 1, 1, 1, 5)
+        );
+    }
+}

@@ -1,0 +1,402 @@
+//! The iceoryx2 implementation of the transport seam: zero-copy shared memory between
+//! processes on one host.
+//!
+//! One [`ShmTransport`] per process (it owns the iceoryx2 node); sinks are publishers and
+//! sources are subscribers of `terl/<run_id>/<topic>`. Every service is created with
+//! safe overflow **off**, so a full subscriber is never silently overwritten: the
+//! publisher's back-pressure handler either retries (policy `Block`) or discards for that
+//! subscriber (policy `DropNewest`), and counts the event either way.
+//!
+//! Ports use iceoryx2's thread-safe service variant, so a sink or source can be moved to
+//! the thread that uses it; the mutex this adds is uncontended and paid once per batch.
+
+use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::port::update_connections::UpdateConnections;
+use iceoryx2::port::{BackpressureAction, BackpressureInfo, SendError};
+use iceoryx2::prelude::*;
+use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
+use serde::{Deserialize, Serialize};
+
+use crate::channel::{Message, MessageSink, MessageSource, Transport};
+use crate::config::{TransportConfig, PUBLISHER_MAX_LOANED, SUBSCRIBER_MAX_BORROWED};
+use crate::error::TransportError;
+use crate::flow::{OverflowPolicy, SendOutcome, StatsSnapshot, TransportStats};
+use crate::shm::{check_free_space, SHM_PATH};
+
+/// The iceoryx2 service flavour: inter-process, ports usable from any thread.
+pub type ShmService = iceoryx2::service::ipc_threadsafe::Service;
+
+/// What the start-up stale-resource cleanup did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct StaleCleanup {
+    /// Dead nodes (crashed or killed processes) whose resources were removed.
+    pub cleaned: u64,
+    /// Dead nodes that could not be cleaned (permissions, another cleaner busy).
+    pub failed: u64,
+}
+
+/// A process's handle on a run's shared-memory streams.
+pub struct ShmTransport {
+    config: TransportConfig,
+    node: Arc<Node<ShmService>>,
+    cleanup: StaleCleanup,
+}
+
+impl core::fmt::Debug for ShmTransport {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("ShmTransport")
+            .field("run_id", &self.config.run_id)
+            .field("node", &self.node.name().as_str())
+            .field("cleanup", &self.cleanup)
+            .finish()
+    }
+}
+
+fn ipc_err(
+    operation: &'static str,
+    service: &str,
+    detail: impl core::fmt::Debug,
+) -> TransportError {
+    TransportError::Ipc {
+        operation,
+        service: service.to_owned(),
+        detail: format!("{detail:?}"),
+    }
+}
+
+impl ShmTransport {
+    /// Creates this process's node `terl/<run_id>/<role>`, removes stale resources of dead
+    /// nodes (a crashed process must not wedge the next run), and checks `/dev/shm`.
+    ///
+    /// iceoryx2's own SIGINT/SIGTERM handling is disabled: the service owns its signals.
+    pub fn open(config: TransportConfig, role: &str) -> Result<Self, TransportError> {
+        config.validate()?;
+        let node_label = format!("terl/{}/{role}", config.run_id);
+        let node_name =
+            NodeName::new(&node_label).map_err(|e| ipc_err("node name", &node_label, e))?;
+        let node = NodeBuilder::new()
+            .name(&node_name)
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<ShmService>()
+            .map_err(|e| ipc_err("node creation", &node_label, e))?;
+        let state = node.try_cleanup_dead_nodes();
+        let cleanup = StaleCleanup {
+            cleaned: state.cleanups,
+            failed: state.failed_cleanups,
+        };
+        if cleanup.cleaned > 0 || cleanup.failed > 0 {
+            tracing::warn!(
+                cleaned = cleanup.cleaned,
+                failed = cleanup.failed,
+                "removed stale shared-memory resources of dead iceoryx2 nodes"
+            );
+        }
+        Ok(Self {
+            config,
+            node: Arc::new(node),
+            cleanup,
+        })
+    }
+
+    /// Checks that `/dev/shm` can hold the whole run (every actor, learner and selector);
+    /// for launchers, before starting any process.
+    pub fn check_shm_for_run(config: &TransportConfig) -> Result<u64, TransportError> {
+        check_free_space(Path::new(SHM_PATH), config.required_shm_bytes())
+    }
+
+    pub fn config(&self) -> &TransportConfig {
+        &self.config
+    }
+
+    /// The stale-resource cleanup done when this transport was opened.
+    pub fn stale_cleanup(&self) -> StaleCleanup {
+        self.cleanup
+    }
+
+    /// Runs the dead-node cleanup again (e.g. periodically in a long-lived learner).
+    pub fn cleanup_dead_nodes(&self) -> StaleCleanup {
+        let state = self.node.try_cleanup_dead_nodes();
+        StaleCleanup {
+            cleaned: state.cleanups,
+            failed: state.failed_cleanups,
+        }
+    }
+
+    /// Sleeps for `cycle`; the one place a main loop waits (`while t.wait(cycle)`).
+    pub fn wait(&self, cycle: Duration) -> bool {
+        self.node.wait(cycle).is_ok()
+    }
+
+    fn service<M: Message>(
+        &self,
+    ) -> Result<(String, PubSubFactory<ShmService, M, ()>), TransportError> {
+        let label = self.config.service_name(M::TOPIC);
+        let name: ServiceName = label
+            .as_str()
+            .try_into()
+            .map_err(|e| ipc_err("service name", &label, e))?;
+        let limits = self.config.limits(M::TOPIC);
+        let factory = self
+            .node
+            .service_builder(&name)
+            .publish_subscribe::<M>()
+            .max_publishers(limits.max_publishers)
+            .max_subscribers(limits.max_subscribers)
+            .max_nodes(limits.max_nodes)
+            .subscriber_max_buffer_size(limits.subscriber_buffer)
+            .subscriber_max_borrowed_samples(SUBSCRIBER_MAX_BORROWED)
+            .history_size(0)
+            .enable_safe_overflow(false)
+            .open_or_create()
+            .map_err(|e| ipc_err("open_or_create service", &label, e))?;
+        Ok((label, factory))
+    }
+
+    /// A publisher on `M`'s topic with the config's overflow policy.
+    pub fn shm_sink<M: Message>(&self) -> Result<ShmSink<M>, TransportError> {
+        self.shm_sink_with(self.config.overflow)
+    }
+
+    /// A publisher on `M`'s topic with an explicit overflow policy.
+    pub fn shm_sink_with<M: Message>(
+        &self,
+        policy: OverflowPolicy,
+    ) -> Result<ShmSink<M>, TransportError> {
+        if self.config.check_shm {
+            check_free_space(
+                Path::new(SHM_PATH),
+                self.config.publisher_segment_bytes::<M>(),
+            )?;
+        }
+        let (label, factory) = self.service::<M>()?;
+        let full_hits = Arc::new(AtomicU64::new(0));
+        let handler_hits = Arc::clone(&full_hits);
+        let timeout = self.config.block_timeout;
+        let handler = move |info: &BackpressureInfo| {
+            if info.retries == 0 {
+                handler_hits.fetch_add(1, Ordering::Relaxed);
+            }
+            match policy {
+                OverflowPolicy::DropNewest => BackpressureAction::DiscardData,
+                OverflowPolicy::Block if info.elapsed_time >= timeout => {
+                    BackpressureAction::DiscardDataAndFail
+                }
+                OverflowPolicy::Block => BackpressureAction::Retry,
+            }
+        };
+        let strategy = match policy {
+            OverflowPolicy::Block => BackpressureStrategy::RetryUntilDelivered,
+            OverflowPolicy::DropNewest => BackpressureStrategy::DiscardData,
+        };
+        let publisher = factory
+            .publisher_builder()
+            .max_loaned_samples(PUBLISHER_MAX_LOANED)
+            .backpressure_strategy(strategy)
+            .set_backpressure_handler(handler)
+            .create()
+            .map_err(|e| ipc_err("publisher creation", &label, e))?;
+        Ok(ShmSink {
+            label,
+            factory,
+            publisher,
+            policy,
+            block_timeout: timeout,
+            full_hits,
+            stats: Arc::default(),
+            _node: Arc::clone(&self.node),
+        })
+    }
+
+    /// A subscriber on `M`'s topic.
+    pub fn shm_source<M: Message>(&self) -> Result<ShmSource<M>, TransportError> {
+        let (label, factory) = self.service::<M>()?;
+        let subscriber = factory
+            .subscriber_builder()
+            .buffer_size(self.config.limits(M::TOPIC).subscriber_buffer)
+            .create()
+            .map_err(|e| ipc_err("subscriber creation", &label, e))?;
+        // Attach to the publishers that exist now; later ones attach on receive.
+        subscriber
+            .update_connections()
+            .map_err(|e| ipc_err("subscriber connect", &label, e))?;
+        Ok(ShmSource {
+            label,
+            factory,
+            subscriber,
+            stats: Arc::default(),
+            _node: Arc::clone(&self.node),
+        })
+    }
+}
+
+impl Transport for ShmTransport {
+    fn sink<M: Message>(&self) -> Result<Box<dyn MessageSink<M>>, TransportError> {
+        Ok(Box::new(self.shm_sink::<M>()?))
+    }
+
+    fn source<M: Message>(&self) -> Result<Box<dyn MessageSource<M>>, TransportError> {
+        Ok(Box::new(self.shm_source::<M>()?))
+    }
+}
+
+/// Publisher side of one stream over shared memory.
+pub struct ShmSink<M: Message> {
+    label: String,
+    factory: PubSubFactory<ShmService, M, ()>,
+    publisher: Publisher<ShmService, M, ()>,
+    policy: OverflowPolicy,
+    block_timeout: Duration,
+    /// Receivers found full, counted by the back-pressure handler.
+    full_hits: Arc<AtomicU64>,
+    stats: Arc<TransportStats>,
+    // Keeps the node alive as long as its ports.
+    _node: Arc<Node<ShmService>>,
+}
+
+impl<M: Message> core::fmt::Debug for ShmSink<M> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("ShmSink")
+            .field("service", &self.label)
+            .field("policy", &self.policy)
+            .field("stats", &self.stats.snapshot())
+            .finish()
+    }
+}
+
+/// Poll interval of a `Block` send waiting for a receiver that has not attached yet.
+const UNATTACHED_RETRY: Duration = Duration::from_micros(200);
+
+impl<M: Message> ShmSink<M> {
+    fn block_timeout_error(&self) -> TransportError {
+        TransportError::BlockTimeout {
+            service: self.label.clone(),
+            waited: self.block_timeout,
+        }
+    }
+
+    /// Shared counters, for a metrics exporter that outlives borrowing the sink.
+    pub fn stats_handle(&self) -> Arc<TransportStats> {
+        Arc::clone(&self.stats)
+    }
+
+    pub fn service_name(&self) -> &str {
+        &self.label
+    }
+}
+
+impl<M: Message> MessageSink<M> for ShmSink<M> {
+    fn send(&mut self, message: &M) -> Result<SendOutcome, TransportError> {
+        let start = Instant::now();
+        let mut saw_full = false;
+        loop {
+            let hits_before = self.full_hits.load(Ordering::Relaxed);
+            let sample = self
+                .publisher
+                .loan_uninit()
+                .map_err(|e| ipc_err("loan", &self.label, e))?;
+            let result = sample.write_payload(*message).send();
+            // The handler runs when an attached receiver is full.
+            let handler_saw_full = self.full_hits.load(Ordering::Relaxed) != hits_before;
+            let delivered = match result {
+                Ok(n) => n,
+                Err(SendError::UnableToDeliver) => return Err(self.block_timeout_error()),
+                Err(e) => return Err(ipc_err("send", &self.label, e)),
+            };
+            // A subscriber attaches its end of the queue on its first receive; until then
+            // messages queue up to its buffer size and beyond that iceoryx2 reports 0
+            // recipients instead of calling the handler. That is a full receiver too.
+            let unattached_full = delivered == 0 && !handler_saw_full && self.receivers() > 0;
+            if (handler_saw_full || unattached_full) && !saw_full {
+                saw_full = true;
+                self.stats.add_full_event();
+            }
+            let outcome = if unattached_full {
+                match self.policy {
+                    OverflowPolicy::DropNewest => SendOutcome::Full,
+                    OverflowPolicy::Block if start.elapsed() >= self.block_timeout => {
+                        return Err(self.block_timeout_error())
+                    }
+                    OverflowPolicy::Block => {
+                        std::thread::sleep(UNATTACHED_RETRY);
+                        continue;
+                    }
+                }
+            } else if handler_saw_full && self.policy == OverflowPolicy::DropNewest {
+                SendOutcome::Full
+            } else if delivered == 0 {
+                SendOutcome::NoReceiver
+            } else {
+                SendOutcome::Delivered
+            };
+            self.stats.record(outcome);
+            return Ok(outcome);
+        }
+    }
+
+    fn receivers(&self) -> usize {
+        self.factory.dynamic_config().number_of_subscribers()
+    }
+
+    fn stats(&self) -> StatsSnapshot {
+        self.stats.snapshot()
+    }
+}
+
+/// Subscriber side of one stream over shared memory.
+pub struct ShmSource<M: Message> {
+    label: String,
+    factory: PubSubFactory<ShmService, M, ()>,
+    subscriber: Subscriber<ShmService, M, ()>,
+    stats: Arc<TransportStats>,
+    _node: Arc<Node<ShmService>>,
+}
+
+impl<M: Message> core::fmt::Debug for ShmSource<M> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("ShmSource")
+            .field("service", &self.label)
+            .field("stats", &self.stats.snapshot())
+            .finish()
+    }
+}
+
+impl<M: Message> ShmSource<M> {
+    pub fn stats_handle(&self) -> Arc<TransportStats> {
+        Arc::clone(&self.stats)
+    }
+
+    /// Zero-copy receive: runs `f` on the message in shared memory and releases it.
+    pub fn try_receive_with<R>(
+        &mut self,
+        f: impl FnOnce(&M) -> R,
+    ) -> Result<Option<R>, TransportError> {
+        match self.subscriber.receive() {
+            Ok(Some(sample)) => {
+                self.stats.add_received(1);
+                Ok(Some(f(sample.payload())))
+            }
+            Ok(None) => Ok(None),
+            Err(e) => Err(ipc_err("receive", &self.label, e)),
+        }
+    }
+}
+
+impl<M: Message> MessageSource<M> for ShmSource<M> {
+    fn try_receive_into(&mut self, out: &mut M) -> Result<bool, TransportError> {
+        Ok(self.try_receive_with(|m| *out = *m)?.is_some())
+    }
+
+    fn senders(&self) -> usize {
+        self.factory.dynamic_config().number_of_publishers()
+    }
+
+    fn stats(&self) -> StatsSnapshot {
+        self.stats.snapshot()
+    }
+}

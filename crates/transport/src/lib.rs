@@ -1,0 +1,42 @@
+//! Bulk data between TERL's processes: actors → learner transitions, actors → selector
+//! (and learner) finished episodes, selector → learner selected samples.
+//!
+//! Messages are fixed-layout `#[repr(C)]` plain data (one file per direction:
+//! [`actor_to_learner`], [`actor_to_selector`], [`selector_to_learner`]), never serialised.
+//! Everything above this crate talks to the narrow seam in [`channel`]; [`ipc`] implements
+//! it over iceoryx2 shared memory and [`memory`] in-process for tests. [`flow`] documents
+//! and implements flow control: explicit overflow policies, counted drops, and the
+//! learner's update-to-data rate limiter.
+
+pub mod actor_to_learner;
+pub mod actor_to_selector;
+pub mod bench;
+pub mod channel;
+pub mod config;
+pub mod error;
+pub mod flow;
+pub mod ipc;
+pub mod memory;
+pub mod selector_to_learner;
+pub mod shm;
+
+/// Meta-World observation width (hand, gripper, two objects, goal).
+pub const OBS_DIM: usize = 39;
+/// Meta-World action width (hand delta xyz, gripper).
+pub const ACTION_DIM: usize = 4;
+
+pub use actor_to_learner::{flags, Transition, TransitionBatch, TRANSITIONS_PER_BATCH};
+pub use actor_to_selector::{EpisodeSummary, TrajectoryStep, MAX_EPISODE_STEPS};
+pub use channel::{
+    EpisodeSink, EpisodeSource, Message, MessageSink, MessageSource, SelectedSink, SelectedSource,
+    Topic, TransitionSink, TransitionSource, Transport,
+};
+pub use config::{ServiceLimits, TransportConfig};
+pub use error::TransportError;
+pub use flow::{
+    OverflowPolicy, RateLimiter, RateLimiterError, SendOutcome, Staleness, StatsSnapshot,
+    TransportStats,
+};
+pub use ipc::{ShmSink, ShmSource, ShmTransport, StaleCleanup};
+pub use memory::MemoryTransport;
+pub use selector_to_learner::{SelectedBatch, SelectedSample, SELECTED_PER_BATCH};

@@ -1,0 +1,89 @@
+//! Selector → learner: transitions chosen by PTR priority for the TEP dataset, in the
+//! paper's batches of 512.
+
+use iceoryx2::prelude::*;
+
+use crate::{ACTION_DIM, OBS_DIM};
+
+/// PTR scores and forwards transitions in batches of 512 (paper IV.A).
+pub const SELECTED_PER_BATCH: usize = 512;
+
+/// One selected transition with where it came from and its priority.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[repr(C)]
+pub struct SelectedSample {
+    /// Globally unique trajectory id: `(actor_id << 48) | episode_index` by convention,
+    /// so TEP can draw hindsight goals s' from later steps of the same trajectory.
+    pub trajectory_id: u64,
+    pub obs: [f32; OBS_DIM],
+    pub next_obs: [f32; OBS_DIM],
+    pub action: [f32; ACTION_DIM],
+    pub reward: f32,
+    /// `P = 0.6 · mean(GAE) + 0.4 · entropy`.
+    pub priority: f32,
+    /// Step index inside the trajectory (0-based).
+    pub step_index: u16,
+    pub task: u16,
+    pub reserved: [u8; 4],
+}
+
+const _: () = assert!(core::mem::size_of::<SelectedSample>() == 352);
+
+impl SelectedSample {
+    pub const ZERO: SelectedSample = SelectedSample {
+        trajectory_id: 0,
+        obs: [0.0; OBS_DIM],
+        next_obs: [0.0; OBS_DIM],
+        action: [0.0; ACTION_DIM],
+        reward: 0.0,
+        priority: 0.0,
+        step_index: 0,
+        task: 0,
+        reserved: [0; 4],
+    };
+}
+
+/// Up to [`SELECTED_PER_BATCH`] selected samples; only the first `len` are meaningful.
+#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[repr(C)]
+pub struct SelectedBatch {
+    pub len: u32,
+    pub reserved: u32,
+    /// Selector-side sequence number, incremented per batch.
+    pub sequence: u64,
+    pub samples: [SelectedSample; SELECTED_PER_BATCH],
+}
+
+const _: () = assert!(core::mem::size_of::<SelectedBatch>() == 16 + 352 * SELECTED_PER_BATCH);
+
+impl SelectedBatch {
+    pub const EMPTY: SelectedBatch = SelectedBatch {
+        len: 0,
+        reserved: 0,
+        sequence: 0,
+        samples: [SelectedSample::ZERO; SELECTED_PER_BATCH],
+    };
+
+    pub fn as_slice(&self) -> &[SelectedSample] {
+        &self.samples[..(self.len as usize).min(SELECTED_PER_BATCH)]
+    }
+
+    /// Appends `s`; `false` (and nothing changes) when the batch is full.
+    #[must_use = "a full batch drops the sample: send it first"]
+    pub fn push(&mut self, s: SelectedSample) -> bool {
+        if self.len as usize >= SELECTED_PER_BATCH {
+            return false;
+        }
+        self.samples[self.len as usize] = s;
+        self.len += 1;
+        true
+    }
+}
+
+impl PartialEq for SelectedBatch {
+    fn eq(&self, other: &Self) -> bool {
+        self.len == other.len
+            && self.sequence == other.sequence
+            && self.as_slice() == other.as_slice()
+    }
+}
