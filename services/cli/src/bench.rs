@@ -20,6 +20,32 @@ pub enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// Full SAC updates per second, achieved GFLOP/s against the same-run GEMM rate, and
+    /// batch-8 policy inference latency.
+    Sac {
+        /// Policy input width: observation plus one-hot task id (39 + 10 for MT10).
+        #[arg(long, default_value_t = 49)]
+        obs_dim: usize,
+        #[arg(long, default_value_t = 4)]
+        act_dim: usize,
+        /// Width of every hidden layer.
+        #[arg(long, default_value_t = 400)]
+        hidden: usize,
+        /// Number of hidden layers.
+        #[arg(long, default_value_t = 3)]
+        layers: usize,
+        #[arg(long, default_value_t = 1280)]
+        batch: usize,
+        #[arg(long, default_value_t = 2)]
+        threads: usize,
+        #[arg(long, default_value_t = 5.0)]
+        seconds: f64,
+        /// Tasks in the one-hot part of obs-dim.
+        #[arg(long, default_value_t = 10)]
+        num_tasks: usize,
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 /// Expands "mt10" or "reach-v3,push-v3" into task names.
@@ -41,6 +67,40 @@ pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
             );
             let tasks = resolve_tasks(&tasks)?;
             let report = terl_sim::bench::env_bench(&tasks, seconds)?;
+            println!("{}", serde_json::to_string_pretty(&report)?);
+            Ok(ExitCode::SUCCESS)
+        }
+        BenchCommand::Sac {
+            obs_dim,
+            act_dim,
+            hidden,
+            layers,
+            batch,
+            threads,
+            seconds,
+            num_tasks,
+            ..
+        } => {
+            anyhow::ensure!(
+                seconds > 0.0 && seconds.is_finite(),
+                "--seconds must be positive"
+            );
+            anyhow::ensure!(threads > 0, "--threads must be at least 1");
+            anyhow::ensure!(
+                num_tasks < obs_dim,
+                "--num-tasks must be smaller than --obs-dim (it is part of it)"
+            );
+            let cfg = terl_rl::bench::SacBenchConfig {
+                obs_dim,
+                act_dim,
+                hidden,
+                layers,
+                batch,
+                threads,
+                seconds,
+                num_tasks,
+            };
+            let report = terl_rl::bench::sac_bench(&cfg)?;
             println!("{}", serde_json::to_string_pretty(&report)?);
             Ok(ExitCode::SUCCESS)
         }
