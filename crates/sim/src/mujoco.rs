@@ -573,7 +573,10 @@ impl Simulation {
 impl Simulation {
     fn state_size(&self) -> usize {
         // SAFETY: model valid; the signature is a valid state signature.
-        let n = unsafe { self.api.mj_stateSize(self.model.as_ptr(), ffi::mjSTATE_INTEGRATION) };
+        let n = unsafe {
+            self.api
+                .mj_stateSize(self.model.as_ptr(), ffi::mjSTATE_INTEGRATION)
+        };
         n.max(0) as usize
     }
 

@@ -214,8 +214,7 @@ impl Scene {
                 let m = self.mocap;
                 let mut before_last_step = Vec::new();
                 for i in 0..steps {
-                    self.sim.mocap_pos_mut()[3 * m..3 * m + 3]
-                        .copy_from_slice(&self.hand_init_pos);
+                    self.sim.mocap_pos_mut()[3 * m..3 * m + 3].copy_from_slice(&self.hand_init_pos);
                     self.sim.mocap_quat_mut()[4 * m..4 * m + 4].copy_from_slice(&MOCAP_QUAT);
                     self.sim.ctrl_mut()[..2].copy_from_slice(&[-1.0, 1.0]);
                     if i + 1 < steps {
