@@ -139,4 +139,7 @@ impl<T: MessageSource<SelectedBatch> + ?Sized> SelectedSource for T {}
 pub trait Transport: Debug {
     fn sink<M: Message>(&self) -> Result<Box<dyn MessageSink<M>>, TransportError>;
     fn source<M: Message>(&self) -> Result<Box<dyn MessageSource<M>>, TransportError>;
+    /// Shutdown: every send of this transport's sinks that is blocked on a full receiver
+    /// (now or later) returns `TransportError::Cancelled` instead of waiting.
+    fn cancel_blocked_sends(&self);
 }

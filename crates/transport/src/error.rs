@@ -35,6 +35,10 @@ pub enum TransportError {
     BlockTimeout { service: String, waited: Duration },
     #[error("timed out after {after:?} waiting for {what}")]
     Timeout { what: String, after: Duration },
+    #[error(
+        "send on {0} was cancelled while blocked on a full receiver (shutdown); not delivered"
+    )]
+    Cancelled(String),
     #[error("the channel {0} is closed")]
     Closed(String),
 }

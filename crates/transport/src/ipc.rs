@@ -11,7 +11,7 @@
 //! the thread that uses it; the mutex this adds is uncontended and paid once per batch.
 
 use std::path::Path;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -46,6 +46,7 @@ pub struct ShmTransport {
     config: TransportConfig,
     node: Arc<Node<ShmService>>,
     cleanup: StaleCleanup,
+    cancel: Arc<AtomicBool>,
 }
 
 impl core::fmt::Debug for ShmTransport {
@@ -101,6 +102,7 @@ impl ShmTransport {
             config,
             node: Arc::new(node),
             cleanup,
+            cancel: Arc::default(),
         })
     }
 
@@ -178,13 +180,17 @@ impl ShmTransport {
         let full_hits = Arc::new(AtomicU64::new(0));
         let handler_hits = Arc::clone(&full_hits);
         let timeout = self.config.block_timeout;
+        let cancel = Arc::clone(&self.cancel);
+        let handler_cancel = Arc::clone(&self.cancel);
         let handler = move |info: &BackpressureInfo| {
             if info.retries == 0 {
                 handler_hits.fetch_add(1, Ordering::Relaxed);
             }
             match policy {
                 OverflowPolicy::DropNewest => BackpressureAction::DiscardData,
-                OverflowPolicy::Block if info.elapsed_time >= timeout => {
+                OverflowPolicy::Block
+                    if info.elapsed_time >= timeout || handler_cancel.load(Ordering::Relaxed) =>
+                {
                     BackpressureAction::DiscardDataAndFail
                 }
                 OverflowPolicy::Block => BackpressureAction::Retry,
@@ -208,6 +214,7 @@ impl ShmTransport {
             policy,
             block_timeout: timeout,
             full_hits,
+            cancel,
             stats: Arc::default(),
             _node: Arc::clone(&self.node),
         })
@@ -243,6 +250,10 @@ impl Transport for ShmTransport {
     fn source<M: Message>(&self) -> Result<Box<dyn MessageSource<M>>, TransportError> {
         Ok(Box::new(self.shm_source::<M>()?))
     }
+
+    fn cancel_blocked_sends(&self) {
+        self.cancel.store(true, Ordering::Relaxed);
+    }
 }
 
 /// Publisher side of one stream over shared memory.
@@ -254,6 +265,8 @@ pub struct ShmSink<M: Message> {
     block_timeout: Duration,
     /// Receivers found full, counted by the back-pressure handler.
     full_hits: Arc<AtomicU64>,
+    /// Set by `cancel_blocked_sends`: blocked sends give up.
+    cancel: Arc<AtomicBool>,
     stats: Arc<TransportStats>,
     // Keeps the node alive as long as its ports.
     _node: Arc<Node<ShmService>>,
@@ -274,6 +287,9 @@ const UNATTACHED_RETRY: Duration = Duration::from_micros(200);
 
 impl<M: Message> ShmSink<M> {
     fn block_timeout_error(&self) -> TransportError {
+        if self.cancel.load(Ordering::Relaxed) {
+            return TransportError::Cancelled(self.label.clone());
+        }
         TransportError::BlockTimeout {
             service: self.label.clone(),
             waited: self.block_timeout,
@@ -319,7 +335,10 @@ impl<M: Message> MessageSink<M> for ShmSink<M> {
             let outcome = if unattached_full {
                 match self.policy {
                     OverflowPolicy::DropNewest => SendOutcome::Full,
-                    OverflowPolicy::Block if start.elapsed() >= self.block_timeout => {
+                    OverflowPolicy::Block
+                        if start.elapsed() >= self.block_timeout
+                            || self.cancel.load(Ordering::Relaxed) =>
+                    {
                         return Err(self.block_timeout_error())
                     }
                     OverflowPolicy::Block => {

@@ -7,8 +7,9 @@
 
 use std::any::Any;
 use std::collections::HashMap;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
 
 use crossbeam_channel::{Receiver, SendTimeoutError, Sender, TrySendError};
 
@@ -52,6 +53,7 @@ impl MemoryBus {
 pub struct MemoryTransport {
     bus: MemoryBus,
     config: TransportConfig,
+    cancel: Arc<AtomicBool>,
 }
 
 impl MemoryTransport {
@@ -63,7 +65,11 @@ impl MemoryTransport {
     /// A transport sharing `bus` with others (like processes sharing a host).
     pub fn on_bus(bus: MemoryBus, config: TransportConfig) -> Result<Self, TransportError> {
         config.validate()?;
-        Ok(Self { bus, config })
+        Ok(Self {
+            bus,
+            config,
+            cancel: Arc::default(),
+        })
     }
 
     pub fn bus(&self) -> &MemoryBus {
@@ -101,6 +107,7 @@ impl MemoryTransport {
             label,
             policy,
             config: self.config.clone(),
+            cancel: Arc::clone(&self.cancel),
             stats: Arc::default(),
             _topic: std::marker::PhantomData,
         })
@@ -140,6 +147,10 @@ impl Transport for MemoryTransport {
     fn source<M: Message>(&self) -> Result<Box<dyn MessageSource<M>>, TransportError> {
         Ok(Box::new(self.memory_source::<M>()?))
     }
+
+    fn cancel_blocked_sends(&self) {
+        self.cancel.store(true, Ordering::Relaxed);
+    }
 }
 
 /// In-memory publisher.
@@ -149,6 +160,7 @@ pub struct MemorySink<M: Message> {
     label: String,
     policy: OverflowPolicy,
     config: TransportConfig,
+    cancel: Arc<AtomicBool>,
     stats: Arc<TransportStats>,
     _topic: std::marker::PhantomData<fn(M)>,
 }
@@ -169,6 +181,37 @@ impl<M: Message> MemorySink<M> {
     }
 }
 
+/// Slice of a blocked send between checks of the cancel flag.
+const CANCEL_POLL: Duration = Duration::from_millis(5);
+
+impl<M: Message> MemorySink<M> {
+    /// Waits for room; `Ok(false)` when the receiver went away meanwhile.
+    fn block_until_sent(
+        &self,
+        tx: &Sender<Box<M>>,
+        mut boxed: Box<M>,
+    ) -> Result<bool, TransportError> {
+        let start = Instant::now();
+        loop {
+            if self.cancel.load(Ordering::Relaxed) {
+                return Err(TransportError::Cancelled(self.label.clone()));
+            }
+            let left = self.config.block_timeout.saturating_sub(start.elapsed());
+            if left.is_zero() {
+                return Err(TransportError::BlockTimeout {
+                    service: self.label.clone(),
+                    waited: self.config.block_timeout,
+                });
+            }
+            match tx.send_timeout(boxed, left.min(CANCEL_POLL)) {
+                Ok(()) => return Ok(true),
+                Err(SendTimeoutError::Disconnected(_)) => return Ok(false),
+                Err(SendTimeoutError::Timeout(back)) => boxed = back,
+            }
+        }
+    }
+}
+
 impl<M: Message> MessageSink<M> for MemorySink<M> {
     fn send(&mut self, message: &M) -> Result<SendOutcome, TransportError> {
         let senders = self.subscriber_senders();
@@ -183,15 +226,8 @@ impl<M: Message> MessageSink<M> for MemorySink<M> {
                     match self.policy {
                         OverflowPolicy::DropNewest => dropped = true,
                         OverflowPolicy::Block => {
-                            match tx.send_timeout(boxed, self.config.block_timeout) {
-                                Ok(()) => delivered += 1,
-                                Err(SendTimeoutError::Disconnected(_)) => {}
-                                Err(SendTimeoutError::Timeout(_)) => {
-                                    return Err(TransportError::BlockTimeout {
-                                        service: self.label.clone(),
-                                        waited: self.config.block_timeout,
-                                    })
-                                }
+                            if self.block_until_sent(&tx, boxed)? {
+                                delivered += 1;
                             }
                         }
                     }

@@ -31,6 +31,11 @@ fn block_timeout() {
 }
 
 #[test]
+fn cancel() {
+    cancel_unblocks_blocked_send(&on(&MemoryBus::default()), "cancel");
+}
+
+#[test]
 fn back_pressure() {
     block_applies_back_pressure(&on(&MemoryBus::default()), "bp");
 }

@@ -34,6 +34,11 @@ fn block_timeout() {
 }
 
 #[test]
+fn cancel() {
+    cancel_unblocks_blocked_send(&shm, &unique_run("cancel"));
+}
+
+#[test]
 fn back_pressure() {
     block_applies_back_pressure(&shm, &unique_run("bp"));
 }

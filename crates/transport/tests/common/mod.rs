@@ -187,6 +187,29 @@ pub fn block_times_out_on_stalled_receiver<T: Transport>(make: Make<T>, run: &st
     assert_eq!(sink.stats().full_events, 1);
 }
 
+/// Shutdown unblocks a sender stuck on a full receiver.
+pub fn cancel_unblocks_blocked_send<T: Transport + Sync>(make: Make<T>, run: &str) {
+    let cfg = TransportConfig {
+        buffer_batches: 1,
+        ..TransportConfig::new(run, 1)
+    };
+    let learner = make(&cfg, "learner");
+    let _source = learner.source::<TransitionBatch>().unwrap();
+    let actor = make(&cfg, "actor-0");
+    let mut sink = actor.sink::<TransitionBatch>().unwrap();
+    assert_eq!(sink.send(&batch(0, 0)).unwrap(), SendOutcome::Delivered);
+    let start = Instant::now();
+    std::thread::scope(|s| {
+        s.spawn(|| {
+            std::thread::sleep(Duration::from_millis(100));
+            actor.cancel_blocked_sends();
+        });
+        let err = sink.send(&batch(0, 1)).unwrap_err();
+        assert!(matches!(err, TransportError::Cancelled(_)), "{err}");
+    });
+    assert!(start.elapsed() < Duration::from_secs(5));
+}
+
 /// `Block` with a slow receiver: the sender is slowed down, everything arrives.
 pub fn block_applies_back_pressure<T: Transport>(make: Make<T>, run: &str) {
     const N: u64 = 60;
