@@ -61,7 +61,16 @@ command -v python3 >/dev/null || need+=(python3 python3-pip)
 [ ${#need[@]} -eq 0 ] || apt_install "${need[@]}"
 command -v cargo >/dev/null || die "cargo not found" "install the stable Rust toolchain (rustup), then re-run"
 
-[ "$have_all" = 1 ] && { say "already set up ($STAMP_CONTENT)"; exit 0; }
+# ---------------------------------------------------------------- gRPC interop client (crates/wire)
+# The terl-wire tests use Python's grpcio-reflection and grpcio-health-checking as a gRPC client we
+# did not write; their venv lives in .deps/grpc-venv. The script is idempotent (instant when done).
+setup_grpc_venv() {
+    python3 -c "import ensurepip, venv" 2>/dev/null || apt_install python3-venv
+    "$ROOT/crates/wire/tests/python/setup-venv.sh" >&2 \
+        || die "creating .deps/grpc-venv failed" "re-run crates/wire/tests/python/setup-venv.sh and read its output"
+}
+
+[ "$have_all" = 1 ] && { say "already set up ($STAMP_CONTENT)"; setup_grpc_venv; exit 0; }
 
 # ---------------------------------------------------------------- wheels
 python3 -m pip --version >/dev/null 2>&1 || die "python3 has no pip" "install python3-pip (apt-get install python3-pip)"
@@ -113,3 +122,6 @@ mv "$DEPS/mujoco.tmp" "$DEPS/mujoco"
 mv "$ROOT/assets/metaworld.tmp" "$ROOT/assets/metaworld"
 echo "$STAMP_CONTENT" >"$STAMP"
 say "done: libmujoco in .deps/mujoco/lib, Meta-World assets in assets/metaworld"
+
+# gRPC interop client venv (see setup_grpc_venv above).
+setup_grpc_venv

@@ -1,0 +1,235 @@
+//! Records of the MCAP logs (TEP dataset, episode summaries, metrics) with edge validation.
+//!
+//! The MCAP writers in `crates/telemetry` encode the `pb` messages; readers turn them back into
+//! these types, so a dataset written by an older or buggy run is rejected on load with a precise
+//! message instead of training the planner on garbage.
+
+use serde::Serialize;
+use tonic::Status;
+
+use crate::pb;
+
+/// Meta-World observation width.
+pub const OBS_DIM: usize = 39;
+/// Meta-World action width.
+pub const ACTION_DIM: usize = 4;
+
+/// One transition selected for the TEP dataset.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TepSample {
+    pub task: String,
+    pub trajectory_id: u64,
+    pub step: u32,
+    pub priority: f64,
+    pub obs: [f32; OBS_DIM],
+    pub next_obs: [f32; OBS_DIM],
+    /// `None` when the sample was recorded without a goal state.
+    pub goal_obs: Option<[f32; OBS_DIM]>,
+    pub action: [f32; ACTION_DIM],
+}
+
+fn fixed<const N: usize>(field: &str, values: &[f32]) -> Result<[f32; N], Status> {
+    let array: [f32; N] = values.try_into().map_err(|_| {
+        Status::invalid_argument(format!(
+            "{field}: expected {N} values, got {}",
+            values.len()
+        ))
+    })?;
+    if let Some(i) = array.iter().position(|v| !v.is_finite()) {
+        return Err(Status::invalid_argument(format!(
+            "{field}[{i}] is not finite ({})",
+            array[i]
+        )));
+    }
+    Ok(array)
+}
+
+impl TryFrom<pb::TepSample> for TepSample {
+    type Error = Status;
+    fn try_from(m: pb::TepSample) -> Result<Self, Status> {
+        if m.task.is_empty() {
+            return Err(Status::invalid_argument("TepSample: empty task name"));
+        }
+        let action: [f32; ACTION_DIM] = fixed("TepSample.action", &m.action)?;
+        if let Some(i) = action.iter().position(|a| a.abs() > 1.0) {
+            return Err(Status::invalid_argument(format!(
+                "TepSample.action[{i}] = {} is outside [-1, 1]",
+                action[i]
+            )));
+        }
+        if !m.priority.is_finite() {
+            return Err(Status::invalid_argument(format!(
+                "TepSample.priority is not finite ({})",
+                m.priority
+            )));
+        }
+        Ok(Self {
+            obs: fixed("TepSample.obs", &m.obs)?,
+            next_obs: fixed("TepSample.next_obs", &m.next_obs)?,
+            goal_obs: if m.goal_obs.is_empty() {
+                None
+            } else {
+                Some(fixed("TepSample.goal_obs", &m.goal_obs)?)
+            },
+            action,
+            task: m.task,
+            trajectory_id: m.trajectory_id,
+            step: m.step,
+            priority: m.priority,
+        })
+    }
+}
+
+impl From<TepSample> for pb::TepSample {
+    fn from(d: TepSample) -> Self {
+        Self {
+            task: d.task,
+            trajectory_id: d.trajectory_id,
+            step: d.step,
+            priority: d.priority,
+            obs: d.obs.to_vec(),
+            next_obs: d.next_obs.to_vec(),
+            goal_obs: d.goal_obs.map(|g| g.to_vec()).unwrap_or_default(),
+            action: d.action.to_vec(),
+        }
+    }
+}
+
+/// One finished episode.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct EpisodeSummary {
+    pub task: String,
+    pub actor_id: u32,
+    pub episode_index: u64,
+    pub episode_return: f64,
+    pub success: bool,
+    pub length: u32,
+    pub policy_version: u64,
+    pub guided_steps: u32,
+}
+
+impl TryFrom<pb::EpisodeSummary> for EpisodeSummary {
+    type Error = Status;
+    fn try_from(m: pb::EpisodeSummary) -> Result<Self, Status> {
+        if m.task.is_empty() {
+            return Err(Status::invalid_argument("EpisodeSummary: empty task name"));
+        }
+        if !m.episode_return.is_finite() {
+            return Err(Status::invalid_argument(format!(
+                "EpisodeSummary.episode_return is not finite ({})",
+                m.episode_return
+            )));
+        }
+        if m.guided_steps > m.length {
+            return Err(Status::invalid_argument(format!(
+                "EpisodeSummary: guided_steps {} exceeds length {}",
+                m.guided_steps, m.length
+            )));
+        }
+        Ok(Self {
+            task: m.task,
+            actor_id: m.actor_id,
+            episode_index: m.episode_index,
+            episode_return: m.episode_return,
+            success: m.success,
+            length: m.length,
+            policy_version: m.policy_version,
+            guided_steps: m.guided_steps,
+        })
+    }
+}
+
+impl From<EpisodeSummary> for pb::EpisodeSummary {
+    fn from(d: EpisodeSummary) -> Self {
+        Self {
+            task: d.task,
+            actor_id: d.actor_id,
+            episode_index: d.episode_index,
+            episode_return: d.episode_return,
+            success: d.success,
+            length: d.length,
+            policy_version: d.policy_version,
+            guided_steps: d.guided_steps,
+        }
+    }
+}
+
+/// One scalar metric sample (`losses/qf1_loss`, `charts/SPS`, ...).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Metric {
+    pub name: String,
+    pub value: f64,
+    pub step: u64,
+    pub unix_time_nanos: u64,
+}
+
+impl TryFrom<pb::Metric> for Metric {
+    type Error = Status;
+    fn try_from(m: pb::Metric) -> Result<Self, Status> {
+        if m.name.is_empty() {
+            return Err(Status::invalid_argument("Metric: empty name"));
+        }
+        // Non-finite metric values are allowed: a diverging loss is worth recording as it is.
+        Ok(Self {
+            name: m.name,
+            value: m.value,
+            step: m.step,
+            unix_time_nanos: m.unix_time_nanos,
+        })
+    }
+}
+
+impl From<Metric> for pb::Metric {
+    fn from(d: Metric) -> Self {
+        Self {
+            name: d.name,
+            value: d.value,
+            step: d.step,
+            unix_time_nanos: d.unix_time_nanos,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample() -> TepSample {
+        TepSample {
+            task: "door-open".into(),
+            trajectory_id: 7,
+            step: 12,
+            priority: 0.3,
+            obs: [0.1; OBS_DIM],
+            next_obs: [0.2; OBS_DIM],
+            goal_obs: None,
+            action: [0.5, -0.5, 1.0, -1.0],
+        }
+    }
+
+    #[test]
+    fn tep_sample_round_trip_and_rejections() {
+        let s = sample();
+        assert_eq!(
+            TepSample::try_from(pb::TepSample::from(s.clone())).unwrap(),
+            s
+        );
+        let mut m = pb::TepSample::from(s);
+        m.obs.pop();
+        assert_eq!(
+            TepSample::try_from(m.clone()).unwrap_err().message(),
+            "TepSample.obs: expected 39 values, got 38"
+        );
+        m.obs.push(f32::NAN);
+        assert_eq!(
+            TepSample::try_from(m.clone()).unwrap_err().message(),
+            "TepSample.obs[38] is not finite (NaN)"
+        );
+        m.obs[38] = 0.0;
+        m.action[1] = 1.5;
+        assert!(TepSample::try_from(m)
+            .unwrap_err()
+            .message()
+            .contains("outside [-1, 1]"));
+    }
+}

@@ -1,0 +1,430 @@
+//! Serving the `Learner` and `Selector` services, each with `grpc.health.v1` and server
+//! reflection (`grpc.reflection.v1` and `v1alpha`, since generic clients differ in which one they
+//! speak), so grpcurl or any grpcio client works without our proto files.
+//!
+//! Like mini-redis, the server takes a bound listener and a shutdown future: binaries bind
+//! `127.0.0.1:50051`/`50052` by default, tests bind port 0. When the shutdown future completes,
+//! health turns NOT_SERVING, open `WatchWeights` streams end cleanly, and in-flight unary calls
+//! finish before the function returns.
+
+use std::collections::VecDeque;
+use std::future::Future;
+use std::net::SocketAddr;
+use std::pin::Pin;
+use std::sync::Arc;
+use std::time::Duration;
+
+use futures_util::Stream;
+use tokio::net::TcpListener;
+use tokio::sync::watch;
+use tonic::server::NamedService;
+use tonic::transport::server::{Router, TcpIncoming};
+use tonic::transport::Server;
+use tonic::{Request, Response, Status};
+use tonic_health::ServingStatus;
+
+use crate::hub::{Latest, WeightHub};
+use crate::pb;
+use crate::pb::learner_server::{Learner, LearnerServer};
+use crate::pb::selector_server::{Selector, SelectorServer};
+use crate::status::{LearnerStatus, SelectorStatus};
+use crate::weights::WeightsKind;
+use crate::{DEFAULT_MAX_MESSAGE_BYTES, FILE_DESCRIPTOR_SET};
+
+/// Why a server could not start or stopped with an error.
+#[derive(Debug, thiserror::Error)]
+pub enum ServeError {
+    #[error("listener: {0}")]
+    Io(#[from] std::io::Error),
+    #[error("gRPC transport: {0}")]
+    Transport(#[from] tonic::transport::Error),
+    #[error("reflection service: {0}")]
+    Reflection(#[from] tonic_reflection::server::Error),
+}
+
+/// Server settings that differ from tonic's defaults on purpose.
+#[derive(Debug, Clone, Copy)]
+pub struct ServeOptions {
+    /// Largest message decoded or encoded, bytes. tonic's default is 4 MiB, which the TEP planner
+    /// weights (F and AN, ≈ 1.1 M f32 ≈ 4.5 MB) already exceed; the default
+    /// [`DEFAULT_MAX_MESSAGE_BYTES`] = 64 MiB leaves room for 3×1024 networks and targets while
+    /// still refusing runaway messages with `RESOURCE_EXHAUSTED`.
+    pub max_message_bytes: usize,
+    /// HTTP/2 flow-control windows (stream, connection). Large enough that one policy version
+    /// (≈ 1.4 MB) goes out without waiting for window updates.
+    pub stream_window_bytes: u32,
+    pub connection_window_bytes: u32,
+    /// After the shutdown future completes, how long to wait for open calls to finish before
+    /// returning anyway. `WatchWeights` streams end at once; this bounds streams we do not
+    /// control, such as a client's `grpc.health.v1.Health/Watch`, which would otherwise keep a
+    /// graceful shutdown waiting forever.
+    pub shutdown_grace: Duration,
+}
+
+impl Default for ServeOptions {
+    fn default() -> Self {
+        Self {
+            max_message_bytes: DEFAULT_MAX_MESSAGE_BYTES,
+            stream_window_bytes: 4 << 20,
+            connection_window_bytes: 16 << 20,
+            shutdown_grace: Duration::from_secs(3),
+        }
+    }
+}
+
+/// Binds a TCP listener; pass [`crate::DEFAULT_LEARNER_ADDR`], [`crate::DEFAULT_SELECTOR_ADDR`]
+/// or `127.0.0.1:0` (tests). Loopback by default: the control plane is not meant to be exposed.
+pub async fn bind(addr: SocketAddr) -> std::io::Result<TcpListener> {
+    TcpListener::bind(addr).await
+}
+
+/// What the learner process provides to its gRPC service.
+pub trait LearnerBackend: Send + Sync + 'static {
+    /// A fresh status snapshot.
+    fn status(&self) -> impl Future<Output = Result<LearnerStatus, Status>> + Send;
+    /// Writes a checkpoint now.
+    fn save_checkpoint(
+        &self,
+        request: CheckpointRequest,
+    ) -> impl Future<Output = Result<CheckpointSaved, Status>> + Send;
+    /// The hub the learner publishes weights to; `WatchWeights` streams subscribe to it.
+    fn weight_hub(&self) -> &WeightHub;
+}
+
+/// What the selector process provides to its gRPC service.
+pub trait SelectorBackend: Send + Sync + 'static {
+    fn status(&self) -> impl Future<Output = Result<SelectorStatus, Status>> + Send;
+}
+
+/// A validated `SaveCheckpoint` request.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct CheckpointRequest {
+    /// `[A-Za-z0-9_-]{1,64}` when present; safe to put in a file name.
+    pub label: Option<String>,
+}
+
+impl TryFrom<pb::SaveCheckpointRequest> for CheckpointRequest {
+    type Error = Status;
+    fn try_from(m: pb::SaveCheckpointRequest) -> Result<Self, Status> {
+        if m.label.is_empty() {
+            return Ok(Self { label: None });
+        }
+        let valid_char = |c: char| c.is_ascii_alphanumeric() || c == '_' || c == '-';
+        if m.label.len() > 64 || !m.label.chars().all(valid_char) {
+            let shown: String = m.label.chars().take(80).collect();
+            return Err(Status::invalid_argument(format!(
+                "checkpoint label {shown:?}: use 1 to 64 characters from [A-Za-z0-9_-]"
+            )));
+        }
+        Ok(Self {
+            label: Some(m.label),
+        })
+    }
+}
+
+impl From<CheckpointRequest> for pb::SaveCheckpointRequest {
+    fn from(d: CheckpointRequest) -> Self {
+        Self {
+            label: d.label.unwrap_or_default(),
+        }
+    }
+}
+
+/// Where a checkpoint was written.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+pub struct CheckpointSaved {
+    pub path: String,
+    pub learner_update: u64,
+    pub policy_version: u64,
+}
+
+impl TryFrom<pb::SaveCheckpointResponse> for CheckpointSaved {
+    type Error = Status;
+    fn try_from(m: pb::SaveCheckpointResponse) -> Result<Self, Status> {
+        if m.path.is_empty() {
+            return Err(Status::invalid_argument(
+                "SaveCheckpointResponse: empty path",
+            ));
+        }
+        Ok(Self {
+            path: m.path,
+            learner_update: m.learner_update,
+            policy_version: m.policy_version,
+        })
+    }
+}
+
+impl From<CheckpointSaved> for pb::SaveCheckpointResponse {
+    fn from(d: CheckpointSaved) -> Self {
+        Self {
+            path: d.path,
+            learner_update: d.learner_update,
+            policy_version: d.policy_version,
+        }
+    }
+}
+
+/// The tonic service in front of a [`LearnerBackend`].
+#[derive(Debug)]
+pub struct LearnerService<B> {
+    backend: Arc<B>,
+    shutdown: watch::Receiver<bool>,
+}
+
+type WeightsStream = Pin<Box<dyn Stream<Item = Result<pb::WeightsUpdate, Status>> + Send>>;
+
+#[tonic::async_trait]
+impl<B: LearnerBackend> Learner for LearnerService<B> {
+    async fn get_status(
+        &self,
+        _: Request<pb::GetLearnerStatusRequest>,
+    ) -> Result<Response<pb::LearnerStatus>, Status> {
+        Ok(Response::new(self.backend.status().await?.into()))
+    }
+
+    type WatchWeightsStream = WeightsStream;
+
+    async fn watch_weights(
+        &self,
+        request: Request<pb::WatchWeightsRequest>,
+    ) -> Result<Response<WeightsStream>, Status> {
+        let mut kinds = request
+            .into_inner()
+            .kinds
+            .into_iter()
+            .map(WeightsKind::try_from)
+            .collect::<Result<Vec<_>, _>>()?;
+        if kinds.is_empty() {
+            kinds = WeightsKind::ALL.to_vec();
+        }
+        kinds.sort();
+        kinds.dedup();
+        let hub = self.backend.weight_hub().subscribe();
+        Ok(Response::new(Box::pin(weight_stream(
+            hub,
+            self.shutdown.clone(),
+            kinds,
+        ))))
+    }
+
+    async fn save_checkpoint(
+        &self,
+        request: Request<pb::SaveCheckpointRequest>,
+    ) -> Result<Response<pb::SaveCheckpointResponse>, Status> {
+        let request = CheckpointRequest::try_from(request.into_inner())?;
+        Ok(Response::new(
+            self.backend.save_checkpoint(request).await?.into(),
+        ))
+    }
+}
+
+struct StreamState {
+    hub: watch::Receiver<Latest>,
+    shutdown: watch::Receiver<bool>,
+    kinds: Vec<WeightsKind>,
+    sent: [u64; 3],
+    pending: VecDeque<Arc<pb::WeightsUpdate>>,
+}
+
+/// Latest-wins stream of weight versions: sends what is newer than what this subscriber already
+/// got, then waits for the hub to change. Ends when the server shuts down or the hub is gone.
+fn weight_stream(
+    hub: watch::Receiver<Latest>,
+    shutdown: watch::Receiver<bool>,
+    kinds: Vec<WeightsKind>,
+) -> impl Stream<Item = Result<pb::WeightsUpdate, Status>> + Send {
+    let state = StreamState {
+        hub,
+        shutdown,
+        kinds,
+        sent: [0; 3],
+        pending: VecDeque::new(),
+    };
+    futures_util::stream::unfold(state, |mut s| async move {
+        loop {
+            if *s.shutdown.borrow() {
+                return None;
+            }
+            if let Some(update) = s.pending.pop_front() {
+                return Some((Ok(pb::WeightsUpdate::clone(&update)), s));
+            }
+            {
+                let latest = s.hub.borrow_and_update();
+                for &kind in &s.kinds {
+                    if let Some(update) = latest.get(kind) {
+                        if update.version > s.sent[kind.index()] {
+                            s.sent[kind.index()] = update.version;
+                            s.pending.push_back(Arc::clone(update));
+                        }
+                    }
+                }
+            }
+            if !s.pending.is_empty() {
+                continue;
+            }
+            tokio::select! {
+                changed = s.hub.changed() => if changed.is_err() { return None },
+                _ = s.shutdown.changed() => {}
+            }
+        }
+    })
+}
+
+/// The tonic service in front of a [`SelectorBackend`].
+#[derive(Debug)]
+pub struct SelectorService<B> {
+    backend: Arc<B>,
+}
+
+#[tonic::async_trait]
+impl<B: SelectorBackend> Selector for SelectorService<B> {
+    async fn get_status(
+        &self,
+        _: Request<pb::GetSelectorStatusRequest>,
+    ) -> Result<Response<pb::SelectorStatus>, Status> {
+        Ok(Response::new(self.backend.status().await?.into()))
+    }
+}
+
+/// Serves `terl.v1.Learner` (+ health + reflection) on `listener` with default options until
+/// `shutdown` completes.
+pub async fn serve_learner<B: LearnerBackend>(
+    listener: TcpListener,
+    backend: B,
+    shutdown: impl Future<Output = ()> + Send,
+) -> Result<(), ServeError> {
+    serve_learner_with(listener, backend, shutdown, ServeOptions::default()).await
+}
+
+/// [`serve_learner`] with explicit options.
+pub async fn serve_learner_with<B: LearnerBackend>(
+    listener: TcpListener,
+    backend: B,
+    shutdown: impl Future<Output = ()> + Send,
+    options: ServeOptions,
+) -> Result<(), ServeError> {
+    if backend.weight_hub().max_message_bytes() > options.max_message_bytes {
+        tracing::warn!(
+            hub = backend.weight_hub().max_message_bytes(),
+            server = options.max_message_bytes,
+            "the weight hub accepts larger versions than the server will encode"
+        );
+    }
+    let (stop_streams, shutdown_rx) = watch::channel(false);
+    let service = LearnerServer::new(LearnerService {
+        backend: Arc::new(backend),
+        shutdown: shutdown_rx,
+    })
+    .max_decoding_message_size(options.max_message_bytes)
+    .max_encoding_message_size(options.max_message_bytes);
+    serve(
+        listener,
+        <LearnerServer<LearnerService<B>> as NamedService>::NAME,
+        |router| router.add_service(service),
+        shutdown,
+        options,
+        move || {
+            let _ = stop_streams.send(true);
+        },
+    )
+    .await
+}
+
+/// Serves `terl.v1.Selector` (+ health + reflection) on `listener` until `shutdown` completes.
+pub async fn serve_selector<B: SelectorBackend>(
+    listener: TcpListener,
+    backend: B,
+    shutdown: impl Future<Output = ()> + Send,
+) -> Result<(), ServeError> {
+    let options = ServeOptions::default();
+    let service = SelectorServer::new(SelectorService {
+        backend: Arc::new(backend),
+    })
+    .max_decoding_message_size(options.max_message_bytes)
+    .max_encoding_message_size(options.max_message_bytes);
+    serve(
+        listener,
+        <SelectorServer<SelectorService<B>> as NamedService>::NAME,
+        |router| router.add_service(service),
+        shutdown,
+        options,
+        || {},
+    )
+    .await
+}
+
+/// Health + reflection v1 + reflection v1alpha, with our transport settings.
+/// Reflection lists exactly the services this server answers (`service_name`, health and both
+/// reflection versions), not every service in the descriptor set.
+pub(crate) fn base_router(
+    options: &ServeOptions,
+    service_name: &str,
+    health: tonic_health::pb::health_server::HealthServer<
+        impl tonic_health::pb::health_server::Health,
+    >,
+) -> Result<Router, ServeError> {
+    use tonic_reflection::pb::{v1, v1alpha};
+    let reflection = |other_reflection_version: &'static [u8]| {
+        // Each build_v1* adds its own descriptor; the other version's is added here.
+        tonic_reflection::server::Builder::configure()
+            .register_encoded_file_descriptor_set(FILE_DESCRIPTOR_SET)
+            .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+            .register_encoded_file_descriptor_set(other_reflection_version)
+            .with_service_name(service_name)
+            .with_service_name("grpc.health.v1.Health")
+            .with_service_name("grpc.reflection.v1.ServerReflection")
+            .with_service_name("grpc.reflection.v1alpha.ServerReflection")
+    };
+    Ok(Server::builder()
+        .initial_stream_window_size(options.stream_window_bytes)
+        .initial_connection_window_size(options.connection_window_bytes)
+        .add_service(health)
+        .add_service(reflection(v1alpha::FILE_DESCRIPTOR_SET).build_v1()?)
+        .add_service(reflection(v1::FILE_DESCRIPTOR_SET).build_v1alpha()?))
+}
+
+async fn serve(
+    listener: TcpListener,
+    service_name: &'static str,
+    add_service: impl FnOnce(Router) -> Router,
+    shutdown: impl Future<Output = ()> + Send,
+    options: ServeOptions,
+    on_shutdown: impl FnOnce() + Send,
+) -> Result<(), ServeError> {
+    let addr = listener.local_addr()?;
+    let (reporter, health) = tonic_health::server::health_reporter();
+    reporter
+        .set_service_status(service_name, ServingStatus::Serving)
+        .await;
+    let router = add_service(base_router(&options, service_name, health)?);
+    tracing::info!(%addr, service = service_name, "gRPC server listening");
+    let (fired, fired_rx) = tokio::sync::oneshot::channel::<()>();
+    let signal = async move {
+        shutdown.await;
+        let _ = fired.send(());
+        for name in ["", service_name] {
+            reporter
+                .set_service_status(name, ServingStatus::NotServing)
+                .await;
+        }
+        on_shutdown();
+        tracing::info!(%addr, service = service_name, "gRPC server shutting down");
+    };
+    let incoming = TcpIncoming::from(listener).with_nodelay(Some(true));
+    let server = router.serve_with_incoming_shutdown(incoming, signal);
+    let grace_over = async {
+        match fired_rx.await {
+            Ok(()) => tokio::time::sleep(options.shutdown_grace).await,
+            Err(_) => std::future::pending().await,
+        }
+    };
+    tokio::select! {
+        result = server => result?,
+        () = grace_over => tracing::warn!(
+            %addr,
+            grace = ?options.shutdown_grace,
+            "calls still open after the shutdown grace period; returning without them"
+        ),
+    }
+    Ok(())
+}

@@ -1,0 +1,316 @@
+//! Status snapshots of the learner and the selector as plain, serialisable Rust values.
+//!
+//! Servers build these and convert them with `From`; clients get them through `TryFrom`, which
+//! rejects non-finite or out-of-range numbers (a success rate of 1.7, a negative rate) with
+//! `invalid_argument`, so `terl status` never prints garbage it received.
+
+use serde::Serialize;
+use tonic::Status;
+
+use crate::pb;
+
+/// Rolling success rate of one task.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TaskSuccess {
+    pub task: String,
+    /// In [0, 1].
+    pub success_rate: f64,
+    /// Episodes in the window.
+    pub episodes: u64,
+}
+
+/// What one actor has delivered, as the learner sees it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ActorStats {
+    pub actor_id: u32,
+    pub env_steps: u64,
+    pub env_steps_per_second: f64,
+    /// Policy version of the actor's latest transitions.
+    pub policy_version: u64,
+    pub seconds_since_seen: f64,
+}
+
+/// Training progress of the learner (`Learner.GetStatus`).
+#[derive(Debug, Clone, PartialEq, Default, Serialize)]
+pub struct LearnerStatus {
+    pub run_id: String,
+    pub uptime_seconds: f64,
+    pub updates: u64,
+    pub updates_per_second: f64,
+    pub env_steps_total: u64,
+    pub actors: Vec<ActorStats>,
+    pub replay_size: u64,
+    pub replay_capacity: u64,
+    pub task_success: Vec<TaskSuccess>,
+    /// Updates between the policy that produced trained-on transitions and the current one.
+    pub staleness_mean: f64,
+    pub staleness_max: u64,
+    pub rejected_batches: u64,
+    pub policy_version: u64,
+    pub planner_version: u64,
+    pub tep_updates: u64,
+}
+
+/// Statistics of PTR priorities.
+#[derive(Debug, Clone, PartialEq, Default, Serialize)]
+pub struct PriorityStats {
+    pub scored: u64,
+    pub mean: f64,
+    pub min: f64,
+    pub max: f64,
+    pub selection_threshold: f64,
+}
+
+/// Episode and selection statistics of the selector (`Selector.GetStatus`).
+#[derive(Debug, Clone, PartialEq, Default, Serialize)]
+pub struct SelectorStatus {
+    pub run_id: String,
+    pub uptime_seconds: f64,
+    pub episodes_seen: u64,
+    pub task_success: Vec<TaskSuccess>,
+    pub selected_samples: u64,
+    pub priority: PriorityStats,
+    pub critic_version: u64,
+}
+
+fn finite(field: &str, value: f64) -> Result<f64, Status> {
+    if value.is_finite() {
+        Ok(value)
+    } else {
+        Err(Status::invalid_argument(format!(
+            "{field} is not finite ({value})"
+        )))
+    }
+}
+
+fn non_negative(field: &str, value: f64) -> Result<f64, Status> {
+    if finite(field, value)? >= 0.0 {
+        Ok(value)
+    } else {
+        Err(Status::invalid_argument(format!(
+            "{field} is negative ({value})"
+        )))
+    }
+}
+
+impl TryFrom<pb::TaskSuccess> for TaskSuccess {
+    type Error = Status;
+    fn try_from(m: pb::TaskSuccess) -> Result<Self, Status> {
+        if m.task.is_empty() {
+            return Err(Status::invalid_argument("task_success: empty task name"));
+        }
+        let field = format!("task_success[{}].success_rate", m.task);
+        if !(0.0..=1.0).contains(&finite(&field, m.success_rate)?) {
+            return Err(Status::invalid_argument(format!(
+                "{field} is outside [0, 1] ({})",
+                m.success_rate
+            )));
+        }
+        Ok(Self {
+            task: m.task,
+            success_rate: m.success_rate,
+            episodes: m.episodes,
+        })
+    }
+}
+
+impl From<TaskSuccess> for pb::TaskSuccess {
+    fn from(d: TaskSuccess) -> Self {
+        Self {
+            task: d.task,
+            success_rate: d.success_rate,
+            episodes: d.episodes,
+        }
+    }
+}
+
+impl TryFrom<pb::ActorStats> for ActorStats {
+    type Error = Status;
+    fn try_from(m: pb::ActorStats) -> Result<Self, Status> {
+        let id = m.actor_id;
+        Ok(Self {
+            actor_id: id,
+            env_steps: m.env_steps,
+            env_steps_per_second: non_negative(
+                &format!("actors[{id}].env_steps_per_second"),
+                m.env_steps_per_second,
+            )?,
+            policy_version: m.policy_version,
+            seconds_since_seen: non_negative(
+                &format!("actors[{id}].seconds_since_seen"),
+                m.seconds_since_seen,
+            )?,
+        })
+    }
+}
+
+impl From<ActorStats> for pb::ActorStats {
+    fn from(d: ActorStats) -> Self {
+        Self {
+            actor_id: d.actor_id,
+            env_steps: d.env_steps,
+            env_steps_per_second: d.env_steps_per_second,
+            policy_version: d.policy_version,
+            seconds_since_seen: d.seconds_since_seen,
+        }
+    }
+}
+
+fn convert_all<P, D: TryFrom<P, Error = Status>>(items: Vec<P>) -> Result<Vec<D>, Status> {
+    items.into_iter().map(D::try_from).collect()
+}
+
+impl TryFrom<pb::LearnerStatus> for LearnerStatus {
+    type Error = Status;
+    fn try_from(m: pb::LearnerStatus) -> Result<Self, Status> {
+        if m.replay_size > m.replay_capacity {
+            return Err(Status::invalid_argument(format!(
+                "replay_size {} exceeds replay_capacity {}",
+                m.replay_size, m.replay_capacity
+            )));
+        }
+        Ok(Self {
+            run_id: m.run_id,
+            uptime_seconds: non_negative("uptime_seconds", m.uptime_seconds)?,
+            updates: m.updates,
+            updates_per_second: non_negative("updates_per_second", m.updates_per_second)?,
+            env_steps_total: m.env_steps_total,
+            actors: convert_all(m.actors)?,
+            replay_size: m.replay_size,
+            replay_capacity: m.replay_capacity,
+            task_success: convert_all(m.task_success)?,
+            staleness_mean: non_negative("staleness_mean", m.staleness_mean)?,
+            staleness_max: m.staleness_max,
+            rejected_batches: m.rejected_batches,
+            policy_version: m.policy_version,
+            planner_version: m.planner_version,
+            tep_updates: m.tep_updates,
+        })
+    }
+}
+
+impl From<LearnerStatus> for pb::LearnerStatus {
+    fn from(d: LearnerStatus) -> Self {
+        Self {
+            run_id: d.run_id,
+            uptime_seconds: d.uptime_seconds,
+            updates: d.updates,
+            updates_per_second: d.updates_per_second,
+            env_steps_total: d.env_steps_total,
+            actors: d.actors.into_iter().map(Into::into).collect(),
+            replay_size: d.replay_size,
+            replay_capacity: d.replay_capacity,
+            task_success: d.task_success.into_iter().map(Into::into).collect(),
+            staleness_mean: d.staleness_mean,
+            staleness_max: d.staleness_max,
+            rejected_batches: d.rejected_batches,
+            policy_version: d.policy_version,
+            planner_version: d.planner_version,
+            tep_updates: d.tep_updates,
+        }
+    }
+}
+
+impl TryFrom<pb::PriorityStats> for PriorityStats {
+    type Error = Status;
+    fn try_from(m: pb::PriorityStats) -> Result<Self, Status> {
+        let s = Self {
+            scored: m.scored,
+            mean: finite("priority.mean", m.mean)?,
+            min: finite("priority.min", m.min)?,
+            max: finite("priority.max", m.max)?,
+            selection_threshold: finite("priority.selection_threshold", m.selection_threshold)?,
+        };
+        if s.scored > 0 && !(s.min <= s.mean && s.mean <= s.max) {
+            return Err(Status::invalid_argument(format!(
+                "priority: expected min <= mean <= max, got {} / {} / {}",
+                s.min, s.mean, s.max
+            )));
+        }
+        Ok(s)
+    }
+}
+
+impl From<PriorityStats> for pb::PriorityStats {
+    fn from(d: PriorityStats) -> Self {
+        Self {
+            scored: d.scored,
+            mean: d.mean,
+            min: d.min,
+            max: d.max,
+            selection_threshold: d.selection_threshold,
+        }
+    }
+}
+
+impl TryFrom<pb::SelectorStatus> for SelectorStatus {
+    type Error = Status;
+    fn try_from(m: pb::SelectorStatus) -> Result<Self, Status> {
+        Ok(Self {
+            run_id: m.run_id,
+            uptime_seconds: non_negative("uptime_seconds", m.uptime_seconds)?,
+            episodes_seen: m.episodes_seen,
+            task_success: convert_all(m.task_success)?,
+            selected_samples: m.selected_samples,
+            // A missing sub-message means "nothing scored yet".
+            priority: m
+                .priority
+                .map(PriorityStats::try_from)
+                .transpose()?
+                .unwrap_or_default(),
+            critic_version: m.critic_version,
+        })
+    }
+}
+
+impl From<SelectorStatus> for pb::SelectorStatus {
+    fn from(d: SelectorStatus) -> Self {
+        Self {
+            run_id: d.run_id,
+            uptime_seconds: d.uptime_seconds,
+            episodes_seen: d.episodes_seen,
+            task_success: d.task_success.into_iter().map(Into::into).collect(),
+            selected_samples: d.selected_samples,
+            priority: Some(d.priority.into()),
+            critic_version: d.critic_version,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rejects_out_of_range_numbers() {
+        let mut m = pb::LearnerStatus {
+            replay_capacity: 10,
+            task_success: vec![pb::TaskSuccess {
+                task: "reach".into(),
+                success_rate: 1.5,
+                episodes: 3,
+            }],
+            ..Default::default()
+        };
+        let e = LearnerStatus::try_from(m.clone()).unwrap_err();
+        assert!(e
+            .message()
+            .contains("task_success[reach].success_rate is outside [0, 1]"));
+        m.task_success[0].success_rate = 0.5;
+        m.updates_per_second = f64::NAN;
+        let e = LearnerStatus::try_from(m.clone()).unwrap_err();
+        assert_eq!(e.message(), "updates_per_second is not finite (NaN)");
+        m.updates_per_second = 1.0;
+        m.replay_size = 11;
+        assert!(LearnerStatus::try_from(m)
+            .unwrap_err()
+            .message()
+            .contains("exceeds"));
+    }
+
+    #[test]
+    fn selector_without_priority_is_default() {
+        let s = SelectorStatus::try_from(pb::SelectorStatus::default()).unwrap();
+        assert_eq!(s.priority, PriorityStats::default());
+    }
+}

@@ -1,0 +1,575 @@
+//! terl-wire over real gRPC on 127.0.0.1, port 0: status, weight streaming, edge validation,
+//! size limits, health, shutdown, and a Python grpcio client we did not write.
+
+use std::future::Future;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::pin::Pin;
+use std::time::Duration;
+
+use futures_util::{Stream, StreamExt};
+use terl_wire::pb;
+use terl_wire::{
+    connect_learner, connect_learner_with, connect_selector, serve_learner, serve_learner_with,
+    serve_selector, weights_crc32, ActorStats, CheckpointRequest, CheckpointSaved, ClientOptions,
+    LearnerBackend, LearnerStatus, PriorityStats, SelectorBackend, SelectorStatus, ServeOptions,
+    TaskSuccess, Tensor, WeightHub, Weights, WeightsKind,
+};
+use tokio::net::TcpListener;
+use tokio::sync::oneshot;
+use tokio::task::JoinHandle;
+use tonic::{Code, Request, Response, Status};
+
+const WAIT: Duration = Duration::from_secs(10);
+
+fn learner_status() -> LearnerStatus {
+    LearnerStatus {
+        run_id: "test-run".into(),
+        uptime_seconds: 12.5,
+        updates: 1234,
+        updates_per_second: 98.5,
+        env_steps_total: 50_000,
+        actors: vec![ActorStats {
+            actor_id: 1,
+            env_steps: 25_000,
+            env_steps_per_second: 1900.0,
+            policy_version: 7,
+            seconds_since_seen: 0.1,
+        }],
+        replay_size: 50_000,
+        replay_capacity: 1_000_000,
+        task_success: vec![TaskSuccess {
+            task: "door-open".into(),
+            success_rate: 0.42,
+            episodes: 50,
+        }],
+        staleness_mean: 3.5,
+        staleness_max: 9,
+        rejected_batches: 2,
+        policy_version: 7,
+        planner_version: 0,
+        tep_updates: 0,
+    }
+}
+
+struct TestLearner {
+    hub: WeightHub,
+}
+
+impl LearnerBackend for TestLearner {
+    async fn status(&self) -> Result<LearnerStatus, Status> {
+        Ok(learner_status())
+    }
+    async fn save_checkpoint(&self, request: CheckpointRequest) -> Result<CheckpointSaved, Status> {
+        Ok(CheckpointSaved {
+            path: format!(
+                "runs/test/checkpoints/{}.safetensors",
+                request.label.unwrap_or_default()
+            ),
+            learner_update: 1234,
+            policy_version: self.hub.latest_version(WeightsKind::Policy),
+        })
+    }
+    fn weight_hub(&self) -> &WeightHub {
+        &self.hub
+    }
+}
+
+struct TestSelector;
+
+impl SelectorBackend for TestSelector {
+    async fn status(&self) -> Result<SelectorStatus, Status> {
+        Ok(SelectorStatus {
+            run_id: "test-run".into(),
+            uptime_seconds: 3.0,
+            episodes_seen: 40,
+            task_success: vec![TaskSuccess {
+                task: "reach".into(),
+                success_rate: 0.9,
+                episodes: 20,
+            }],
+            selected_samples: 512,
+            priority: PriorityStats {
+                scored: 1024,
+                mean: 0.2,
+                min: -0.5,
+                max: 1.5,
+                selection_threshold: 0.7,
+            },
+            critic_version: 3,
+        })
+    }
+}
+
+/// A running server: address, a way to stop it, and its task.
+struct Running {
+    addr: SocketAddr,
+    stop: Option<oneshot::Sender<()>>,
+    task: JoinHandle<Result<(), terl_wire::ServeError>>,
+}
+
+impl Running {
+    async fn stop(mut self) {
+        let _ = self.stop.take().expect("stopped once").send(());
+        tokio::time::timeout(WAIT, self.task)
+            .await
+            .expect("server stops within 10 s")
+            .expect("server task")
+            .expect("server result");
+    }
+}
+
+type ServeFn<B> = fn(
+    TcpListener,
+    B,
+    Pin<Box<dyn Future<Output = ()> + Send>>,
+) -> Pin<Box<dyn Future<Output = Result<(), terl_wire::ServeError>> + Send>>;
+
+async fn start<B: Send + 'static>(backend: B, serve: ServeFn<B>) -> Running {
+    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    let (stop, stopped) = oneshot::channel::<()>();
+    let shutdown = Box::pin(async {
+        let _ = stopped.await;
+    });
+    let task = tokio::spawn(serve(listener, backend, shutdown));
+    Running {
+        addr,
+        stop: Some(stop),
+        task,
+    }
+}
+
+async fn start_learner(hub: WeightHub) -> Running {
+    start(TestLearner { hub }, |l, b, s| {
+        Box::pin(serve_learner(l, b, s))
+    })
+    .await
+}
+
+async fn start_selector() -> Running {
+    start(TestSelector, |l, b, s| Box::pin(serve_selector(l, b, s))).await
+}
+
+fn weights(kind: WeightsKind, version: u64) -> Weights {
+    let tensors = vec![
+        Tensor::new("l0.weight", vec![3, 2], vec![version as f32; 6]).unwrap(),
+        Tensor::new("l0.bias", vec![3], vec![-(version as f32); 3]).unwrap(),
+    ];
+    Weights::new(kind, version, version * 10, tensors).unwrap()
+}
+
+async fn next<S: Stream<Item = Result<Weights, Status>> + Unpin>(stream: &mut S) -> Weights {
+    tokio::time::timeout(WAIT, stream.next())
+        .await
+        .expect("a weights message within 10 s")
+        .expect("stream still open")
+        .expect("valid weights")
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn status_round_trips_for_learner_and_selector() {
+    let learner = start_learner(WeightHub::new()).await;
+    let selector = start_selector().await;
+    let mut client = connect_learner(&learner.addr.to_string()).await.unwrap();
+    assert_eq!(client.status().await.unwrap(), learner_status());
+    let saved = client
+        .save_checkpoint(CheckpointRequest {
+            label: Some("manual-1".into()),
+        })
+        .await
+        .unwrap();
+    assert_eq!(saved.path, "runs/test/checkpoints/manual-1.safetensors");
+    let mut selector_client = connect_selector(&selector.addr.to_string()).await.unwrap();
+    let status = selector_client.status().await.unwrap();
+    assert_eq!(status, TestSelector.status().await.unwrap());
+    learner.stop().await;
+    selector.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn weight_stream_delivers_in_order_and_latest_to_late_subscriber() {
+    let hub = WeightHub::new();
+    let server = start_learner(hub.clone()).await;
+    let addr = server.addr.to_string();
+
+    let mut early = connect_learner(&addr).await.unwrap();
+    let mut early = early.watch_weights(&[WeightsKind::Policy]).await.unwrap();
+    let mut all_kinds = connect_learner(&addr).await.unwrap();
+    let mut all_kinds = all_kinds.watch_weights(&[]).await.unwrap();
+    while hub.subscriber_count() < 2 {
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    for version in 1..=3 {
+        hub.publish(&weights(WeightsKind::Policy, version)).unwrap();
+        let got = next(&mut early).await;
+        assert_eq!(got, weights(WeightsKind::Policy, version));
+    }
+    hub.publish(&weights(WeightsKind::Planner, 1)).unwrap();
+
+    // The all-kinds subscriber did not read while versions 1..3 were published: it sees the
+    // newest policy (maybe after older ones, always increasing) and the planner.
+    let mut last_policy = 0;
+    let mut planner_seen = false;
+    while last_policy < 3 || !planner_seen {
+        let w = next(&mut all_kinds).await;
+        match w.kind() {
+            WeightsKind::Policy => {
+                assert!(w.version() > last_policy, "policy versions increase");
+                last_policy = w.version();
+            }
+            WeightsKind::Planner => planner_seen = true,
+            WeightsKind::Critic => panic!("no critic published"),
+        }
+    }
+
+    // A late subscriber gets exactly the latest policy first, then new versions.
+    let mut late = connect_learner(&addr).await.unwrap();
+    let mut late = late.watch_weights(&[WeightsKind::Policy]).await.unwrap();
+    assert_eq!(next(&mut late).await.version(), 3);
+    hub.publish(&weights(WeightsKind::Policy, 4)).unwrap();
+    assert_eq!(next(&mut late).await.version(), 4);
+    assert_eq!(next(&mut early).await.version(), 4);
+
+    // Shutdown ends the open streams instead of hanging the server.
+    server.stop().await;
+    let end = tokio::time::timeout(WAIT, late.next())
+        .await
+        .expect("stream ends");
+    assert!(end.is_none() || end.unwrap().is_err());
+}
+
+/// A learner that sends whatever messages a test gives it, valid or not.
+struct RawLearner {
+    updates: Vec<pb::WeightsUpdate>,
+}
+
+#[tonic::async_trait]
+impl pb::learner_server::Learner for RawLearner {
+    async fn get_status(
+        &self,
+        _: Request<pb::GetLearnerStatusRequest>,
+    ) -> Result<Response<pb::LearnerStatus>, Status> {
+        Ok(Response::new(pb::LearnerStatus {
+            updates_per_second: f64::NAN,
+            ..Default::default()
+        }))
+    }
+    type WatchWeightsStream = Pin<Box<dyn Stream<Item = Result<pb::WeightsUpdate, Status>> + Send>>;
+    async fn watch_weights(
+        &self,
+        _: Request<pb::WatchWeightsRequest>,
+    ) -> Result<Response<Self::WatchWeightsStream>, Status> {
+        let items: Vec<_> = self.updates.iter().cloned().map(Ok).collect();
+        Ok(Response::new(Box::pin(futures_util::stream::iter(items))))
+    }
+    async fn save_checkpoint(
+        &self,
+        _: Request<pb::SaveCheckpointRequest>,
+    ) -> Result<Response<pb::SaveCheckpointResponse>, Status> {
+        Err(Status::unimplemented("raw"))
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_messages_are_rejected_at_the_edge_with_invalid_argument() {
+    let good = pb::WeightsUpdate::from(&weights(WeightsKind::Policy, 1));
+    let mut bad_crc = good.clone();
+    bad_crc.crc32 ^= 0xdead_beef;
+    let mut bad_shape = good.clone();
+    bad_shape.tensors[0].shape = vec![2, 2];
+    let mut nan = good.clone();
+    let mut data = nan.tensors[1].data.to_vec();
+    data[4..8].copy_from_slice(&f32::NAN.to_le_bytes());
+    nan.tensors[1].data = data.into();
+    nan.crc32 = weights_crc32(&nan.tensors);
+    let mut unknown_kind = good.clone();
+    unknown_kind.kind = 42;
+
+    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    let updates = vec![bad_crc, bad_shape, nan, unknown_kind, good];
+    let (stop, stopped) = oneshot::channel::<()>();
+    let server = tokio::spawn(
+        tonic::transport::Server::builder()
+            .add_service(pb::learner_server::LearnerServer::new(RawLearner {
+                updates,
+            }))
+            .serve_with_incoming_shutdown(
+                tonic::transport::server::TcpIncoming::from(listener),
+                async {
+                    let _ = stopped.await;
+                },
+            ),
+    );
+    let mut client = connect_learner(&addr).await.unwrap();
+    let mut stream = client.watch_weights(&[]).await.unwrap();
+    let expect_invalid = |item: Option<Result<Weights, Status>>, needle: &str| {
+        let status = item.expect("item").expect_err("rejected");
+        assert_eq!(status.code(), Code::InvalidArgument, "{status:?}");
+        assert!(
+            status.message().contains(needle),
+            "{needle:?} not in {:?}",
+            status.message()
+        );
+    };
+    expect_invalid(stream.next().await, "CRC-32 mismatch");
+    expect_invalid(
+        stream.next().await,
+        "shape [2, 2] needs 16 bytes of little-endian f32, got 24",
+    );
+    expect_invalid(
+        stream.next().await,
+        "tensor 'l0.bias' (#1): value 1 is not finite (NaN)",
+    );
+    expect_invalid(stream.next().await, "unknown weights kind 42");
+    // The stream survives bad items: the valid version after them arrives intact.
+    assert_eq!(stream.next().await.unwrap().unwrap().version(), 1);
+    // Status with a NaN rate is refused too.
+    let status = client.status().await.unwrap_err();
+    assert_eq!(status.code(), Code::InvalidArgument);
+    assert_eq!(status.message(), "updates_per_second is not finite (NaN)");
+    let _ = stop.send(());
+    server.await.unwrap().unwrap();
+
+    // Requests are validated on the server's side of the edge as well.
+    let server = start_learner(WeightHub::new()).await;
+    let mut client = connect_learner(&server.addr.to_string()).await.unwrap();
+    let status = client
+        .raw()
+        .watch_weights(pb::WatchWeightsRequest { kinds: vec![1, 7] })
+        .await
+        .unwrap_err();
+    assert_eq!(status.code(), Code::InvalidArgument);
+    assert!(
+        status.message().contains("unknown weights kind 7"),
+        "{status:?}"
+    );
+    let status = client
+        .save_checkpoint(CheckpointRequest {
+            label: Some("../../etc/passwd".into()),
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(status.code(), Code::InvalidArgument);
+    assert!(status.message().contains("[A-Za-z0-9_-]"), "{status:?}");
+    server.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn oversized_messages_fail_with_resource_exhausted_not_a_crash() {
+    // Server → client: a 1.4 MB policy to a client that accepts 1 MiB.
+    let hub = WeightHub::new();
+    let server = start_learner(hub.clone()).await;
+    let addr = server.addr.to_string();
+    let small = ClientOptions {
+        max_message_bytes: 1 << 20,
+    };
+    let mut client = connect_learner_with(&addr, small).await.unwrap();
+    let mut stream = client.watch_weights(&[WeightsKind::Policy]).await.unwrap();
+    hub.publish(&terl_wire::bench::policy_weights(
+        1,
+        &terl_wire::bench::POLICY_LAYERS,
+    ))
+    .unwrap();
+    let status = tokio::time::timeout(WAIT, stream.next())
+        .await
+        .unwrap()
+        .unwrap()
+        .unwrap_err();
+    // tonic reports "decoded message length too large" as OUT_OF_RANGE.
+    assert!(
+        matches!(status.code(), Code::OutOfRange | Code::ResourceExhausted),
+        "{status:?}"
+    );
+    assert!(status.message().contains("too large"), "{status:?}");
+    // The server is unharmed: a default client still gets the version.
+    let mut ok = connect_learner(&addr).await.unwrap();
+    let mut stream = ok.watch_weights(&[WeightsKind::Policy]).await.unwrap();
+    assert_eq!(next(&mut stream).await.parameter_count(), 344_008);
+    server.stop().await;
+
+    // Client → server: a request over the server's limit.
+    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    let options = ServeOptions {
+        max_message_bytes: 64 << 10,
+        ..ServeOptions::default()
+    };
+    let (stop, stopped) = oneshot::channel::<()>();
+    let backend = TestLearner {
+        hub: WeightHub::with_max_message_bytes(64 << 10),
+    };
+    let task = tokio::spawn(serve_learner_with(
+        listener,
+        backend,
+        async {
+            let _ = stopped.await;
+        },
+        options,
+    ));
+    let mut client = connect_learner(&addr).await.unwrap();
+    let status = client
+        .raw()
+        .save_checkpoint(pb::SaveCheckpointRequest {
+            label: "x".repeat(100 << 10),
+        })
+        .await
+        .unwrap_err();
+    assert!(
+        matches!(status.code(), Code::OutOfRange | Code::ResourceExhausted),
+        "{status:?}"
+    );
+    assert!(status.message().contains("too large"), "{status:?}");
+    assert_eq!(client.status().await.unwrap().updates, 1234);
+    let _ = stop.send(());
+    task.await.unwrap().unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn health_reports_serving_then_not_serving() {
+    use tonic_health::pb::health_check_response::ServingStatus;
+    use tonic_health::pb::{health_client::HealthClient, HealthCheckRequest};
+    // A short grace: the open health Watch stream below would otherwise hold the shutdown.
+    let server = start(
+        TestLearner {
+            hub: WeightHub::new(),
+        },
+        |l, b, s| {
+            let options = ServeOptions {
+                shutdown_grace: Duration::from_millis(300),
+                ..ServeOptions::default()
+            };
+            Box::pin(serve_learner_with(l, b, s, options))
+        },
+    )
+    .await;
+    let channel = tonic::transport::Endpoint::from_shared(format!("http://{}", server.addr))
+        .unwrap()
+        .connect()
+        .await
+        .unwrap();
+    let mut health = HealthClient::new(channel);
+    for service in ["", "terl.v1.Learner"] {
+        let reply = health
+            .check(HealthCheckRequest {
+                service: service.into(),
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!(
+            reply.status(),
+            ServingStatus::Serving,
+            "service {service:?}"
+        );
+    }
+    let mut watch = health
+        .watch(HealthCheckRequest {
+            service: "terl.v1.Learner".into(),
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(
+        watch.message().await.unwrap().unwrap().status(),
+        ServingStatus::Serving
+    );
+    let stopping = tokio::spawn(server.stop());
+    let next = tokio::time::timeout(WAIT, watch.message()).await.unwrap();
+    if let Ok(Some(reply)) = next {
+        assert_eq!(reply.status(), ServingStatus::NotServing);
+    }
+    stopping.await.unwrap();
+}
+
+fn repo_root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn venv_python() -> PathBuf {
+    let venv = std::env::var_os("TERL_GRPC_VENV")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| repo_root().join(".deps/grpc-venv"));
+    let python = venv.join("bin/python");
+    assert!(
+        python.exists(),
+        "the Python gRPC client venv is missing ({}); create it with \
+         crates/wire/tests/python/setup-venv.sh (deploy/setup.sh runs it)",
+        python.display()
+    );
+    python
+}
+
+async fn python_client(addr: SocketAddr, service: &str, response_type: &str) -> serde_json::Value {
+    let script =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/python/reflection_client.py");
+    let output = tokio::time::timeout(
+        Duration::from_secs(60),
+        tokio::process::Command::new(venv_python())
+            .arg(&script)
+            .arg(addr.to_string())
+            .arg(service)
+            .arg("GetStatus")
+            .arg(response_type)
+            .kill_on_drop(true)
+            .output(),
+    )
+    .await
+    .expect("python client finishes within 60 s")
+    .expect("python runs");
+    assert!(
+        output.status.success(),
+        "python client failed: {}\n{}",
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    );
+    serde_json::from_slice(&output.stdout).expect("python prints JSON")
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn python_grpcio_reflection_and_health_clients_work() {
+    let learner = start_learner(WeightHub::new()).await;
+    let selector = start_selector().await;
+    for (server, service, response, methods) in [
+        (
+            &learner,
+            "terl.v1.Learner",
+            "terl.v1.LearnerStatus",
+            vec!["GetStatus", "SaveCheckpoint", "WatchWeights"],
+        ),
+        (
+            &selector,
+            "terl.v1.Selector",
+            "terl.v1.SelectorStatus",
+            vec!["GetStatus"],
+        ),
+    ] {
+        let report = python_client(server.addr, service, response).await;
+        for key in ["v1alpha_services", "v1_services", "v1alpha_listed"] {
+            let listed: Vec<&str> = report[key]
+                .as_array()
+                .unwrap_or_else(|| panic!("{key} in {report}"))
+                .iter()
+                .map(|v| v.as_str().unwrap())
+                .collect();
+            for expected in [
+                service,
+                "grpc.health.v1.Health",
+                "grpc.reflection.v1.ServerReflection",
+                "grpc.reflection.v1alpha.ServerReflection",
+            ] {
+                assert!(
+                    listed.contains(&expected),
+                    "{expected} missing from {key}: {listed:?}"
+                );
+            }
+        }
+        assert_eq!(report["methods"], serde_json::json!(methods), "{report}");
+        assert_eq!(report["status_run_id"], "test-run", "{report}");
+        assert_eq!(report["health"][""], "SERVING", "{report}");
+        assert_eq!(report["health"][service], "SERVING", "{report}");
+    }
+    learner.stop().await;
+    selector.stop().await;
+}
