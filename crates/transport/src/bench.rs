@@ -141,7 +141,7 @@ pub fn shm_throughput(publishers: usize, seconds: f64) -> Result<ShmBenchReport,
                 if start.elapsed() >= duration {
                     stop.store(true, Ordering::Relaxed);
                 }
-                std::hint::spin_loop();
+                std::thread::yield_now();
             } else if finished.load(Ordering::Acquire) as usize == publishers {
                 // One more drain pass after the last publisher stopped.
                 while source.try_receive_into(&mut out)? {
