@@ -308,8 +308,10 @@ impl<T: Float> Mlp<T> {
         f
     }
 
-    /// Weights as tensors `{prefix}.{l}.weight [out, in]` and `{prefix}.{l}.bias [out]`, the
-    /// names `torch.nn.Sequential` of `Linear` layers would have with index `l` per layer.
+    /// Weights as tensors `{prefix}.{l}.weight [out, in]` and `{prefix}.{l}.bias [out]` with `l`
+    /// the number of the linear layer, so `torch.nn.Linear(in, out).load_state_dict` takes them
+    /// as they are (a `torch.nn.Sequential` with activation modules in between numbers its
+    /// linear layers 0, 2, 4, …; rename when loading into one).
     pub fn export(&self, prefix: &str, out: &mut Vec<Tensor>) {
         self.export_values(prefix, &self.params, out);
     }
