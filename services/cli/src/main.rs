@@ -2,6 +2,7 @@
 
 mod bench;
 mod env;
+mod status;
 mod train;
 
 use anyhow::Result;
@@ -28,6 +29,8 @@ enum Command {
     Bench(bench::BenchCommand),
     /// Single-process training (Meta-World envs + MTSAC in one process).
     Train(train::TrainArgs),
+    /// Status of a running cluster (learner and selector).
+    Status(status::StatusArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -53,5 +56,6 @@ fn run(cli: Cli) -> Result<std::process::ExitCode> {
         Command::Env(c) => env::run(c),
         Command::Bench(c) => bench::run(c),
         Command::Train(a) => train::run(a),
+        Command::Status(a) => status::run(a),
     }
 }

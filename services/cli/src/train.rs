@@ -2,16 +2,15 @@
 //! process). Used for debugging, tests and small runs; the distributed system runs the same
 //! learner in its own process.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use anyhow::{Context, Result};
 use clap::Args;
-use serde::{Deserialize, Serialize};
-use terl_rl::env::{StepBuffers, VecEnvironment};
-use terl_rl::train::{train, TrainConfig, TrainProgress};
-use terl_rl::{Sac, SacConfig};
-use terl_sim::{VecEnv, ACT_DIM, OBS_DIM};
+use terl_rl::train::{train, TrainProgress};
+use terl_rl::Sac;
+pub use terl_runtime::{MetaWorldVec, RunConfig};
+use terl_sim::{ACT_DIM, OBS_DIM};
 
 #[derive(Debug, Args)]
 pub struct TrainArgs {
@@ -27,126 +26,6 @@ pub struct TrainArgs {
     /// Override the seed.
     #[arg(long)]
     pub seed: Option<u64>,
-}
-
-/// The run file: which tasks, how many environments, and the trainer and SAC settings.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RunConfig {
-    /// A task set (`mt10`, `mt1-ind`, ...) or comma-separated task names.
-    pub tasks: String,
-    /// Training environments (spread round-robin over the tasks).
-    pub num_envs: usize,
-    /// Evaluation environments per task.
-    #[serde(default = "one")]
-    pub eval_envs_per_task: usize,
-    /// Seed of the goal variations (50 per task).
-    #[serde(default)]
-    pub variation_seed: u64,
-    #[serde(default)]
-    pub train: TrainConfig,
-    #[serde(default)]
-    pub sac: SacConfig,
-}
-
-fn one() -> usize {
-    1
-}
-
-impl RunConfig {
-    pub fn load(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path)
-            .with_context(|| format!("cannot read config {}", path.display()))?;
-        let cfg: Self =
-            toml::from_str(&text).with_context(|| format!("invalid config {}", path.display()))?;
-        anyhow::ensure!(cfg.num_envs > 0, "num_envs must be at least 1");
-        anyhow::ensure!(
-            cfg.eval_envs_per_task > 0,
-            "eval_envs_per_task must be at least 1"
-        );
-        Ok(cfg)
-    }
-}
-
-/// Meta-World [`VecEnv`] behind the trainer's environment seam.
-pub struct MetaWorldVec {
-    inner: VecEnv,
-    num_tasks: usize,
-    task_ids: Vec<usize>,
-}
-
-impl std::fmt::Debug for MetaWorldVec {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("MetaWorldVec")
-            .field("num_envs", &self.inner.num_envs())
-            .finish()
-    }
-}
-
-impl MetaWorldVec {
-    /// `num_envs` environments over `tasks`; task ids are positions in `tasks`.
-    pub fn new(tasks: &[&str], num_envs: usize, seed: u64) -> Result<Self> {
-        let inner = VecEnv::round_robin(tasks, num_envs, seed)?;
-        let task_ids = inner
-            .env_tasks()
-            .iter()
-            .map(|&k| {
-                let name = inner.tasks()[k];
-                tasks
-                    .iter()
-                    .position(|t| terl_sim::metaworld::task_set(t).is_ok_and(|s| s == [name]))
-                    .expect("task of the list")
-            })
-            .collect();
-        Ok(Self {
-            inner,
-            num_tasks: tasks.len(),
-            task_ids,
-        })
-    }
-}
-
-impl VecEnvironment for MetaWorldVec {
-    type Error = terl_sim::SimError;
-
-    fn num_envs(&self) -> usize {
-        self.inner.num_envs()
-    }
-    fn obs_dim(&self) -> usize {
-        OBS_DIM
-    }
-    fn act_dim(&self) -> usize {
-        ACT_DIM
-    }
-    fn num_tasks(&self) -> usize {
-        self.num_tasks
-    }
-    fn task_ids(&self) -> &[usize] {
-        &self.task_ids
-    }
-    fn reset_all(&mut self, seed: u64, obs: &mut [f32]) -> Result<(), Self::Error> {
-        self.inner.reset_all_seeded(seed)?;
-        obs.copy_from_slice(self.inner.obs());
-        Ok(())
-    }
-    fn step(&mut self, actions: &[f32], out: &mut StepBuffers) -> Result<(), Self::Error> {
-        self.inner.step(actions)?;
-        let v = &self.inner;
-        out.obs.copy_from_slice(v.obs());
-        for i in 0..v.num_envs() {
-            let row = i * OBS_DIM..(i + 1) * OBS_DIM;
-            if v.truncated()[i] {
-                out.final_obs[row.clone()].copy_from_slice(&v.final_obs()[row]);
-            } else {
-                out.final_obs[row.clone()].copy_from_slice(&v.obs()[row]);
-            }
-        }
-        out.reward.copy_from_slice(v.rewards());
-        out.truncated.copy_from_slice(v.truncated());
-        out.terminated.fill(false);
-        out.success.copy_from_slice(v.success());
-        Ok(())
-    }
 }
 
 fn progress_line(tasks: &[&str], p: &TrainProgress) -> String {

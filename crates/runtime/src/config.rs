@@ -1,0 +1,173 @@
+//! The run file: which tasks, how many environments, the trainer and SAC settings, and how
+//! the cluster splits the work. One TOML schema for `terl train` and the cluster services;
+//! the `[cluster]` section is optional, so single-process configs keep working unchanged.
+
+use std::path::Path;
+
+use anyhow::{Context, Result};
+use serde::{Deserialize, Serialize};
+use terl_rl::train::TrainConfig;
+use terl_rl::SacConfig;
+
+/// The run file.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunConfig {
+    /// A task set (`mt10`, `mt1-ind`, ...) or comma-separated task names.
+    pub tasks: String,
+    /// Training environments (spread round-robin over the tasks).
+    pub num_envs: usize,
+    /// Evaluation environments per task.
+    #[serde(default = "one")]
+    pub eval_envs_per_task: usize,
+    /// Seed of the goal variations (50 per task).
+    #[serde(default)]
+    pub variation_seed: u64,
+    #[serde(default)]
+    pub train: TrainConfig,
+    #[serde(default)]
+    pub sac: SacConfig,
+    /// Distributed settings (ignored by the single-process trainer).
+    #[serde(default)]
+    pub cluster: ClusterConfig,
+}
+
+fn one() -> usize {
+    1
+}
+
+/// How the learner, the selector and the actors share the run.
+///
+/// From `[train]` the cluster uses `warmup_env_steps` (transitions before the first update;
+/// actors act randomly until the first policy version arrives anyway),
+/// `replay_capacity_per_task`, `success_window` and `seed`; `total_env_steps` and the evaluation
+/// settings are single-process only (a cluster trains until it is stopped).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ClusterConfig {
+    /// Environments in each actor (0: the run's `num_envs`).
+    pub envs_per_actor: usize,
+    /// Learner updates per inserted transition (update-to-data ratio). Unset: the
+    /// single-process ratio, `train.updates_per_vec_step / num_envs`.
+    pub samples_per_insert: Option<f64>,
+    /// Slack of the rate limiter, in updates. Unset: `max(1, samples_per_insert)` times two
+    /// transition batches, so a whole batch can always be inserted once training caught up.
+    pub rate_error_buffer: Option<f64>,
+    /// The learner publishes new policy weights every this many updates.
+    pub publish_every_updates: u64,
+    /// Seconds between periodic checkpoints (0: only at shutdown and on request).
+    pub checkpoint_every_secs: f64,
+    /// Periodic checkpoints kept (older ones are deleted).
+    pub keep_checkpoints: usize,
+    /// How long an actor's send may wait for a full learner before giving up on that batch
+    /// (counted and logged), seconds.
+    pub block_timeout_secs: f64,
+    /// Transition batches the learner's shared-memory queue holds before actors wait.
+    pub buffer_batches: usize,
+}
+
+impl Default for ClusterConfig {
+    fn default() -> Self {
+        Self {
+            envs_per_actor: 0,
+            samples_per_insert: None,
+            rate_error_buffer: None,
+            publish_every_updates: 100,
+            checkpoint_every_secs: 300.0,
+            keep_checkpoints: 3,
+            block_timeout_secs: 30.0,
+            buffer_batches: 8,
+        }
+    }
+}
+
+impl RunConfig {
+    /// Reads and checks a run file.
+    pub fn load(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read config {}", path.display()))?;
+        let cfg: Self =
+            toml::from_str(&text).with_context(|| format!("invalid config {}", path.display()))?;
+        anyhow::ensure!(cfg.num_envs > 0, "num_envs must be at least 1");
+        anyhow::ensure!(
+            cfg.eval_envs_per_task > 0,
+            "eval_envs_per_task must be at least 1"
+        );
+        let c = &cfg.cluster;
+        anyhow::ensure!(
+            c.publish_every_updates > 0,
+            "cluster.publish_every_updates must be at least 1"
+        );
+        anyhow::ensure!(
+            c.checkpoint_every_secs.is_finite() && c.checkpoint_every_secs >= 0.0,
+            "cluster.checkpoint_every_secs must be ≥ 0"
+        );
+        anyhow::ensure!(
+            c.block_timeout_secs.is_finite() && c.block_timeout_secs > 0.0,
+            "cluster.block_timeout_secs must be > 0"
+        );
+        anyhow::ensure!(c.buffer_batches > 0, "cluster.buffer_batches must be ≥ 1");
+        Ok(cfg)
+    }
+
+    /// Environments per actor.
+    pub fn envs_per_actor(&self) -> usize {
+        if self.cluster.envs_per_actor == 0 {
+            self.num_envs
+        } else {
+            self.cluster.envs_per_actor
+        }
+    }
+
+    /// The learner's update-to-data ratio.
+    pub fn samples_per_insert(&self) -> f64 {
+        self.cluster
+            .samples_per_insert
+            .unwrap_or(self.train.updates_per_vec_step / self.num_envs as f64)
+    }
+
+    /// The rate limiter's slack for transition batches of `batch` transitions.
+    pub fn rate_error_buffer(&self, batch: usize) -> f64 {
+        self.cluster
+            .rate_error_buffer
+            .unwrap_or(self.samples_per_insert().max(1.0) * 2.0 * batch as f64)
+    }
+
+    /// The task indices (into the run's task list) actor `actor_id` of `num_actors` steps:
+    /// task `t` goes to actor `t % num_actors`; an actor left without a task (more actors
+    /// than tasks) takes task `actor_id % num_tasks`.
+    pub fn actor_tasks(num_tasks: usize, actor_id: usize, num_actors: usize) -> Vec<usize> {
+        let mine: Vec<usize> = (0..num_tasks)
+            .filter(|t| t % num_actors.max(1) == actor_id)
+            .collect();
+        if mine.is_empty() && num_tasks > 0 {
+            vec![actor_id % num_tasks]
+        } else {
+            mine
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tasks_spread_evenly_and_every_actor_gets_one() {
+        assert_eq!(RunConfig::actor_tasks(10, 0, 3), vec![0, 3, 6, 9]);
+        assert_eq!(RunConfig::actor_tasks(10, 2, 3), vec![2, 5, 8]);
+        assert_eq!(RunConfig::actor_tasks(2, 0, 2), vec![0]);
+        assert_eq!(RunConfig::actor_tasks(2, 1, 2), vec![1]);
+        assert_eq!(RunConfig::actor_tasks(2, 3, 4), vec![1]);
+    }
+
+    #[test]
+    fn single_process_configs_still_parse() {
+        let text = "tasks = \"reach-v3\"\nnum_envs = 4\n[train]\nupdates_per_vec_step = 2.0\n";
+        let cfg: RunConfig = toml::from_str(text).unwrap();
+        assert_eq!(cfg.cluster, ClusterConfig::default());
+        assert_eq!(cfg.envs_per_actor(), 4);
+        assert!((cfg.samples_per_insert() - 0.5).abs() < 1e-12);
+        assert!(cfg.rate_error_buffer(64) >= 1.0);
+    }
+}

@@ -1,0 +1,70 @@
+//! What the single-process trainer, the cluster services (learner, actors, selector) and the
+//! CLI share: the run file ([`RunConfig`], including its `[cluster]` section) and the
+//! Meta-World adapter behind the trainer's environment seam ([`MetaWorldVec`]).
+//!
+//! It exists so the four binaries read one schema and step environments one way, instead of
+//! each carrying a copy.
+
+mod config;
+mod metaworld_vec;
+
+pub use config::{ClusterConfig, RunConfig};
+pub use metaworld_vec::MetaWorldVec;
+
+/// Task names of a task spec: a task set (`mt10`, `mt1-ind`, ...) or comma-separated names,
+/// in order; task ids everywhere are positions in this list.
+pub fn resolve_tasks(spec: &str) -> anyhow::Result<Vec<&'static str>> {
+    let mut out = Vec::new();
+    for part in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        out.extend(terl_sim::metaworld::task_set(part)?);
+    }
+    anyhow::ensure!(!out.is_empty(), "no tasks given");
+    Ok(out)
+}
+
+/// Completes on the first SIGINT or SIGTERM: the shutdown future every service `main` passes
+/// to its `run`.
+pub async fn shutdown_signal() {
+    use tokio::signal::unix::{signal, SignalKind};
+    let mut term = match signal(SignalKind::terminate()) {
+        Ok(s) => s,
+        Err(e) => {
+            tracing::warn!("cannot listen for SIGTERM ({e}); only Ctrl-C stops this process");
+            let _ = tokio::signal::ctrl_c().await;
+            return;
+        }
+    };
+    tokio::select! {
+        _ = tokio::signal::ctrl_c() => tracing::info!("SIGINT: shutting down"),
+        _ = term.recv() => tracing::info!("SIGTERM: shutting down"),
+    }
+}
+
+/// Writes `addr` to `<run_dir>/<service>.addr` (atomically: scripts and tests poll for the
+/// file and must never read half of it), so a server bound to port 0 can be found.
+pub fn write_addr_file(
+    run_dir: &std::path::Path,
+    service: &str,
+    addr: std::net::SocketAddr,
+) -> anyhow::Result<std::path::PathBuf> {
+    use anyhow::Context;
+    std::fs::create_dir_all(run_dir)
+        .with_context(|| format!("cannot create {}", run_dir.display()))?;
+    let path = run_dir.join(format!("{service}.addr"));
+    let tmp = run_dir.join(format!(".{service}.addr.tmp"));
+    std::fs::write(&tmp, format!("{addr}\n"))
+        .with_context(|| format!("cannot write {}", tmp.display()))?;
+    std::fs::rename(&tmp, &path).with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(path)
+}
+
+/// Initialises `tracing` for a service binary: `RUST_LOG` or `info`, to stderr.
+pub fn init_tracing() {
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .with_writer(std::io::stderr)
+        .try_init();
+}

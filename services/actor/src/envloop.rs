@@ -1,0 +1,218 @@
+//! The actor's environment loop (its own thread): act, step, batch transitions, send finished
+//! episodes, load new weights between steps.
+
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use terl_rl::{Policy, PolicySpec};
+use terl_runtime::RunConfig;
+use terl_sim::VecEnv;
+use terl_transport::{
+    flags, EpisodeSummary, Message, MessageSink, ShmTransport, TrajectoryStep, Transition,
+    TransitionBatch, TransportConfig, TransportError, ACTION_DIM, OBS_DIM,
+};
+
+use crate::{ActorConfig, Mailbox};
+
+/// How long an actor waits at start-up for the learner and selector to subscribe before it
+/// starts anyway (messages sent before then reach nobody and are counted as `no_receiver`).
+const STARTUP_WAIT: Duration = Duration::from_secs(60);
+const LOG_EVERY: Duration = Duration::from_secs(10);
+
+/// Sends `message`; a send that timed out on a full receiver is logged and counted by the
+/// transport (the learner paused longer than the block timeout), not fatal.
+fn send<M: Message>(sink: &mut dyn MessageSink<M>, message: &M) -> anyhow::Result<()> {
+    match sink.send(message) {
+        Ok(_) => Ok(()),
+        Err(e @ TransportError::BlockTimeout { .. }) => {
+            tracing::warn!("{e}");
+            Ok(())
+        }
+        Err(e) => Err(e.into()),
+    }
+}
+
+fn row<const N: usize>(flat: &[f32], i: usize) -> [f32; N] {
+    flat[i * N..(i + 1) * N]
+        .try_into()
+        .expect("row of the right width")
+}
+
+pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()> {
+    let run = &config.run;
+    let actor_id = u16::try_from(config.actor_id).context("actor id above 65535")?;
+    let tasks = terl_runtime::resolve_tasks(&run.tasks)?;
+    let mine = RunConfig::actor_tasks(tasks.len(), config.actor_id, config.num_actors);
+    let my_names: Vec<&str> = mine.iter().map(|&t| tasks[t]).collect();
+    let num_envs = run.envs_per_actor();
+    let mut env = VecEnv::round_robin(&my_names, num_envs, run.variation_seed)?;
+    let seed = run
+        .train
+        .seed
+        .wrapping_add(7919 * (config.actor_id as u64 + 1));
+    env.reset_all_seeded(seed)?;
+    let global_task: Vec<u16> = env
+        .env_tasks()
+        .iter()
+        .map(|&k| {
+            let name = env.tasks()[k];
+            tasks
+                .iter()
+                .position(|t| *t == name)
+                .expect("task of the run") as u16
+        })
+        .collect();
+    let spec = PolicySpec {
+        obs_dim: OBS_DIM,
+        act_dim: ACTION_DIM,
+        num_tasks: tasks.len(),
+        hidden: run.sac.policy_hidden.clone(),
+    };
+    let mut policy = Policy::new(spec, num_envs);
+    let policy_tasks: Vec<usize> = global_task.iter().map(|&t| usize::from(t)).collect();
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+
+    let transport_config = TransportConfig {
+        buffer_batches: run.cluster.buffer_batches,
+        block_timeout: Duration::from_secs_f64(run.cluster.block_timeout_secs),
+        ..TransportConfig::new(config.run_id.clone(), config.num_actors)
+    };
+    let transport = ShmTransport::open(transport_config, &format!("actor-{actor_id}"))?;
+    let mut transitions = transport.shm_sink::<TransitionBatch>()?;
+    let mut episodes = transport.shm_sink::<EpisodeSummary>()?;
+    tracing::info!(
+        actor_id,
+        tasks = ?my_names,
+        envs = num_envs,
+        "actor started; waiting for the learner and selector to subscribe"
+    );
+    let waiting = Instant::now();
+    while (transitions.receivers() < 1 || episodes.receivers() < 2)
+        && waiting.elapsed() < STARTUP_WAIT
+    {
+        if mailbox.stop.load(Ordering::Relaxed) {
+            return Ok(());
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+
+    let mut batch = TransitionBatch::EMPTY;
+    batch.actor_id = actor_id;
+    let mut sequence = 0u64;
+    let mut trajectories: Vec<Box<EpisodeSummary>> =
+        (0..num_envs).map(|_| EpisodeSummary::empty()).collect();
+    let mut episode_version = vec![0u64; num_envs];
+    let mut episode_index = 0u64;
+    let mut obs = env.obs().to_vec();
+    let mut actions = vec![0.0f32; num_envs * ACTION_DIM];
+    let (mut steps, mut episodes_done, mut successes) = (0u64, 0u64, 0u64);
+    let start = Instant::now();
+    let (mut log_at, mut log_steps) = (start, 0u64);
+
+    while !mailbox.stop.load(Ordering::Relaxed) {
+        let fresh = mailbox.slot.lock().ok().and_then(|mut s| s.take());
+        if let Some((version, params)) = fresh {
+            match policy.set_params(&params, version) {
+                Ok(()) => tracing::debug!(version, "loaded policy weights"),
+                Err(e) => tracing::warn!(version, "ignoring policy weights: {e}"),
+            }
+        }
+        if policy.version == 0 {
+            actions
+                .iter_mut()
+                .for_each(|a| *a = rng.gen_range(-1.0..1.0));
+        } else {
+            policy.act(&obs, &policy_tasks, false, &mut rng, &mut actions)?;
+        }
+        env.step(&actions)?;
+        for i in 0..num_envs {
+            let truncated = env.truncated()[i];
+            let next_obs = if truncated {
+                env.final_obs()
+            } else {
+                env.obs()
+            };
+            let mut f = 0;
+            if truncated {
+                f |= flags::TRUNCATED;
+            }
+            if env.success()[i] {
+                f |= flags::SUCCESS;
+            }
+            let transition = Transition {
+                policy_version: policy.version,
+                obs: row(&obs, i),
+                next_obs: row(next_obs, i),
+                action: row(&actions, i),
+                reward: env.rewards()[i],
+                actor_id,
+                env_index: i as u16,
+                task: global_task[i],
+                flags: f,
+                reserved: [0; 5],
+            };
+            let _ = trajectories[i].push_step(TrajectoryStep {
+                obs: transition.obs,
+                action: transition.action,
+                reward: transition.reward,
+            });
+            if !batch.push(transition) {
+                unreachable!("the batch is sent as soon as it is full");
+            }
+            if batch.is_full() {
+                batch.sequence = sequence;
+                send(&mut transitions, &batch)?;
+                sequence += 1;
+                batch.clear();
+            }
+        }
+        for end in env.finished() {
+            let i = end.env;
+            let episode = &mut trajectories[i];
+            episode.policy_version = episode_version[i];
+            episode.episode_index = episode_index;
+            episode.episode_return = end.episode_return as f32;
+            episode.length = end.length;
+            episode.actor_id = actor_id;
+            episode.env_index = i as u16;
+            episode.task = global_task[i];
+            episode.success = u8::from(end.success);
+            episode.final_obs = row(env.final_obs(), i);
+            send(&mut episodes, &**episode)?;
+            **episode = EpisodeSummary::EMPTY;
+            episode_version[i] = policy.version;
+            episode_index += 1;
+            episodes_done += 1;
+            successes += u64::from(end.success);
+        }
+        obs.copy_from_slice(env.obs());
+        steps += num_envs as u64;
+
+        if log_at.elapsed() >= LOG_EVERY {
+            let rate = (steps - log_steps) as f64 / log_at.elapsed().as_secs_f64();
+            tracing::info!(
+                actor_id,
+                env_steps = steps,
+                env_steps_per_second = format!("{rate:.0}"),
+                policy_version = policy.version,
+                newest_received = mailbox.received.load(Ordering::Relaxed),
+                episodes = episodes_done,
+                successes,
+                transitions = ?transitions.stats(),
+                "progress"
+            );
+            (log_at, log_steps) = (Instant::now(), steps);
+        }
+    }
+    tracing::info!(
+        actor_id,
+        env_steps = steps,
+        env_steps_per_second = format!("{:.0}", steps as f64 / start.elapsed().as_secs_f64()),
+        policy_version = policy.version,
+        "actor stopped"
+    );
+    Ok(())
+}

@@ -1,0 +1,38 @@
+//! `terl-actor`: parse arguments, then [`terl_actor::run`] until SIGINT/SIGTERM.
+
+use std::path::PathBuf;
+
+use clap::Parser;
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "terl-actor",
+    version,
+    about = "Meta-World actor of a terl cluster"
+)]
+struct Args {
+    /// Run file (TOML), the same the learner reads.
+    #[arg(long)]
+    config: PathBuf,
+    /// Run id: names the shared-memory services.
+    #[arg(long)]
+    run_id: String,
+    /// This actor's id, 0..num-actors (decides its share of the tasks).
+    #[arg(long)]
+    actor_id: usize,
+    #[arg(long, default_value_t = 1)]
+    num_actors: usize,
+    /// The learner's gRPC address (weights stream).
+    #[arg(long, default_value = terl_wire::DEFAULT_LEARNER_ADDR)]
+    learner_addr: String,
+}
+
+#[tokio::main(flavor = "current_thread")]
+async fn main() -> anyhow::Result<()> {
+    terl_runtime::init_tracing();
+    let a = Args::parse();
+    let run = terl_runtime::RunConfig::load(&a.config)?;
+    let config =
+        terl_actor::ActorConfig::new(run, a.run_id, a.actor_id, a.num_actors, a.learner_addr);
+    terl_actor::run(config, terl_runtime::shutdown_signal()).await
+}

@@ -1,0 +1,104 @@
+//! `terl status`: one snapshot of a running cluster from the learner's and the selector's
+//! `GetStatus`, as a table or JSON (`--json`, for scripts and tests).
+
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use clap::Args;
+use terl_wire::{LearnerStatus, SelectorStatus};
+
+#[derive(Debug, Args)]
+pub struct StatusArgs {
+    /// Learner gRPC address.
+    #[arg(long, default_value = terl_wire::DEFAULT_LEARNER_ADDR)]
+    pub addr: String,
+    /// Selector gRPC address.
+    #[arg(long, default_value = terl_wire::DEFAULT_SELECTOR_ADDR)]
+    pub selector_addr: String,
+    /// Print JSON ({"learner": ..., "selector": ... or null}).
+    #[arg(long)]
+    pub json: bool,
+    /// Seconds to wait for each server.
+    #[arg(long, default_value_t = 5.0)]
+    pub timeout: f64,
+}
+
+async fn learner_status(addr: &str) -> Result<LearnerStatus> {
+    let mut client = terl_wire::connect_learner(addr).await?;
+    Ok(client.status().await?)
+}
+
+async fn selector_status(addr: &str) -> Result<SelectorStatus> {
+    let mut client = terl_wire::connect_selector(addr).await?;
+    Ok(client.status().await?)
+}
+
+fn percent(rate: f64) -> String {
+    format!("{:.0}%", 100.0 * rate)
+}
+
+fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyhow::Error>) {
+    let l = learner;
+    println!(
+        "learner   run {}  up {:.0}s  updates {} ({:.0}/s)  env steps {}  policy v{}  replay {}/{}  staleness mean {:.0} max {}  rejected {}",
+        l.run_id, l.uptime_seconds, l.updates, l.updates_per_second, l.env_steps_total,
+        l.policy_version, l.replay_size, l.replay_capacity, l.staleness_mean, l.staleness_max,
+        l.rejected_batches
+    );
+    for a in &l.actors {
+        println!(
+            "actor {:<3} env steps {:>10} ({:>6.0}/s)  acts with policy v{}  last seen {:.1}s ago",
+            a.actor_id, a.env_steps, a.env_steps_per_second, a.policy_version, a.seconds_since_seen
+        );
+    }
+    let tasks: Vec<String> = l
+        .task_success
+        .iter()
+        .map(|t| format!("{} {} ({})", t.task, percent(t.success_rate), t.episodes))
+        .collect();
+    println!("success   {}", tasks.join("  "));
+    match selector {
+        Ok(s) => {
+            let tasks: Vec<String> = s
+                .task_success
+                .iter()
+                .map(|t| format!("{} {} ({})", t.task, percent(t.success_rate), t.episodes))
+                .collect();
+            println!(
+                "selector  episodes {}  selected {}  [{}]",
+                s.episodes_seen,
+                s.selected_samples,
+                tasks.join("  ")
+            );
+        }
+        Err(e) => println!("selector  unreachable: {e:#}"),
+    }
+}
+
+pub fn run(args: StatusArgs) -> Result<ExitCode> {
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    let timeout = Duration::from_secs_f64(args.timeout.max(0.1));
+    runtime.block_on(async {
+        let learner = tokio::time::timeout(timeout, learner_status(&args.addr))
+            .await
+            .unwrap_or_else(|_| Err(anyhow::anyhow!("timed out")))
+            .with_context(|| format!("learner at {}", args.addr))?;
+        let selector = tokio::time::timeout(timeout, selector_status(&args.selector_addr))
+            .await
+            .unwrap_or_else(|_| Err(anyhow::anyhow!("timed out")))
+            .with_context(|| format!("selector at {}", args.selector_addr));
+        if args.json {
+            let value = serde_json::json!({
+                "learner": learner,
+                "selector": selector.as_ref().ok(),
+            });
+            println!("{}", serde_json::to_string(&value)?);
+        } else {
+            print_table(&learner, selector.as_ref());
+        }
+        Ok(ExitCode::SUCCESS)
+    })
+}

@@ -1,0 +1,285 @@
+//! The cluster end to end: learner, selector and two actors as real processes on
+//! `deploy/configs/cluster-smoke.toml`, servers on port 0, a unique run id. Checks that
+//! transitions flow (env steps grow), actors act with new policy versions, status is
+//! consistent (success windows fill), checkpoints appear, and SIGTERM shuts everything down
+//! cleanly (exit 0, no shared-memory files left behind).
+
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use serde_json::Value;
+
+const TIMEOUT: Duration = Duration::from_secs(60);
+
+fn workspace() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// The service binaries live next to `terl`; build them with the same profile (a no-op when
+/// they are fresh), since cargo only builds this package's own binaries for its tests.
+fn service_binaries() -> PathBuf {
+    let bin_dir = Path::new(env!("CARGO_BIN_EXE_terl"))
+        .parent()
+        .expect("target dir")
+        .to_path_buf();
+    let profile = match bin_dir.file_name().and_then(|n| n.to_str()) {
+        Some("debug") => "dev".to_string(),
+        Some(other) => other.to_string(),
+        None => "dev".to_string(),
+    };
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let status = Command::new(cargo)
+        .current_dir(workspace())
+        .args(["build", "-q", "--profile", &profile])
+        .args([
+            "-p",
+            "terl-learner",
+            "-p",
+            "terl-actor",
+            "-p",
+            "terl-selector",
+        ])
+        .status()
+        .expect("cargo runs");
+    assert!(status.success(), "building the services failed");
+    bin_dir
+}
+
+fn shm_files() -> BTreeSet<String> {
+    std::fs::read_dir("/dev/shm")
+        .map(|d| {
+            d.filter_map(|e| e.ok())
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .filter(|n| n.starts_with("iox2_"))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+struct Cluster {
+    children: Vec<(String, Child)>,
+}
+
+impl Drop for Cluster {
+    fn drop(&mut self) {
+        for (_, child) in &mut self.children {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+    }
+}
+
+impl Cluster {
+    fn spawn(&mut self, name: &str, bin: &Path, args: &[String], log_dir: &Path) {
+        let log = std::fs::File::create(log_dir.join(format!("{name}.log"))).unwrap();
+        let child = Command::new(bin)
+            .args(args)
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(log)
+            .spawn()
+            .unwrap_or_else(|e| panic!("cannot start {}: {e}", bin.display()));
+        self.children.push((name.to_string(), child));
+    }
+}
+
+fn wait_for_file(path: &Path) -> String {
+    let start = Instant::now();
+    loop {
+        if let Ok(text) = std::fs::read_to_string(path) {
+            if !text.trim().is_empty() {
+                return text.trim().to_string();
+            }
+        }
+        assert!(
+            start.elapsed() < TIMEOUT,
+            "{} never appeared",
+            path.display()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+fn status(learner: &str, selector: &str) -> Option<Value> {
+    let out = Command::new(env!("CARGO_BIN_EXE_terl"))
+        .args([
+            "status",
+            "--json",
+            "--addr",
+            learner,
+            "--selector-addr",
+            selector,
+        ])
+        .output()
+        .ok()?;
+    if !out.status.success() {
+        return None;
+    }
+    serde_json::from_slice(&out.stdout).ok()
+}
+
+fn u(v: &Value, path: &[&str]) -> u64 {
+    let mut v = v;
+    for p in path {
+        v = &v[p];
+    }
+    v.as_u64().unwrap_or(0)
+}
+
+#[test]
+fn cluster_trains_and_shuts_down_cleanly() {
+    let bins = service_binaries();
+    let shm_before = shm_files();
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .subsec_nanos();
+    let run_id = format!("it-{}-{nanos}", std::process::id());
+    let dir = tempfile::tempdir().unwrap();
+    let run_dir = dir.path().join(&run_id);
+    std::fs::create_dir_all(&run_dir).unwrap();
+    let config = workspace().join("deploy/configs/cluster-smoke.toml");
+    let common = |extra: &[&str]| -> Vec<String> {
+        let mut v = vec![
+            "--config".to_string(),
+            config.display().to_string(),
+            "--run-id".into(),
+            run_id.clone(),
+            "--num-actors".into(),
+            "2".into(),
+        ];
+        v.extend(extra.iter().map(|s| s.to_string()));
+        v
+    };
+    let run_dir_s = run_dir.display().to_string();
+    let mut cluster = Cluster { children: vec![] };
+    cluster.spawn(
+        "learner",
+        &bins.join("terl-learner"),
+        &common(&["--addr", "127.0.0.1:0", "--run-dir", &run_dir_s]),
+        &run_dir,
+    );
+    cluster.spawn(
+        "selector",
+        &bins.join("terl-selector"),
+        &common(&["--addr", "127.0.0.1:0", "--run-dir", &run_dir_s]),
+        &run_dir,
+    );
+    let learner = wait_for_file(&run_dir.join("learner.addr"));
+    let selector = wait_for_file(&run_dir.join("selector.addr"));
+    for id in ["0", "1"] {
+        cluster.spawn(
+            &format!("actor{id}"),
+            &bins.join("terl-actor"),
+            &common(&["--actor-id", id, "--learner-addr", &learner]),
+            &run_dir,
+        );
+    }
+
+    // Poll until every property held at least once, remembering what grew.
+    let start = Instant::now();
+    let mut first: Option<Value> = None;
+    let mut versions_seen: BTreeSet<u64> = BTreeSet::new();
+    let (mut steps_grew, mut versions_advanced, mut windows_filled) = (false, false, false);
+    let mut last = Value::Null;
+    while !(steps_grew && versions_advanced && windows_filled) {
+        assert!(
+            start.elapsed() < TIMEOUT,
+            "cluster did not make progress in {TIMEOUT:?}; last status {last}; logs in {}",
+            run_dir.display()
+        );
+        std::thread::sleep(Duration::from_millis(1000));
+        let Some(s) = status(&learner, &selector) else {
+            continue;
+        };
+        let l = &s["learner"];
+        assert_eq!(l["run_id"], Value::String(run_id.clone()));
+        assert!(u(l, &["replay_size"]) <= u(l, &["replay_capacity"]));
+        let actors = l["actors"].as_array().cloned().unwrap_or_default();
+        for a in &actors {
+            let v = u(a, &["policy_version"]);
+            assert!(
+                v <= u(l, &["policy_version"]),
+                "actor ahead of learner: {s}"
+            );
+            if v > 0 {
+                versions_seen.insert(v);
+            }
+        }
+        let actor_versions: Vec<u64> = actors.iter().map(|a| u(a, &["policy_version"])).collect();
+        if let Some(f) = &first {
+            steps_grew |= u(l, &["env_steps_total"]) > u(&f["learner"], &["env_steps_total"])
+                && actors.len() == 2
+                && actors.iter().all(|a| u(a, &["env_steps"]) > 0);
+        } else if u(l, &["env_steps_total"]) > 0 {
+            first = Some(s.clone());
+        }
+        versions_advanced = versions_seen.len() >= 2
+            && actor_versions.len() == 2
+            && actor_versions.iter().all(|&v| v > 0);
+        let sel = &s["selector"];
+        let sel_tasks = sel["task_success"].as_array().cloned().unwrap_or_default();
+        windows_filled = u(sel, &["episodes_seen"]) > 0
+            && sel_tasks.len() == 2
+            && sel_tasks.iter().all(|t| u(t, &["episodes"]) > 0)
+            && l["task_success"]
+                .as_array()
+                .is_some_and(|ts| ts.iter().all(|t| u(t, &["episodes"]) > 0));
+        last = s;
+    }
+    eprintln!("status after {:?}: {last}", start.elapsed());
+    eprintln!("policy versions actors acted with: {versions_seen:?}");
+
+    let checkpoints = run_dir.join("checkpoints");
+    let periodic = || {
+        std::fs::read_dir(&checkpoints)
+            .map(|d| {
+                d.filter_map(|e| e.ok())
+                    .filter(|e| e.file_name().to_string_lossy().starts_with("update-"))
+                    .count()
+            })
+            .unwrap_or(0)
+    };
+    while periodic() == 0 {
+        assert!(start.elapsed() < TIMEOUT, "no periodic checkpoint");
+        std::thread::sleep(Duration::from_millis(200));
+    }
+
+    // SIGTERM everything at once, as the launcher does; everyone must exit 0, promptly.
+    for (_, child) in &cluster.children {
+        let ok = Command::new("kill")
+            .args(["-TERM", &child.id().to_string()])
+            .status()
+            .unwrap()
+            .success();
+        assert!(ok);
+    }
+    let stop = Instant::now();
+    for (name, child) in &mut cluster.children {
+        let status = loop {
+            if let Some(status) = child.try_wait().unwrap() {
+                break status;
+            }
+            assert!(
+                stop.elapsed() < Duration::from_secs(30),
+                "{name} did not stop after SIGTERM"
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        };
+        assert!(
+            status.success(),
+            "{name} exited with {status}; log {}",
+            run_dir.join(format!("{name}.log")).display()
+        );
+    }
+    eprintln!("all processes stopped {:?} after SIGTERM", stop.elapsed());
+    assert!(checkpoints.join("final.safetensors").is_file());
+
+    let leftover: Vec<String> = shm_files().difference(&shm_before).cloned().collect();
+    assert!(
+        leftover.is_empty(),
+        "shared-memory files left: {leftover:?}"
+    );
+}

@@ -1,0 +1,155 @@
+//! The learner service: drains actors' transitions from shared memory into per-task replay,
+//! runs MTSAC updates at the configured update-to-data ratio, publishes policy weights every
+//! K updates to the `WatchWeights` streams, writes periodic safetensors checkpoints, and
+//! answers `GetStatus`/`SaveCheckpoint` over gRPC.
+//!
+//! Two halves: the training loop ([`trainer`]) is CPU-bound and runs on its own thread; the
+//! gRPC server runs on the tokio runtime of the caller. They share a status snapshot the
+//! trainer refreshes a few times a second, the [`WeightHub`], and a checkpoint-request channel.
+//! `run` returns when `shutdown` completes (or the trainer fails), after the trainer thread has
+//! written its final checkpoint and dropped its shared-memory node.
+
+mod trainer;
+
+use std::future::Future;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{mpsc, Arc, Mutex};
+use std::time::Instant;
+
+use anyhow::Context;
+use terl_runtime::RunConfig;
+use terl_wire::{CheckpointRequest, CheckpointSaved, LearnerBackend, LearnerStatus, WeightHub};
+use tonic::Status;
+
+pub use trainer::CheckpointJob;
+
+/// Everything the learner needs to start.
+#[derive(Debug, Clone)]
+pub struct LearnerConfig {
+    pub run: RunConfig,
+    pub run_id: String,
+    /// gRPC listen address; port 0 picks a free port (see `<run_dir>/learner.addr`).
+    pub addr: SocketAddr,
+    /// Actor processes that will connect (sizes the shared-memory services).
+    pub num_actors: usize,
+    /// `runs/<run-id>`: checkpoints, the address file.
+    pub run_dir: PathBuf,
+}
+
+impl LearnerConfig {
+    pub fn new(
+        run: RunConfig,
+        run_id: String,
+        addr: SocketAddr,
+        num_actors: usize,
+        run_dir: PathBuf,
+    ) -> Self {
+        Self {
+            run,
+            run_id,
+            addr,
+            num_actors,
+            run_dir,
+        }
+    }
+}
+
+/// State shared between the trainer thread and the gRPC service.
+#[derive(Debug)]
+pub(crate) struct Shared {
+    pub(crate) started: Instant,
+    pub(crate) status: Mutex<LearnerStatus>,
+    pub(crate) stop: AtomicBool,
+}
+
+#[derive(Debug)]
+struct Backend {
+    shared: Arc<Shared>,
+    hub: WeightHub,
+    checkpoints: Mutex<mpsc::Sender<CheckpointJob>>,
+}
+
+impl LearnerBackend for Backend {
+    async fn status(&self) -> Result<LearnerStatus, Status> {
+        let mut status = self
+            .shared
+            .status
+            .lock()
+            .map_err(|_| Status::internal("status lock poisoned"))?
+            .clone();
+        status.uptime_seconds = self.shared.started.elapsed().as_secs_f64();
+        Ok(status)
+    }
+
+    async fn save_checkpoint(&self, request: CheckpointRequest) -> Result<CheckpointSaved, Status> {
+        let (reply, answer) = tokio::sync::oneshot::channel();
+        self.checkpoints
+            .lock()
+            .map_err(|_| Status::internal("checkpoint channel lock poisoned"))?
+            .send(CheckpointJob { request, reply })
+            .map_err(|_| Status::unavailable("the trainer has stopped"))?;
+        answer
+            .await
+            .map_err(|_| Status::unavailable("the trainer stopped before saving"))?
+            .map_err(Status::internal)
+    }
+
+    fn weight_hub(&self) -> &WeightHub {
+        &self.hub
+    }
+}
+
+/// Runs the learner until `shutdown` completes or the trainer fails.
+pub async fn run(
+    config: LearnerConfig,
+    shutdown: impl Future<Output = ()> + Send,
+) -> anyhow::Result<()> {
+    let listener = terl_wire::bind(config.addr)
+        .await
+        .with_context(|| format!("cannot listen on {}", config.addr))?;
+    let addr = listener.local_addr()?;
+    let addr_file = terl_runtime::write_addr_file(&config.run_dir, "learner", addr)?;
+    tracing::info!(%addr, file = %addr_file.display(), run_id = %config.run_id, "learner listening");
+
+    let shared = Arc::new(Shared {
+        started: Instant::now(),
+        status: Mutex::new(LearnerStatus {
+            run_id: config.run_id.clone(),
+            ..LearnerStatus::default()
+        }),
+        stop: AtomicBool::new(false),
+    });
+    let hub = WeightHub::new();
+    let (checkpoint_tx, checkpoint_rx) = mpsc::channel();
+    let (done_tx, mut done_rx) = tokio::sync::watch::channel(false);
+    let trainer = {
+        let (shared, hub) = (Arc::clone(&shared), hub.clone());
+        std::thread::Builder::new()
+            .name("trainer".into())
+            .spawn(move || {
+                let result = trainer::run(&config, &shared, &hub, &checkpoint_rx);
+                let _ = done_tx.send(true);
+                result
+            })?
+    };
+    let backend = Backend {
+        shared: Arc::clone(&shared),
+        hub,
+        checkpoints: Mutex::new(checkpoint_tx),
+    };
+    let stop_serving = async {
+        tokio::select! {
+            () = shutdown => {}
+            _ = done_rx.wait_for(|done| *done) => tracing::warn!("trainer stopped; shutting down"),
+        }
+    };
+    let served = terl_wire::serve_learner(listener, backend, stop_serving).await;
+    shared.stop.store(true, Ordering::Relaxed);
+    let trained = tokio::task::spawn_blocking(move || trainer.join())
+        .await?
+        .map_err(|_| anyhow::anyhow!("trainer thread panicked"))?;
+    served.context("gRPC server")?;
+    trained
+}

@@ -1,0 +1,484 @@
+//! The training loop of the learner process (its own thread).
+//!
+//! One round: drain transition batches from shared memory while the rate limiter allows
+//! inserts (when it does not, batches stay queued and actors meet back-pressure), drain
+//! finished episodes (success windows) and selected samples, run updates while the limiter
+//! allows samples, publish weights every `publish_every_updates`, refresh the status snapshot,
+//! write a checkpoint when one is due or requested. Policy versions are the learner's update
+//! count at publication, so a transition's staleness is "updates behind" directly.
+
+use std::collections::{BTreeMap, VecDeque};
+use std::path::PathBuf;
+use std::sync::atomic::Ordering;
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use terl_rl::replay::MultiTaskReplay;
+use terl_rl::{Batch, Sac, SacError};
+use terl_transport::{
+    EpisodeSummary, Message, MessageSource, RateLimiter, SelectedBatch, ShmTransport, Staleness,
+    TransitionBatch, TransportConfig, ACTION_DIM, OBS_DIM, TRANSITIONS_PER_BATCH,
+};
+use terl_wire::{
+    ActorStats, CheckpointRequest, CheckpointSaved, LearnerStatus, TaskSuccess, Tensor, WeightHub,
+    Weights, WeightsKind,
+};
+
+use crate::{LearnerConfig, Shared};
+
+/// A `SaveCheckpoint` request handed to the trainer thread, with where to send the answer.
+#[derive(Debug)]
+pub struct CheckpointJob {
+    pub request: CheckpointRequest,
+    pub reply: tokio::sync::oneshot::Sender<Result<CheckpointSaved, String>>,
+}
+
+/// Batches drained per round at most, so updates and status are never starved.
+const MAX_BATCHES_PER_ROUND: usize = 16;
+/// Updates per round at most, so queued batches are drained regularly.
+const MAX_UPDATES_PER_ROUND: usize = 16;
+/// Status snapshot refresh period; rates are computed over [`RATE_WINDOW`].
+const STATUS_EVERY: Duration = Duration::from_millis(250);
+const RATE_WINDOW: Duration = Duration::from_secs(2);
+
+#[derive(Debug, Default)]
+struct ActorTrack {
+    env_steps: u64,
+    policy_version: u64,
+    last_seen: Option<Instant>,
+    /// (time, env_steps) at the start of the current rate window.
+    window: Option<(Instant, u64)>,
+    steps_per_second: f64,
+}
+
+/// Training state that is not the network itself.
+struct Counters {
+    env_steps: u64,
+    actors: BTreeMap<u16, ActorTrack>,
+    windows: Vec<VecDeque<bool>>,
+    staleness: Staleness,
+    /// Staleness over the last completed rate window (what status shows).
+    staleness_shown: Staleness,
+    rejected_batches: u64,
+    failed_updates: u64,
+    failed_in_a_row: u64,
+    selected_samples: u64,
+    policy_version: u64,
+    updates_window: (Instant, u64),
+    updates_per_second: f64,
+}
+
+/// Batches taken out of shared memory and not yet in replay, one queue per actor.
+///
+/// iceoryx2's subscriber always serves the first publisher that has data, so under
+/// back-pressure (the rate limiter refusing inserts) a learner that received one batch at a
+/// time would only ever hear from one actor and starve the rest. Instead, whenever at most
+/// `low_water` batches are staged, the learner empties every actor's shared-memory queue into
+/// the staging area (at most `low_water` more, one queue's worth per actor), and inserts into
+/// replay round-robin over actors. Every actor thus delivers its queue once per cycle.
+struct Staging {
+    low_water: usize,
+    queues: BTreeMap<u16, VecDeque<Box<TransitionBatch>>>,
+    staged: usize,
+    cursor: u16,
+    free: Vec<Box<TransitionBatch>>,
+}
+
+impl Staging {
+    fn new(low_water: usize) -> Self {
+        Self {
+            low_water: low_water.max(1),
+            queues: BTreeMap::new(),
+            staged: 0,
+            cursor: 0,
+            free: Vec::new(),
+        }
+    }
+
+    /// Drains the source when the staging area is low; true if anything arrived.
+    fn fill(
+        &mut self,
+        source: &mut dyn MessageSource<TransitionBatch>,
+    ) -> Result<bool, terl_transport::TransportError> {
+        if self.staged > self.low_water {
+            return Ok(false);
+        }
+        let mut got = false;
+        while self.staged < 2 * self.low_water {
+            let mut b = self.free.pop().unwrap_or_else(TransitionBatch::empty);
+            if !source.try_receive_into(&mut b)? {
+                self.free.push(b);
+                break;
+            }
+            got = true;
+            self.staged += 1;
+            self.queues.entry(b.actor_id).or_default().push_back(b);
+        }
+        Ok(got)
+    }
+
+    /// The next batch, round-robin over actors.
+    fn next(&mut self) -> Option<Box<TransitionBatch>> {
+        let key = self
+            .queues
+            .range(self.cursor..)
+            .chain(self.queues.range(..self.cursor))
+            .find(|(_, q)| !q.is_empty())
+            .map(|(&k, _)| k)?;
+        self.cursor = key.wrapping_add(1);
+        self.staged -= 1;
+        self.queues.get_mut(&key).and_then(VecDeque::pop_front)
+    }
+
+    fn recycle(&mut self, b: Box<TransitionBatch>) {
+        if self.free.len() < 2 * self.low_water {
+            self.free.push(b);
+        }
+    }
+}
+
+/// Loads a batch into replay. Rejects (and counts) batches with an unknown task or
+/// non-finite values as a whole: they come from a broken actor.
+fn ingest(
+    batch: &TransitionBatch,
+    num_tasks: usize,
+    replay: &mut MultiTaskReplay,
+    c: &mut Counters,
+) -> u64 {
+    let ts = batch.as_slice();
+    let valid = ts.iter().all(|t| {
+        (t.task as usize) < num_tasks
+            && t.reward.is_finite()
+            && t.obs
+                .iter()
+                .chain(&t.next_obs)
+                .chain(&t.action)
+                .all(|v| v.is_finite())
+    });
+    if !valid {
+        c.rejected_batches += 1;
+        return 0;
+    }
+    let now = Instant::now();
+    for t in ts {
+        replay.push(
+            t.task as usize,
+            &t.obs,
+            &t.action,
+            t.reward,
+            &t.next_obs,
+            t.terminated(),
+        );
+        c.staleness.record(c.policy_version, t.policy_version);
+    }
+    let n = ts.len() as u64;
+    c.env_steps += n;
+    let track = c.actors.entry(batch.actor_id).or_default();
+    track.env_steps += n;
+    if let Some(last) = ts.last() {
+        track.policy_version = last.policy_version;
+    }
+    track.last_seen = Some(now);
+    n
+}
+
+fn policy_weights(sac: &Sac<f32>, version: u64) -> anyhow::Result<Weights> {
+    let tensors = sac
+        .policy_tensors()
+        .into_iter()
+        .map(|t| {
+            let values = t.values::<f32>()?;
+            Ok(Tensor::new(t.name.clone(), t.shape.clone(), values)?)
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    Ok(Weights::new(
+        WeightsKind::Policy,
+        version,
+        sac.updates(),
+        tensors,
+    )?)
+}
+
+struct Checkpointer {
+    dir: PathBuf,
+    keep: usize,
+    periodic: VecDeque<PathBuf>,
+}
+
+impl Checkpointer {
+    /// Writes to a temporary name and renames, so a reader never sees half a file.
+    fn write(&self, sac: &Sac<f32>, name: &str) -> anyhow::Result<PathBuf> {
+        let path = self.dir.join(format!("{name}.safetensors"));
+        let tmp = self.dir.join(format!(".{name}.safetensors.tmp"));
+        sac.save_checkpoint(&tmp)
+            .with_context(|| format!("writing {}", tmp.display()))?;
+        std::fs::rename(&tmp, &path).with_context(|| format!("renaming to {}", path.display()))?;
+        Ok(path)
+    }
+
+    fn periodic(&mut self, sac: &Sac<f32>) -> anyhow::Result<PathBuf> {
+        let path = self.write(sac, &format!("update-{:010}", sac.updates()))?;
+        if self.periodic.back() != Some(&path) {
+            self.periodic.push_back(path.clone());
+        }
+        while self.periodic.len() > self.keep.max(1) {
+            if let Some(old) = self.periodic.pop_front() {
+                let _ = std::fs::remove_file(old);
+            }
+        }
+        Ok(path)
+    }
+}
+
+pub(crate) fn run(
+    config: &LearnerConfig,
+    shared: &Shared,
+    hub: &WeightHub,
+    checkpoint_jobs: &mpsc::Receiver<CheckpointJob>,
+) -> anyhow::Result<()> {
+    let run = &config.run;
+    let tasks = terl_runtime::resolve_tasks(&run.tasks)?;
+    let nt = tasks.len();
+    let mut sac_config = run.sac.clone();
+    sac_config.obs_dim = OBS_DIM;
+    sac_config.act_dim = ACTION_DIM;
+    sac_config.num_tasks = nt;
+    let mut sac = Sac::new(sac_config.clone())?;
+
+    let transport_config = TransportConfig {
+        buffer_batches: run.cluster.buffer_batches,
+        block_timeout: Duration::from_secs_f64(run.cluster.block_timeout_secs),
+        ..TransportConfig::new(config.run_id.clone(), config.num_actors)
+    };
+    let transport = ShmTransport::open(transport_config, "learner")?;
+    let mut transitions: Box<dyn MessageSource<TransitionBatch>> =
+        Box::new(transport.shm_source::<TransitionBatch>()?);
+    let mut staging = Staging::new(config.num_actors * run.cluster.buffer_batches);
+    let mut episodes = transport.shm_source::<EpisodeSummary>()?;
+    let mut selected = transport.shm_source::<SelectedBatch>()?;
+
+    let spi = run.samples_per_insert();
+    let mut limiter = RateLimiter::new(
+        spi,
+        run.train.warmup_env_steps,
+        run.rate_error_buffer(TRANSITIONS_PER_BATCH),
+    )?;
+    let capacity = run.train.replay_capacity_per_task;
+    let mut replay = MultiTaskReplay::new(nt, capacity, OBS_DIM, ACTION_DIM);
+    let mut batch = Batch::with_capacity(sac_config.batch_size, OBS_DIM, ACTION_DIM);
+    let mut rng = ChaCha8Rng::seed_from_u64(run.train.seed ^ 0x1ea7_7e55);
+    let checkpoint_dir = config.run_dir.join("checkpoints");
+    std::fs::create_dir_all(&checkpoint_dir)
+        .with_context(|| format!("cannot create {}", checkpoint_dir.display()))?;
+    let mut checkpointer = Checkpointer {
+        dir: checkpoint_dir,
+        keep: run.cluster.keep_checkpoints,
+        periodic: VecDeque::new(),
+    };
+    let checkpoint_every = (run.cluster.checkpoint_every_secs > 0.0)
+        .then(|| Duration::from_secs_f64(run.cluster.checkpoint_every_secs));
+    let mut last_checkpoint = Instant::now();
+
+    let start = Instant::now();
+    let window_len = run.train.success_window.max(1);
+    let mut c = Counters {
+        env_steps: 0,
+        actors: BTreeMap::new(),
+        windows: vec![VecDeque::with_capacity(window_len); nt],
+        staleness: Staleness::default(),
+        staleness_shown: Staleness::default(),
+        rejected_batches: 0,
+        failed_updates: 0,
+        failed_in_a_row: 0,
+        selected_samples: 0,
+        policy_version: 0,
+        updates_window: (start, 0),
+        updates_per_second: 0.0,
+    };
+    let mut last_status = start - STATUS_EVERY;
+    let mut last_log = start;
+    tracing::info!(
+        tasks = nt,
+        samples_per_insert = spi,
+        warmup = run.train.warmup_env_steps,
+        publish_every = run.cluster.publish_every_updates,
+        "trainer started"
+    );
+
+    while !shared.stop.load(Ordering::Relaxed) {
+        let mut busy = staging.fill(transitions.as_mut())?;
+        for _ in 0..MAX_BATCHES_PER_ROUND {
+            if !limiter.can_insert(TRANSITIONS_PER_BATCH as u64) {
+                break;
+            }
+            let Some(b) = staging.next() else { break };
+            let n = ingest(&b, nt, &mut replay, &mut c);
+            staging.recycle(b);
+            limiter.record_insert(n);
+            busy = true;
+        }
+        while let Some(()) = episodes.try_receive_with(|e| {
+            if let Some(w) = c.windows.get_mut(e.task as usize) {
+                if w.len() == window_len {
+                    w.pop_front();
+                }
+                w.push_back(e.succeeded());
+            }
+        })? {
+            busy = true;
+        }
+        while let Some(n) = selected.try_receive_with(|s| s.as_slice().len() as u64)? {
+            // TEP training arrives with the PTR/TEP issues; counted so status shows the flow.
+            c.selected_samples += n;
+        }
+
+        for _ in 0..MAX_UPDATES_PER_ROUND {
+            if !limiter.can_sample(1) {
+                break;
+            }
+            replay.sample_into(sac_config.batch_size, &mut rng, &mut batch);
+            limiter.record_sample(1);
+            busy = true;
+            match sac.update(&batch) {
+                Ok(_) => c.failed_in_a_row = 0,
+                Err(SacError::NonFiniteBatch { .. }) => {}
+                Err(e @ (SacError::NonFiniteLoss { .. } | SacError::NonFiniteGradient { .. })) => {
+                    c.failed_updates += 1;
+                    c.failed_in_a_row += 1;
+                    if c.failed_in_a_row >= run.train.max_consecutive_failed_updates {
+                        return Err(e).context("too many failed updates in a row");
+                    }
+                }
+                Err(e) => return Err(e.into()),
+            }
+        }
+        if sac.updates() >= c.policy_version + run.cluster.publish_every_updates {
+            let version = sac.updates();
+            hub.publish(&policy_weights(&sac, version)?)?;
+            c.policy_version = version;
+        }
+
+        while let Ok(job) = checkpoint_jobs.try_recv() {
+            let name = match &job.request.label {
+                Some(label) => format!("{label}-update-{:010}", sac.updates()),
+                None => format!("requested-update-{:010}", sac.updates()),
+            };
+            let answer = checkpointer
+                .write(&sac, &name)
+                .map(|path| CheckpointSaved {
+                    path: path.display().to_string(),
+                    learner_update: sac.updates(),
+                    policy_version: c.policy_version,
+                })
+                .map_err(|e| format!("{e:#}"));
+            let _ = job.reply.send(answer);
+        }
+        if checkpoint_every.is_some_and(|every| last_checkpoint.elapsed() >= every) {
+            last_checkpoint = Instant::now();
+            let path = checkpointer.periodic(&sac)?;
+            tracing::info!(path = %path.display(), updates = sac.updates(), "checkpoint");
+        }
+
+        let now = Instant::now();
+        if now - last_status >= STATUS_EVERY {
+            last_status = now;
+            refresh_rates(&mut c, sac.updates(), now);
+            let status = snapshot(config, &tasks, &c, &sac, &replay, capacity, now);
+            if now - last_log >= Duration::from_secs(10) {
+                last_log = now;
+                tracing::info!(
+                    updates = status.updates,
+                    updates_per_second = format!("{:.0}", status.updates_per_second),
+                    env_steps = status.env_steps_total,
+                    replay = status.replay_size,
+                    policy_version = status.policy_version,
+                    staleness_mean = format!("{:.0}", status.staleness_mean),
+                    "progress"
+                );
+            }
+            if let Ok(mut s) = shared.status.lock() {
+                *s = status;
+            }
+        }
+        if !busy {
+            std::thread::sleep(Duration::from_micros(500));
+        }
+    }
+
+    let path = checkpointer.write(&sac, "final")?;
+    tracing::info!(path = %path.display(), updates = sac.updates(), env_steps = c.env_steps, "trainer stopped; final checkpoint written");
+    Ok(())
+}
+
+fn refresh_rates(c: &mut Counters, updates: u64, now: Instant) {
+    let (t0, u0) = c.updates_window;
+    let dt = (now - t0).as_secs_f64();
+    if now - t0 >= RATE_WINDOW {
+        c.updates_per_second = (updates - u0) as f64 / dt;
+        c.updates_window = (now, updates);
+        c.staleness_shown = std::mem::take(&mut c.staleness);
+    }
+    for track in c.actors.values_mut() {
+        match track.window {
+            None => track.window = Some((now, track.env_steps)),
+            Some((t0, s0)) if now - t0 >= RATE_WINDOW => {
+                track.steps_per_second = (track.env_steps - s0) as f64 / (now - t0).as_secs_f64();
+                track.window = Some((now, track.env_steps));
+            }
+            Some(_) => {}
+        }
+    }
+}
+
+fn snapshot(
+    config: &LearnerConfig,
+    tasks: &[&str],
+    c: &Counters,
+    sac: &Sac<f32>,
+    replay: &MultiTaskReplay,
+    capacity: usize,
+    now: Instant,
+) -> LearnerStatus {
+    LearnerStatus {
+        run_id: config.run_id.clone(),
+        uptime_seconds: 0.0,
+        updates: sac.updates(),
+        updates_per_second: c.updates_per_second,
+        env_steps_total: c.env_steps,
+        actors: c
+            .actors
+            .iter()
+            .map(|(&id, t)| ActorStats {
+                actor_id: u32::from(id),
+                env_steps: t.env_steps,
+                env_steps_per_second: t.steps_per_second,
+                policy_version: t.policy_version,
+                seconds_since_seen: t.last_seen.map_or(0.0, |s| (now - s).as_secs_f64()),
+            })
+            .collect(),
+        replay_size: replay.total_len() as u64,
+        replay_capacity: (capacity * tasks.len()) as u64,
+        task_success: tasks
+            .iter()
+            .zip(&c.windows)
+            .map(|(task, w)| TaskSuccess {
+                task: (*task).to_string(),
+                success_rate: if w.is_empty() {
+                    0.0
+                } else {
+                    w.iter().filter(|&&s| s).count() as f64 / w.len() as f64
+                },
+                episodes: w.len() as u64,
+            })
+            .collect(),
+        staleness_mean: c.staleness_shown.mean(),
+        staleness_max: c.staleness_shown.max,
+        rejected_batches: c.rejected_batches + sac.rejected_batches(),
+        policy_version: c.policy_version,
+        planner_version: 0,
+        tep_updates: 0,
+    }
+}

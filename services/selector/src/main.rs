@@ -1,0 +1,40 @@
+//! `terl-selector`: parse arguments, then [`terl_selector::run`] until SIGINT/SIGTERM.
+
+use std::path::PathBuf;
+
+use clap::Parser;
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "terl-selector",
+    version,
+    about = "Episode selector of a terl cluster"
+)]
+struct Args {
+    /// Run file (TOML), the same the learner reads.
+    #[arg(long)]
+    config: PathBuf,
+    /// Run id: names the shared-memory services and the default run folder.
+    #[arg(long)]
+    run_id: String,
+    /// gRPC listen address (port 0: any free port, written to <run-dir>/selector.addr).
+    #[arg(long, default_value = terl_wire::DEFAULT_SELECTOR_ADDR)]
+    addr: std::net::SocketAddr,
+    #[arg(long, default_value_t = 1)]
+    num_actors: usize,
+    /// Run folder (default runs/<run-id>).
+    #[arg(long)]
+    run_dir: Option<PathBuf>,
+}
+
+#[tokio::main(flavor = "current_thread")]
+async fn main() -> anyhow::Result<()> {
+    terl_runtime::init_tracing();
+    let a = Args::parse();
+    let run = terl_runtime::RunConfig::load(&a.config)?;
+    let run_dir = a
+        .run_dir
+        .unwrap_or_else(|| PathBuf::from("runs").join(&a.run_id));
+    let config = terl_selector::SelectorConfig::new(run, a.run_id, a.addr, a.num_actors, run_dir);
+    terl_selector::run(config, terl_runtime::shutdown_signal()).await
+}
