@@ -1,44 +1,105 @@
 #!/usr/bin/env bash
-# The main job: train one multi-task policy on MT10 on this machine.
+# The main job: a local training cluster — one learner, one selector and N actors — on this machine.
 #
-#   ./deploy/local-cluster.sh [--config FILE] [--actors N] [--steps N] [--seed N]
+#   ./deploy/local-cluster.sh [--config FILE] [--actors N] [--run-id ID]
+#                             [--learner-addr ADDR] [--selector-addr ADDR] [--no-build]
 #
-# Today this runs the single-process trainer (Meta-World environments and MTSAC in one
-# process, real training, progress on the terminal, checkpoints and reports in runs/<id>/).
-# The distributed actor/learner/selector cluster over shared memory and gRPC is the next
-# milestone; --actors is accepted now and will size it.
+# --config       run file (default deploy/configs/mt10.toml; quick check: deploy/configs/cluster-smoke.toml)
+# --actors       actor processes (default: cores - 1, at least 1)
+# --learner-addr / --selector-addr   gRPC addresses (default 127.0.0.1:50051 / 127.0.0.1:50052;
+#                port 0 picks a free port, written to runs/<id>/<service>.addr)
+# Logs, the resolved config and checkpoints go to runs/<id>/; progress (terl status) prints every
+# few seconds. Ctrl-C (or `terl cluster down`) stops every process and waits for them.
 set -euo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$ROOT"
 
 config=deploy/configs/mt10.toml
-actors=""
-extra=()
+cores=$(nproc 2>/dev/null || echo 2)
+actors=$(( cores > 1 ? cores - 1 : 1 ))
+run_id=""
+learner_addr=127.0.0.1:50051
+selector_addr=127.0.0.1:50052
+build=1
 while [ $# -gt 0 ]; do
     case "$1" in
         --config) config=$2; shift 2 ;;
         --actors) actors=$2; shift 2 ;;
-        --steps) extra+=(--steps "$2"); shift 2 ;;
-        --seed) extra+=(--seed "$2"); shift 2 ;;
-        -h|--help) sed -n 2,11p "$0"; exit 0 ;;
+        --run-id) run_id=$2; shift 2 ;;
+        --learner-addr) learner_addr=$2; shift 2 ;;
+        --selector-addr) selector_addr=$2; shift 2 ;;
+        --no-build) build=0; shift ;;
+        -h|--help) sed -n 2,13p "$0"; exit 0 ;;
         *) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
     esac
 done
 [ -f "$config" ] || { echo "config not found: $config" >&2; exit 2; }
-if [ -n "$actors" ] && ! [[ "$actors" =~ ^[1-9][0-9]*$ ]]; then
-    echo "--actors must be a positive integer" >&2; exit 2
+[[ "$actors" =~ ^[1-9][0-9]*$ ]] || { echo "--actors must be a positive integer" >&2; exit 2; }
+
+if [ "$build" = 1 ]; then
+    ./deploy/setup.sh
+    echo "[cluster] building release binaries (first time: a few minutes)" >&2
+    cargo build --release -q -p terl-cli -p terl-learner -p terl-actor -p terl-selector
 fi
+bin=target/release
 
-./deploy/setup.sh
-echo "[cluster] building release binaries (first time: a few minutes)" >&2
-cargo build --release -q -p terl-cli
-
-run_id="$(basename "$config" .toml)-$(date +%Y%m%d-%H%M%S)"
+run_id=${run_id:-"$(basename "$config" .toml)-$(date +%Y%m%d-%H%M%S)"}
 out="runs/$run_id"
 mkdir -p "$out"
-echo "[cluster] NOTE: running the single-process trainer (envs + MTSAC in one process);" \
-     "the multi-process actor/learner/selector cluster is not built yet${actors:+ (--actors $actors ignored)}." >&2
-echo "[cluster] run folder: $out (config.toml, progress.jsonl, checkpoints/, report.json). Ctrl-C stops;" \
-     "the latest checkpoint is kept." >&2
-exec cargo run --release -q -p terl-cli --bin terl -- train --config "$config" --out "$out" "${extra[@]}" \
-    2> >(tee "$out/train.log" >&2)
+cp "$config" "$out/config.toml"
+cat > "$out/cluster.txt" <<INFO
+run_id=$run_id
+config=$config
+actors=$actors
+learner_addr=$learner_addr
+selector_addr=$selector_addr
+started=$(date -Iseconds)
+INFO
+echo $$ > runs/.cluster.pid
+
+pids=()
+stopping=0
+stop() {
+    [ "$stopping" = 1 ] && return
+    stopping=1
+    echo "[cluster] stopping ${#pids[@]} processes" >&2
+    for p in "${pids[@]}"; do kill -TERM "$p" 2>/dev/null || true; done
+    stop_code=0
+    for p in "${pids[@]}"; do wait "$p" || stop_code=$?; done
+    rm -f runs/.cluster.pid
+    echo "[cluster] stopped (worst exit code ${stop_code}; run folder $out)" >&2
+}
+trap 'stop; exit 130' INT
+trap 'stop; exit 143' TERM
+
+common=(--config "$out/config.toml" --run-id "$run_id" --num-actors "$actors")
+rm -f "$out/learner.addr" "$out/selector.addr"
+"$bin/terl-learner" "${common[@]}" --addr "$learner_addr" --run-dir "$out" 2> "$out/learner.log" &
+pids+=($!)
+"$bin/terl-selector" "${common[@]}" --addr "$selector_addr" --run-dir "$out" 2> "$out/selector.log" &
+pids+=($!)
+for f in learner selector; do
+    for _ in $(seq 300); do [ -s "$out/$f.addr" ] && break; sleep 0.1; done
+    [ -s "$out/$f.addr" ] || { echo "[cluster] $f did not start; see $out/$f.log" >&2; tail -5 "$out/$f.log" >&2; stop; exit 1; }
+done
+learner_addr=$(cat "$out/learner.addr")
+selector_addr=$(cat "$out/selector.addr")
+for ((i = 0; i < actors; i++)); do
+    "$bin/terl-actor" "${common[@]}" --actor-id "$i" --learner-addr "$learner_addr" 2> "$out/actor-$i.log" &
+    pids+=($!)
+done
+echo "[cluster] run $run_id: learner $learner_addr, selector $selector_addr, $actors actor(s); logs in $out/. Ctrl-C stops." >&2
+
+while true; do
+    sleep 5 &
+    wait $! || true
+    for p in "${pids[@]}"; do
+        if ! kill -0 "$p" 2>/dev/null; then
+            echo "[cluster] process $p exited; stopping the cluster (logs in $out/)" >&2
+            stop || true
+            exit 1
+        fi
+    done
+    echo "---- $(date +%H:%M:%S)" >&2
+    "$bin/terl" status --addr "$learner_addr" --selector-addr "$selector_addr" >&2 || true
+done

@@ -1,6 +1,7 @@
 //! `terl`: the command line of the terl system.
 
 mod bench;
+mod cluster;
 mod env;
 mod status;
 mod train;
@@ -31,6 +32,9 @@ enum Command {
     Train(train::TrainArgs),
     /// Status of a running cluster (learner and selector).
     Status(status::StatusArgs),
+    /// The local cluster: up (deploy/local-cluster.sh) and down.
+    #[command(subcommand)]
+    Cluster(cluster::ClusterCommand),
 }
 
 fn main() -> std::process::ExitCode {
@@ -57,5 +61,6 @@ fn run(cli: Cli) -> Result<std::process::ExitCode> {
         Command::Bench(c) => bench::run(c),
         Command::Train(a) => train::run(a),
         Command::Status(a) => status::run(a),
+        Command::Cluster(c) => cluster::run(c),
     }
 }

@@ -1,0 +1,73 @@
+//! `terl cluster up|down`: the local cluster from the CLI. `up` runs `deploy/local-cluster.sh`
+//! (one launcher, so the script and the CLI cannot drift apart); `down` sends SIGTERM to the
+//! running launcher (`runs/.cluster.pid`), which stops and waits for every process.
+
+use std::path::PathBuf;
+use std::process::{Command, ExitCode};
+
+use anyhow::{Context, Result};
+use clap::Subcommand;
+
+#[derive(Debug, Subcommand)]
+pub enum ClusterCommand {
+    /// Start learner, selector and actors in the foreground (Ctrl-C or `terl cluster down` stops).
+    Up {
+        /// Run file (default deploy/configs/mt10.toml).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Actor processes (default: cores - 1, at least 1).
+        #[arg(long)]
+        actors: Option<usize>,
+        /// Further launcher options (see deploy/local-cluster.sh --help).
+        #[arg(last = true)]
+        rest: Vec<String>,
+    },
+    /// Stop the running local cluster.
+    Down,
+}
+
+pub fn run(cmd: ClusterCommand) -> Result<ExitCode> {
+    match cmd {
+        ClusterCommand::Up {
+            config,
+            actors,
+            rest,
+        } => {
+            let mut launcher = Command::new("deploy/local-cluster.sh");
+            if let Some(c) = config {
+                launcher.arg("--config").arg(c);
+            }
+            if let Some(n) = actors {
+                launcher.arg("--actors").arg(n.to_string());
+            }
+            let status = launcher.args(rest).status().context(
+                "cannot run deploy/local-cluster.sh (run terl from the repository root)",
+            )?;
+            Ok(if status.success() {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::FAILURE
+            })
+        }
+        ClusterCommand::Down => {
+            let pid_file = "runs/.cluster.pid";
+            let pid = std::fs::read_to_string(pid_file)
+                .with_context(|| format!("no running cluster ({pid_file} not found)"))?;
+            let pid = pid.trim();
+            anyhow::ensure!(
+                !pid.is_empty() && pid.chars().all(|c| c.is_ascii_digit()),
+                "bad pid {pid:?} in {pid_file}"
+            );
+            let ok = Command::new("kill")
+                .args(["-TERM", pid])
+                .status()?
+                .success();
+            anyhow::ensure!(
+                ok,
+                "cluster launcher {pid} is not running (stale {pid_file}?)"
+            );
+            eprintln!("sent SIGTERM to the cluster launcher (pid {pid}); it stops every process");
+            Ok(ExitCode::SUCCESS)
+        }
+    }
+}
