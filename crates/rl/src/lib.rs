@@ -11,6 +11,9 @@
 //! - [`replay::MultiTaskReplay`]: per-task ring buffers in contiguous `f32` storage;
 //! - [`train`]: the single-process training loop over a [`env::VecEnvironment`];
 //! - [`toy`]: a multi-task 2-D point-mass environment for fast learning tests;
+//! - [`ptr`]: PTR selection (GAE, priority, ranking in batches, success gate);
+//! - [`tep`], [`tep_buffer`]: the TEP planner (F, AN, targets, update) and its dataset buffer;
+//! - [`guidance`]: the TERL guidance rule and goal states;
 //! - [`bench`]: update throughput, achieved GFLOP/s against faer's GEMM rate, inference latency.
 
 pub mod batch;
@@ -18,9 +21,13 @@ pub mod bench;
 pub mod config;
 pub mod env;
 pub mod error;
+pub mod guidance;
 pub mod policy;
+pub mod ptr;
 pub mod replay;
 pub mod sac;
+pub mod tep;
+pub mod tep_buffer;
 pub mod toy;
 pub mod train;
 
@@ -29,3 +36,5 @@ pub use config::SacConfig;
 pub use error::SacError;
 pub use policy::{Policy, PolicySpec};
 pub use sac::{Sac, UpdateStats};
+pub use tep::{Planner, Tep, TepConfig, TepStats};
+pub use tep_buffer::{TepBatch, TepBuffer};

@@ -1,0 +1,621 @@
+//! The Task-evoked Planner (paper Sec. IV.B): reachability net `F(s, s', a)` (steps from `s` to
+//! `s'` when starting with action `a`) and Action Network `AN(s, s') ≈ argmin_a F(s, s', a)`, each
+//! with a Polyak-averaged target copy `F̃`, `ÃN`.
+//!
+//! One update ([`Tep::update`]) on rows `(s_t, a_t, s_{t+1}, s')` computes, from the parameters
+//! as they were at the start of the update,
+//!
+//! - F loss (Eq. 11/13, with the **plus** before the symmetry term — Eq. 13's minus is a typo):
+//!   `L_F = mean[(F(s_t,s_{t+1},a_t) − 1)² + (F(s_t,s',a_t) − z)² + (F(s_t,s_{t+1},a_t) −
+//!   F(s_{t+1},s_t,−a_t))²]`, `z = 1 + F̃(s_{t+1}, s', ÃN(s_{t+1}, s'))` (no gradient through `z`);
+//! - AN loss (Eq. 14): `L_AN = mean F(s_t, s', AN(s_t, s'))` with F frozen: the gradient flows
+//!   through F's action input into AN only; F's parameters get nothing from it;
+//!
+//! then steps both Adam optimisers and both targets. Any non-finite loss or gradient stops the
+//! update with every weight unchanged.
+//!
+//! **One GEMM per layer for all F evaluations.** The three F terms and the AN loss all use the
+//! current F weights, so their inputs are stacked into one `4B`-row matrix
+//! (rows `0..B`: `(s_t, s_{t+1}, a_t)`, `B..2B`: `(s_t, s', a_t)`, `2B..3B`: `(s_{t+1}, s_t, −a_t)`,
+//! `3B..4B`: `(s_t, s', AN(s_t, s'))`) and F runs one forward pass over it. Backward runs once over
+//! rows `0..3B` with parameter gradients (the F loss) and once over `3B..4B` for the action-input
+//! gradient only (the AN loss). The targets `ÃN → F̃` are a second, `B`-row chain.
+//!
+//! F's output is linear (the paper's `F ∈ ℝ₊` is not enforced; the targets are ≥ 1 anyway).
+
+use crate::error::SacError;
+use crate::tep_buffer::TepBatch;
+use faer::Par;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use terl_nn::tensors::Tensor;
+use terl_nn::{
+    par_for_threads, Activation, Adam, AdamConfig, Float, InputGrad, Mlp, MlpCache, MlpSpec,
+};
+
+/// Hyper-parameters of the planner. Defaults follow the paper (3 × 512 ReLU, minibatch 1024,
+/// buffer 6M, τ = 0.005, lr 3e-4).
+///
+/// ```toml
+/// f_hidden = [512, 512, 512]
+/// an_hidden = [512, 512, 512]
+/// batch_size = 1024
+/// updates_per_sac_update = 1.0
+/// ```
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TepConfig {
+    /// Observation size (39 for Meta-World; no task id: the planner is task-agnostic).
+    pub obs_dim: usize,
+    /// Action size (4 for Meta-World).
+    pub act_dim: usize,
+    /// Hidden widths of F (ReLU); input `2·obs_dim + act_dim`, output 1 (linear).
+    pub f_hidden: Vec<usize>,
+    /// Hidden widths of AN (ReLU); input `2·obs_dim`, output `act_dim` (tanh).
+    pub an_hidden: Vec<usize>,
+    /// Adam learning rate of F.
+    pub f_lr: f64,
+    /// Adam learning rate of AN.
+    pub an_lr: f64,
+    /// Polyak factor of both targets (`target ← (1 − τ)·target + τ·net`).
+    pub tau: f64,
+    /// Rows per update (paper: 1024).
+    pub batch_size: usize,
+    /// TEP updates per SAC update in the learner (see [`TepConfig::updates_due`]).
+    pub updates_per_sac_update: f64,
+    /// Capacity of the TEP buffer in transitions (paper: 6M), oldest out.
+    pub buffer_capacity: usize,
+    /// Threads of the update's GEMMs (a private rayon pool when above 1).
+    pub threads: usize,
+    /// Seed of network initialisation.
+    pub seed: u64,
+}
+
+impl Default for TepConfig {
+    fn default() -> Self {
+        Self {
+            obs_dim: 39,
+            act_dim: 4,
+            f_hidden: vec![512, 512, 512],
+            an_hidden: vec![512, 512, 512],
+            f_lr: 3e-4,
+            an_lr: 3e-4,
+            tau: 0.005,
+            batch_size: 1024,
+            updates_per_sac_update: 1.0,
+            buffer_capacity: 6_000_000,
+            threads: 1,
+            seed: 0,
+        }
+    }
+}
+
+impl TepConfig {
+    /// Parses a TOML document (unknown keys are an error).
+    pub fn from_toml(text: &str) -> Result<Self, SacError> {
+        let cfg: Self = toml::from_str(text).map_err(|e| SacError::Config(e.to_string()))?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    pub fn validate(&self) -> Result<(), SacError> {
+        let bad = |m: String| Err(SacError::Config(m));
+        if self.obs_dim == 0 || self.act_dim == 0 || self.batch_size == 0 {
+            return bad("tep obs_dim, act_dim and batch_size must be positive".into());
+        }
+        if self.f_hidden.contains(&0) || self.an_hidden.contains(&0) {
+            return bad("tep hidden widths must be positive".into());
+        }
+        if !(0.0..=1.0).contains(&self.tau) {
+            return bad(format!("tep tau {} not in [0, 1]", self.tau));
+        }
+        if !(self.updates_per_sac_update >= 0.0 && self.updates_per_sac_update.is_finite()) {
+            return bad(format!(
+                "tep updates_per_sac_update {} must be finite and ≥ 0",
+                self.updates_per_sac_update
+            ));
+        }
+        if self.buffer_capacity == 0 || self.threads == 0 {
+            return bad("tep buffer_capacity and threads must be positive".into());
+        }
+        Ok(())
+    }
+
+    /// Input width of F: `[s, s', a]`.
+    pub fn f_input(&self) -> usize {
+        2 * self.obs_dim + self.act_dim
+    }
+
+    /// Input width of AN: `[s, s']`.
+    pub fn an_input(&self) -> usize {
+        2 * self.obs_dim
+    }
+
+    pub fn f_spec(&self) -> MlpSpec {
+        MlpSpec {
+            input: self.f_input(),
+            hidden: self.f_hidden.clone(),
+            output: 1,
+            hidden_activation: Activation::Relu,
+            output_activation: Activation::Identity,
+        }
+    }
+
+    pub fn an_spec(&self) -> MlpSpec {
+        MlpSpec {
+            input: self.an_input(),
+            hidden: self.an_hidden.clone(),
+            output: self.act_dim,
+            hidden_activation: Activation::Relu,
+            output_activation: Activation::Tanh,
+        }
+    }
+
+    /// TEP updates to run now so that `tep_done ≈ ratio · sac_done` (never negative).
+    pub fn updates_due(&self, sac_done: u64, tep_done: u64) -> u64 {
+        let want = (self.updates_per_sac_update * sac_done as f64).floor() as u64;
+        want.saturating_sub(tep_done)
+    }
+}
+
+/// Losses and diagnostics of one TEP update.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct TepStats {
+    /// Total F loss (mean over rows of the three terms).
+    pub f_loss: f64,
+    /// Mean `(F(s_t,s_{t+1},a_t) − 1)²`.
+    pub step_loss: f64,
+    /// Mean `(F(s_t,s',a_t) − z)²`.
+    pub goal_loss: f64,
+    /// Mean `(F(s_t,s_{t+1},a_t) − F(s_{t+1},s_t,−a_t))²`.
+    pub symmetry_loss: f64,
+    /// AN loss: mean `F(s_t, s', AN(s_t, s'))`.
+    pub an_loss: f64,
+    /// Mean `F(s_t, s', a_t)` (predicted steps to the hindsight goal).
+    pub goal_distance_mean: f64,
+    /// Mean bootstrapped target `z`.
+    pub target_mean: f64,
+    /// Mean data distance `gap` of the batch.
+    pub gap_mean: f64,
+}
+
+/// The planner learner: F, AN, targets, optimisers and update buffers.
+#[derive(Debug)]
+pub struct Tep<T: Float = f32> {
+    config: TepConfig,
+    f: Mlp<T>,
+    f_target: Mlp<T>,
+    an: Mlp<T>,
+    an_target: Mlp<T>,
+    f_adam: Adam<T>,
+    an_adam: Adam<T>,
+    f_grads: Vec<T>,
+    an_grads: Vec<T>,
+    /// The four stacked F evaluations (see the module docs), `4B` rows.
+    f_cache: MlpCache<T>,
+    f_target_cache: MlpCache<T>,
+    an_cache: MlpCache<T>,
+    an_target_cache: MlpCache<T>,
+    pool: Option<rayon::ThreadPool>,
+    updates: u64,
+    rejected_batches: u64,
+}
+
+/// Copies `f32` values into `T`s.
+#[inline]
+fn put<T: Float>(dst: &mut [T], src: &[f32]) {
+    for (d, &s) in dst.iter_mut().zip(src) {
+        *d = T::of_f32(s);
+    }
+}
+
+impl<T: Float> Tep<T> {
+    pub fn new(config: TepConfig) -> Result<Self, SacError> {
+        config.validate()?;
+        let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
+        let f = Mlp::new(&config.f_spec(), &mut rng);
+        let an = Mlp::new(&config.an_spec(), &mut rng);
+        let b = config.batch_size;
+        let pool = if config.threads > 1 {
+            Some(
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(config.threads)
+                    .thread_name(|i| format!("tep-update-{i}"))
+                    .build()
+                    .map_err(|e| SacError::Config(format!("cannot build TEP thread pool: {e}")))?,
+            )
+        } else {
+            None
+        };
+        Ok(Self {
+            f_adam: Adam::new(f.num_params(), AdamConfig::with_lr(config.f_lr)),
+            an_adam: Adam::new(an.num_params(), AdamConfig::with_lr(config.an_lr)),
+            f_grads: vec![T::of(0.0); f.num_params()],
+            an_grads: vec![T::of(0.0); an.num_params()],
+            f_cache: MlpCache::new(&f, 4 * b),
+            f_target_cache: MlpCache::new(&f, b),
+            an_cache: MlpCache::new(&an, b),
+            an_target_cache: MlpCache::new(&an, b),
+            f_target: f.clone(),
+            an_target: an.clone(),
+            f,
+            an,
+            pool,
+            updates: 0,
+            rejected_batches: 0,
+            config,
+        })
+    }
+
+    pub fn config(&self) -> &TepConfig {
+        &self.config
+    }
+
+    /// Updates applied so far.
+    pub fn updates(&self) -> u64 {
+        self.updates
+    }
+
+    /// Batches rejected for non-finite values.
+    pub fn rejected_batches(&self) -> u64 {
+        self.rejected_batches
+    }
+
+    pub fn f_net(&self) -> &Mlp<T> {
+        &self.f
+    }
+
+    pub fn f_net_mut(&mut self) -> &mut Mlp<T> {
+        &mut self.f
+    }
+
+    pub fn an_net(&self) -> &Mlp<T> {
+        &self.an
+    }
+
+    pub fn an_net_mut(&mut self) -> &mut Mlp<T> {
+        &mut self.an
+    }
+
+    pub fn f_target_net(&self) -> &Mlp<T> {
+        &self.f_target
+    }
+
+    pub fn an_target_net(&self) -> &Mlp<T> {
+        &self.an_target
+    }
+
+    /// Gradients of the last computation: F (from the F loss), AN (from the AN loss).
+    pub fn gradients(&self) -> (&[T], &[T]) {
+        (&self.f_grads, &self.an_grads)
+    }
+
+    fn check_batch(&self, batch: &TepBatch) -> Result<(), SacError> {
+        let c = &self.config;
+        if batch.obs_dim != c.obs_dim || batch.act_dim != c.act_dim {
+            return Err(SacError::Shape(format!(
+                "TEP batch has obs/act dims {}/{}, config {}/{}",
+                batch.obs_dim, batch.act_dim, c.obs_dim, c.act_dim
+            )));
+        }
+        if batch.is_empty() || batch.len() > c.batch_size {
+            return Err(SacError::Shape(format!(
+                "TEP batch of {} rows; capacity is {}",
+                batch.len(),
+                c.batch_size
+            )));
+        }
+        batch.check_shape()
+    }
+
+    /// One full update: reject a malformed or non-finite batch (non-finite ones are counted),
+    /// compute both losses and gradients, and only if all are finite step F, AN and the targets.
+    pub fn update(&mut self, batch: &TepBatch) -> Result<TepStats, SacError> {
+        self.check_batch(batch)?;
+        if let Err(e) = batch.check_finite() {
+            self.rejected_batches += 1;
+            return Err(e);
+        }
+        let stats = self.in_pool(|tep| tep.compute_gradients_inner(batch))?;
+        self.apply_gradients();
+        Ok(stats)
+    }
+
+    /// Losses and gradients without changing any parameter (for gradient checks).
+    pub fn compute_gradients(&mut self, batch: &TepBatch) -> Result<TepStats, SacError> {
+        self.check_batch(batch)?;
+        batch.check_finite()?;
+        self.in_pool(|tep| tep.compute_gradients_inner(batch))
+    }
+
+    fn in_pool<R: Send>(&mut self, f: impl FnOnce(&mut Self) -> R + Send) -> R {
+        let pool = self.pool.take();
+        let r = match &pool {
+            Some(pool) => pool.install(|| f(self)),
+            None => f(self),
+        };
+        self.pool = pool;
+        r
+    }
+
+    fn compute_gradients_inner(&mut self, batch: &TepBatch) -> Result<TepStats, SacError> {
+        let (b, od, ad) = (batch.len(), self.config.obs_dim, self.config.act_dim);
+        let (fw, aw) = (self.config.f_input(), self.config.an_input());
+        let par: Par = par_for_threads(self.config.threads);
+        let inv_b = T::of(1.0 / b as f64);
+        let two = T::of(2.0);
+        let row = |i: usize| i * od..(i + 1) * od;
+
+        // Target chain: ÃN(s_{t+1}, s') then F̃(s_{t+1}, s', ÃN(..)).
+        let tin = self.an_target_cache.input_mut(0..b);
+        for i in 0..b {
+            let r = &mut tin[i * aw..(i + 1) * aw];
+            put(&mut r[..od], &batch.next_obs[row(i)]);
+            put(&mut r[od..], &batch.goals[row(i)]);
+        }
+        self.an_target.forward(&mut self.an_target_cache, b, par);
+        let ta = self.an_target_cache.output(0..b);
+        let fin = self.f_target_cache.input_mut(0..b);
+        for i in 0..b {
+            let r = &mut fin[i * fw..(i + 1) * fw];
+            put(&mut r[..od], &batch.next_obs[row(i)]);
+            put(&mut r[od..2 * od], &batch.goals[row(i)]);
+            r[2 * od..].copy_from_slice(&ta[i * ad..(i + 1) * ad]);
+        }
+        self.f_target.forward(&mut self.f_target_cache, b, par);
+
+        // AN(s_t, s').
+        let ain = self.an_cache.input_mut(0..b);
+        for i in 0..b {
+            let r = &mut ain[i * aw..(i + 1) * aw];
+            put(&mut r[..od], &batch.obs[row(i)]);
+            put(&mut r[od..], &batch.goals[row(i)]);
+        }
+        self.an.forward(&mut self.an_cache, b, par);
+
+        // The four stacked F evaluations.
+        let an_out = self.an_cache.output(0..b);
+        let fin = self.f_cache.input_mut(0..4 * b);
+        for i in 0..b {
+            let (s, s1, g) = (
+                &batch.obs[row(i)],
+                &batch.next_obs[row(i)],
+                &batch.goals[row(i)],
+            );
+            let a = &batch.actions[i * ad..(i + 1) * ad];
+            let r = &mut fin[i * fw..(i + 1) * fw];
+            put(&mut r[..od], s);
+            put(&mut r[od..2 * od], s1);
+            put(&mut r[2 * od..], a);
+            let r = &mut fin[(b + i) * fw..(b + i + 1) * fw];
+            put(&mut r[..od], s);
+            put(&mut r[od..2 * od], g);
+            put(&mut r[2 * od..], a);
+            let r = &mut fin[(2 * b + i) * fw..(2 * b + i + 1) * fw];
+            put(&mut r[..od], s1);
+            put(&mut r[od..2 * od], s);
+            for (d, &v) in r[2 * od..].iter_mut().zip(a) {
+                *d = -T::of_f32(v);
+            }
+            let r = &mut fin[(3 * b + i) * fw..(3 * b + i + 1) * fw];
+            put(&mut r[..od], s);
+            put(&mut r[od..2 * od], g);
+            r[2 * od..].copy_from_slice(&an_out[i * ad..(i + 1) * ad]);
+        }
+        self.f.forward(&mut self.f_cache, 4 * b, par);
+
+        // Losses and their gradients w.r.t. F's outputs.
+        let mut st = TepStats::default();
+        let z: Vec<T> = self
+            .f_target_cache
+            .output(0..b)
+            .iter()
+            .map(|&v| T::of(1.0) + v)
+            .collect();
+        let (y, dy) = self.f_cache.output_and_grad_mut(0..4 * b);
+        let (mut l1, mut l2, mut l3, mut l4) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+        for i in 0..b {
+            let (y1, y2, y3, y4) = (y[i], y[b + i], y[2 * b + i], y[3 * b + i]);
+            let e1 = y1 - T::of(1.0);
+            let e2 = y2 - z[i];
+            let e3 = y1 - y3;
+            l1 += (e1 * e1).f64();
+            l2 += (e2 * e2).f64();
+            l3 += (e3 * e3).f64();
+            l4 += y4.f64();
+            st.goal_distance_mean += y2.f64();
+            st.target_mean += z[i].f64();
+            dy[i] = two * (e1 + e3) * inv_b;
+            dy[b + i] = two * e2 * inv_b;
+            dy[2 * b + i] = -two * e3 * inv_b;
+            dy[3 * b + i] = inv_b;
+        }
+        let nb = b as f64;
+        st.step_loss = l1 / nb;
+        st.goal_loss = l2 / nb;
+        st.symmetry_loss = l3 / nb;
+        st.f_loss = (l1 + l2 + l3) / nb;
+        st.an_loss = l4 / nb;
+        st.goal_distance_mean /= nb;
+        st.target_mean /= nb;
+        st.gap_mean = batch.gaps.iter().map(|&g| g as f64).sum::<f64>() / nb;
+        for (loss, value) in [("tep f", st.f_loss), ("tep an", st.an_loss)] {
+            if !value.is_finite() {
+                return Err(SacError::NonFiniteLoss { loss, value });
+            }
+        }
+
+        // Backward: F's parameters from the F loss (rows 0..3B); AN through F's action input
+        // (rows 3B..4B, no parameter gradient: F is frozen for the AN loss).
+        self.f.backward(
+            &mut self.f_cache,
+            0..3 * b,
+            Some(&mut self.f_grads),
+            InputGrad::None,
+            par,
+        );
+        self.f.backward(
+            &mut self.f_cache,
+            3 * b..4 * b,
+            None,
+            InputGrad::Cols(2 * od..fw),
+            par,
+        );
+        let gin = self.f_cache.grad_input(3 * b..4 * b);
+        let dan = self.an_cache.grad_output_mut(0..b);
+        for i in 0..b {
+            dan[i * ad..(i + 1) * ad].copy_from_slice(&gin[i * fw + 2 * od..(i + 1) * fw]);
+        }
+        self.an.backward(
+            &mut self.an_cache,
+            0..b,
+            Some(&mut self.an_grads),
+            InputGrad::None,
+            par,
+        );
+        for (network, g) in [("tep F", &self.f_grads), ("tep AN", &self.an_grads)] {
+            if !g.iter().all(|v| v.is_finite()) {
+                return Err(SacError::NonFiniteGradient { network });
+            }
+        }
+        Ok(st)
+    }
+
+    fn apply_gradients(&mut self) {
+        let tau = T::of(self.config.tau);
+        self.f_adam.step(&mut self.f.params, &self.f_grads);
+        self.an_adam.step(&mut self.an.params, &self.an_grads);
+        self.f_target.polyak_from(&self.f, tau);
+        self.an_target.polyak_from(&self.an, tau);
+        self.updates += 1;
+    }
+
+    /// FLOPs of the GEMMs of one update with `batch` rows.
+    pub fn update_flops(&self, batch: usize) -> u64 {
+        let b = batch;
+        let ad = self.config.act_dim;
+        self.an.forward_flops(b) * 2
+            + self.f.forward_flops(b)
+            + self.f.forward_flops(4 * b)
+            + self.f.backward_flops(3 * b, true, 0)
+            + self.f.backward_flops(b, false, ad)
+            + self.an.backward_flops(b, true, 0)
+    }
+
+    /// Planner weights as flat `f32` (F, AN) in the [`Mlp`] layout, for the weight stream.
+    pub fn planner_params_f32(&self) -> (Vec<f32>, Vec<f32>) {
+        (
+            self.f.params.iter().map(|v| v.f32()).collect(),
+            self.an.params.iter().map(|v| v.f32()).collect(),
+        )
+    }
+
+    /// Planner weights as named `f32` tensors `tep_f.{l}.weight|bias`, `tep_an.{l}.…`.
+    pub fn planner_tensors(&self) -> Vec<Tensor> {
+        let (f, an) = self.planner_params_f32();
+        let mut out = Vec::new();
+        let shell_f: Mlp<f32> = Mlp::new(&self.config.f_spec(), &mut ChaCha8Rng::seed_from_u64(0));
+        shell_f.export_values("tep_f", &f, &mut out);
+        let shell_an: Mlp<f32> =
+            Mlp::new(&self.config.an_spec(), &mut ChaCha8Rng::seed_from_u64(0));
+        shell_an.export_values("tep_an", &an, &mut out);
+        out
+    }
+
+    /// An inference planner with these weights for up to `max_rows` rows per call.
+    pub fn planner(&self, max_rows: usize) -> Planner {
+        let mut p = Planner::new(&self.config, max_rows);
+        let (f, an) = self.planner_params_f32();
+        p.set_params(&f, &an, self.updates)
+            .expect("planner shapes come from the same config");
+        p
+    }
+}
+
+/// Inference-only planner for actors: `F(s, g, a)` and `AN(s, g)` over small batches, `f32`,
+/// sequential GEMMs, no allocation per call.
+#[derive(Debug)]
+pub struct Planner {
+    obs_dim: usize,
+    act_dim: usize,
+    f: Mlp<f32>,
+    an: Mlp<f32>,
+    f_cache: MlpCache<f32>,
+    an_cache: MlpCache<f32>,
+    version: u64,
+}
+
+impl Planner {
+    /// A planner with freshly initialised (untrained) weights; load real ones with
+    /// [`Planner::set_params`].
+    pub fn new(config: &TepConfig, max_rows: usize) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
+        let f: Mlp<f32> = Mlp::new(&config.f_spec(), &mut rng);
+        let an: Mlp<f32> = Mlp::new(&config.an_spec(), &mut rng);
+        Self {
+            obs_dim: config.obs_dim,
+            act_dim: config.act_dim,
+            f_cache: MlpCache::new(&f, max_rows),
+            an_cache: MlpCache::new(&an, max_rows),
+            f,
+            an,
+            version: 0,
+        }
+    }
+
+    /// Replaces the weights (flat, [`Tep::planner_params_f32`] layout); on error nothing changes.
+    pub fn set_params(&mut self, f: &[f32], an: &[f32], version: u64) -> Result<(), SacError> {
+        if f.len() != self.f.num_params() || an.len() != self.an.num_params() {
+            return Err(SacError::Shape(format!(
+                "planner weights of {} + {} values; expected {} + {}",
+                f.len(),
+                an.len(),
+                self.f.num_params(),
+                self.an.num_params()
+            )));
+        }
+        if f.iter().chain(an).any(|v| !v.is_finite()) {
+            return Err(SacError::Shape("planner weights are not finite".into()));
+        }
+        self.f.params.copy_from_slice(f);
+        self.an.params.copy_from_slice(an);
+        self.version = version;
+        Ok(())
+    }
+
+    /// Version given with the last [`Planner::set_params`].
+    pub fn version(&self) -> u64 {
+        self.version
+    }
+
+    /// `out[i] = F(obs_i, goal_i, action_i)` for `out.len()` rows.
+    pub fn reach(&mut self, obs: &[f32], goals: &[f32], actions: &[f32], out: &mut [f32]) {
+        let (n, od, ad) = (out.len(), self.obs_dim, self.act_dim);
+        assert!(obs.len() == n * od && goals.len() == n * od && actions.len() == n * ad);
+        let w = 2 * od + ad;
+        let x = self.f_cache.input_mut(0..n);
+        for i in 0..n {
+            let r = &mut x[i * w..(i + 1) * w];
+            r[..od].copy_from_slice(&obs[i * od..(i + 1) * od]);
+            r[od..2 * od].copy_from_slice(&goals[i * od..(i + 1) * od]);
+            r[2 * od..].copy_from_slice(&actions[i * ad..(i + 1) * ad]);
+        }
+        self.f.forward(&mut self.f_cache, n, Par::Seq);
+        out.copy_from_slice(self.f_cache.output(0..n));
+    }
+
+    /// `out` rows = `AN(obs_i, goal_i)` (`out.len() / act_dim` rows).
+    pub fn actions(&mut self, obs: &[f32], goals: &[f32], out: &mut [f32]) {
+        let (od, ad) = (self.obs_dim, self.act_dim);
+        let n = out.len() / ad;
+        assert!(obs.len() == n * od && goals.len() == n * od && out.len() == n * ad);
+        let x = self.an_cache.input_mut(0..n);
+        for i in 0..n {
+            x[i * 2 * od..i * 2 * od + od].copy_from_slice(&obs[i * od..(i + 1) * od]);
+            x[i * 2 * od + od..(i + 1) * 2 * od].copy_from_slice(&goals[i * od..(i + 1) * od]);
+        }
+        self.an.forward(&mut self.an_cache, n, Par::Seq);
+        out.copy_from_slice(self.an_cache.output(0..n));
+    }
+}

@@ -1,0 +1,248 @@
+//! TEP planner: both losses against finite differences (f64), the loss values against a direct
+//! evaluation, hindsight sampling of the buffer, non-finite handling, the update ratio.
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use terl_rl::{SacError, Tep, TepBatch, TepBuffer, TepConfig};
+
+fn small_config(batch: usize) -> TepConfig {
+    TepConfig {
+        obs_dim: 3,
+        act_dim: 2,
+        f_hidden: vec![8, 7],
+        an_hidden: vec![6, 8],
+        batch_size: batch,
+        tau: 0.1,
+        seed: 11,
+        ..Default::default()
+    }
+}
+
+fn random_batch(rows: usize, cfg: &TepConfig, seed: u64) -> TepBatch {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut b = TepBatch::with_capacity(rows, cfg.obs_dim, cfg.act_dim);
+    let mut v = |n: usize, r: f32| -> Vec<f32> { (0..n).map(|_| rng.gen_range(-r..r)).collect() };
+    for i in 0..rows {
+        let (s, a, s1, g) = (
+            v(cfg.obs_dim, 1.5),
+            v(cfg.act_dim, 0.9),
+            v(cfg.obs_dim, 1.5),
+            v(cfg.obs_dim, 1.5),
+        );
+        b.push(&s, &a, &s1, &g, 2 + i as u32);
+    }
+    b
+}
+
+fn max_rel_err(analytic: &[f64], numeric: &[f64]) -> f64 {
+    analytic
+        .iter()
+        .zip(numeric)
+        .map(|(&a, &n)| (a - n).abs() / a.abs().max(n.abs()).max(1e-6))
+        .fold(0.0, f64::max)
+}
+
+fn numeric_grad(
+    tep: &mut Tep<f64>,
+    batch: &TepBatch,
+    an: bool,
+    loss: impl Fn(&terl_rl::TepStats) -> f64,
+) -> Vec<f64> {
+    let h = 1e-6;
+    let n = if an {
+        tep.an_net().num_params()
+    } else {
+        tep.f_net().num_params()
+    };
+    (0..n)
+        .map(|i| {
+            let bump = |t: &mut Tep<f64>, d: f64| {
+                if an {
+                    t.an_net_mut().params[i] += d
+                } else {
+                    t.f_net_mut().params[i] += d
+                }
+            };
+            bump(tep, h);
+            let up = loss(&tep.compute_gradients(batch).unwrap());
+            bump(tep, -2.0 * h);
+            let down = loss(&tep.compute_gradients(batch).unwrap());
+            bump(tep, h);
+            (up - down) / (2.0 * h)
+        })
+        .collect()
+}
+
+/// Moves the targets away from the online nets so the bootstrapped term is not trivially tied.
+fn detuned(cfg: TepConfig, batch: &TepBatch) -> Tep<f64> {
+    let mut tep: Tep<f64> = Tep::new(cfg).unwrap();
+    for _ in 0..3 {
+        tep.update(batch).unwrap();
+    }
+    tep
+}
+
+#[test]
+fn f_and_an_loss_gradients_match_finite_differences() {
+    let cfg = small_config(7);
+    let batch = random_batch(7, &cfg, 3);
+    let mut tep = detuned(cfg, &batch);
+    tep.compute_gradients(&batch).unwrap();
+    let (gf, gan) = tep.gradients();
+    let (gf, gan) = (gf.to_vec(), gan.to_vec());
+    assert!(gf.iter().any(|v| v.abs() > 1e-6) && gan.iter().any(|v| v.abs() > 1e-6));
+
+    let num_f = numeric_grad(&mut tep, &batch, false, |s| s.f_loss);
+    let ef = max_rel_err(&gf, &num_f);
+    let num_an = numeric_grad(&mut tep, &batch, true, |s| s.an_loss);
+    let ean = max_rel_err(&gan, &num_an);
+    println!("gradient check: F loss w.r.t. F max rel err {ef:.3e}; AN loss w.r.t. AN {ean:.3e}");
+    assert!(ef < 1e-4, "F loss gradient relative error {ef}");
+    assert!(ean < 1e-4, "AN loss gradient relative error {ean}");
+}
+
+/// The stacked evaluation gives the same losses as evaluating each term through the planner.
+#[test]
+fn losses_equal_a_direct_evaluation_of_eq_13_and_14() {
+    let cfg = small_config(5);
+    let batch = random_batch(5, &cfg, 8);
+    let mut tep: Tep<f32> = Tep::new(cfg.clone()).unwrap();
+    for _ in 0..4 {
+        tep.update(&batch).unwrap();
+    }
+    let stats = tep.compute_gradients(&batch).unwrap();
+    let (od, ad) = (cfg.obs_dim, cfg.act_dim);
+    let mut online = tep.planner(8);
+    // Target planner: the target weights.
+    let mut target = tep.planner(8);
+    let tf: Vec<f32> = tep.f_target_net().params.clone();
+    let ta: Vec<f32> = tep.an_target_net().params.clone();
+    target.set_params(&tf, &ta, 0).unwrap();
+    let (mut lf, mut lan) = (0.0f64, 0.0f64);
+    for i in 0..batch.len() {
+        let s = &batch.obs[i * od..(i + 1) * od];
+        let s1 = &batch.next_obs[i * od..(i + 1) * od];
+        let g = &batch.goals[i * od..(i + 1) * od];
+        let a = &batch.actions[i * ad..(i + 1) * ad];
+        let neg: Vec<f32> = a.iter().map(|v| -v).collect();
+        let mut out = [0.0f32];
+        let mut f = |p: &mut terl_rl::Planner, x: &[f32], y: &[f32], u: &[f32]| {
+            p.reach(x, y, u, &mut out);
+            out[0] as f64
+        };
+        let mut ta = vec![0.0f32; ad];
+        target.actions(s1, g, &mut ta);
+        let z = 1.0 + f(&mut target, s1, g, &ta);
+        let y1 = f(&mut online, s, s1, a);
+        let y2 = f(&mut online, s, g, a);
+        let y3 = f(&mut online, s1, s, &neg);
+        lf += (y1 - 1.0).powi(2) + (y2 - z).powi(2) + (y1 - y3).powi(2);
+        let mut an = vec![0.0f32; ad];
+        online.actions(s, g, &mut an);
+        lan += f(&mut online, s, g, &an);
+    }
+    let n = batch.len() as f64;
+    assert!(
+        (stats.f_loss - lf / n).abs() < 1e-4 * (1.0 + lf.abs()),
+        "{} vs {}",
+        stats.f_loss,
+        lf / n
+    );
+    assert!(
+        (stats.an_loss - lan / n).abs() < 1e-4 * (1.0 + lan.abs()),
+        "{} vs {}",
+        stats.an_loss,
+        lan / n
+    );
+}
+
+#[test]
+fn an_loss_leaves_f_alone_and_non_finite_input_changes_nothing() {
+    let cfg = small_config(6);
+    let batch = random_batch(6, &cfg, 1);
+    let mut tep: Tep<f32> = Tep::new(cfg.clone()).unwrap();
+    let f0 = tep.f_net().params.clone();
+    let an0 = tep.an_net().params.clone();
+    let mut bad = batch.clone();
+    bad.goals[4] = f32::NAN;
+    assert!(matches!(
+        tep.update(&bad),
+        Err(SacError::NonFiniteBatch {
+            field: "goals",
+            row: 1
+        })
+    ));
+    assert_eq!(tep.rejected_batches(), 1);
+    assert_eq!(tep.f_net().params, f0);
+    assert_eq!(tep.an_net().params, an0);
+    let st = tep.update(&batch).unwrap();
+    assert!(st.f_loss.is_finite() && st.an_loss.is_finite());
+    assert_eq!(tep.updates(), 1);
+    // Non-finite weights give a non-finite loss: stopped, nothing changes.
+    tep.f_net_mut().params[0] = f32::INFINITY;
+    let before = (tep.f_net().params.clone(), tep.an_net().params.clone());
+    assert!(tep.update(&batch).is_err());
+    assert_eq!(tep.f_net().params, before.0);
+    assert_eq!(tep.an_net().params, before.1);
+    assert_eq!(tep.updates(), 1);
+}
+
+#[test]
+fn buffer_draws_hindsight_goals_from_later_states_of_the_same_segment() {
+    let (od, ad) = (2, 1);
+    let mut buf = TepBuffer::new(25, od, ad);
+    // Trajectory k: obs = [k, step], next = [k, step + 1], steps 0..10.
+    for k in 0..4u64 {
+        let steps: Vec<u32> = (0..10).collect();
+        let obs: Vec<f32> = steps.iter().flat_map(|&s| [k as f32, s as f32]).collect();
+        let next: Vec<f32> = steps
+            .iter()
+            .flat_map(|&s| [k as f32, s as f32 + 1.0])
+            .collect();
+        let act: Vec<f32> = steps.iter().map(|&s| s as f32).collect();
+        buf.push_segment(k as u32, k, &steps, &obs, &act, &next)
+            .unwrap();
+    }
+    assert_eq!(buf.len(), 25);
+    assert_eq!(buf.pushed(), 40);
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    let mut batch = TepBatch::with_capacity(4000, od, ad);
+    buf.sample_into(4000, &mut rng, &mut batch).unwrap();
+    let mut trajs = std::collections::BTreeSet::new();
+    for i in 0..batch.len() {
+        let (k, t) = (batch.obs[2 * i], batch.obs[2 * i + 1]);
+        assert_eq!(batch.goals[2 * i], k, "goal from another trajectory");
+        assert_eq!(batch.next_obs[2 * i + 1], t + 1.0);
+        assert_eq!(batch.actions[i], t);
+        let gap = batch.goals[2 * i + 1] - t;
+        assert!(gap >= 2.0, "goal not strictly after s_t+1");
+        assert_eq!(batch.gaps[i] as f32, gap);
+        trajs.insert(k as u32);
+        // Oldest 15 transitions are gone: trajectory 0 fully, trajectory 1 up to step 4.
+        assert!(k >= 1.0 && !(k == 1.0 && t < 5.0));
+        assert!(t < 9.0, "last transition of a segment has no later state");
+    }
+    assert_eq!(trajs.len(), 3);
+    assert!(buf
+        .push_segment(0, 9, &[3, 3], &[0.0; 4], &[0.0; 2], &[0.0; 4])
+        .is_err());
+    let mut lonely = TepBuffer::new(5, od, ad);
+    lonely
+        .push_segment(0, 0, &[1], &[0.0; 2], &[0.0], &[0.0; 2])
+        .unwrap();
+    assert!(lonely.sample_into(3, &mut rng, &mut batch).is_err());
+}
+
+#[test]
+fn config_defaults_toml_and_update_ratio() {
+    let d = TepConfig::default();
+    assert_eq!((d.f_input(), d.an_input()), (82, 78));
+    assert_eq!((d.batch_size, d.buffer_capacity), (1024, 6_000_000));
+    assert_eq!(d.f_hidden, vec![512; 3]);
+    let c = TepConfig::from_toml("updates_per_sac_update = 0.5\nf_hidden = [64, 64]").unwrap();
+    assert_eq!(c.updates_due(10, 0), 5);
+    assert_eq!(c.updates_due(11, 5), 0);
+    assert_eq!(c.updates_due(12, 5), 1);
+    assert!(TepConfig::from_toml("tau = 2.0").is_err());
+    assert!(TepConfig::from_toml("nope = 1").is_err());
+}
