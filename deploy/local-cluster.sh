@@ -69,8 +69,11 @@ stop() {
     rm -f runs/.cluster.pid
     echo "[cluster] stopped (worst exit code ${stop_code}; run folder $out)" >&2
 }
-trap 'stop; exit 130' INT
-trap 'stop; exit 143' TERM
+# The traps only record the signal; the main loop notices it and stops the cluster outside the
+# handler (exiting from inside a trap during `wait` trips a bash bug).
+interrupted=""
+trap 'interrupted=130' INT
+trap 'interrupted=143' TERM
 
 common=(--config "$out/config.toml" --run-id "$run_id" --num-actors "$actors")
 rm -f "$out/learner.addr" "$out/selector.addr"
@@ -90,9 +93,10 @@ for ((i = 0; i < actors; i++)); do
 done
 echo "[cluster] run $run_id: learner $learner_addr, selector $selector_addr, $actors actor(s); logs in $out/. Ctrl-C stops." >&2
 
-while true; do
+while [ -z "$interrupted" ]; do
     sleep 5 &
     wait $! || true
+    [ -n "$interrupted" ] && break
     for p in "${pids[@]}"; do
         if ! kill -0 "$p" 2>/dev/null; then
             echo "[cluster] process $p exited; stopping the cluster (logs in $out/)" >&2
@@ -103,3 +107,5 @@ while true; do
     echo "---- $(date +%H:%M:%S)" >&2
     "$bin/terl" status --addr "$learner_addr" --selector-addr "$selector_addr" >&2 || true
 done
+stop
+exit "$interrupted"
