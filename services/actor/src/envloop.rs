@@ -21,17 +21,36 @@ use crate::{ActorConfig, Mailbox};
 /// starts anyway (messages sent before then reach nobody and are counted as `no_receiver`).
 const STARTUP_WAIT: Duration = Duration::from_secs(60);
 const LOG_EVERY: Duration = Duration::from_secs(10);
+/// How long a failed send waits for this actor's own shutdown signal before it is an error.
+const PEER_GONE_GRACE: Duration = Duration::from_secs(2);
 
-/// Sends `message`; a send that timed out on a full receiver is logged and counted by the
-/// transport (the learner paused longer than the block timeout), not fatal.
-fn send<M: Message>(sink: &mut dyn MessageSink<M>, message: &M) -> anyhow::Result<()> {
+/// Sends `message`; returns whether the loop should go on. A send that timed out on a full
+/// receiver is logged and counted by the transport (the learner paused longer than the block
+/// timeout), not fatal. Any other failure is fatal unless this actor's own shutdown follows
+/// within a moment: on Ctrl-C the learner and selector get the signal too and may close their
+/// side first, which is a clean stop, not an error.
+fn send<M: Message>(
+    sink: &mut dyn MessageSink<M>,
+    message: &M,
+    mailbox: &Mailbox,
+) -> anyhow::Result<bool> {
     match sink.send(message) {
-        Ok(_) => Ok(()),
+        Ok(_) => Ok(true),
         Err(e @ TransportError::BlockTimeout { .. }) => {
             tracing::warn!("{e}");
-            Ok(())
+            Ok(true)
         }
-        Err(e) => Err(e.into()),
+        Err(e) => {
+            let deadline = Instant::now() + PEER_GONE_GRACE;
+            while Instant::now() < deadline {
+                if mailbox.stop.load(Ordering::Relaxed) {
+                    tracing::info!("a receiver closed during shutdown ({e}); stopping");
+                    return Ok(false);
+                }
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            Err(e.into())
+        }
     }
 }
 
@@ -164,7 +183,9 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
             }
             if batch.is_full() {
                 batch.sequence = sequence;
-                send(&mut transitions, &batch)?;
+                if !send(&mut transitions, &batch, mailbox)? {
+                    return Ok(());
+                }
                 sequence += 1;
                 batch.clear();
             }
@@ -181,7 +202,9 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
             episode.task = global_task[i];
             episode.success = u8::from(end.success);
             episode.final_obs = row(env.final_obs(), i);
-            send(&mut episodes, &**episode)?;
+            if !send(&mut episodes, &**episode, mailbox)? {
+                return Ok(());
+            }
             **episode = EpisodeSummary::EMPTY;
             episode_version[i] = policy.version;
             episode_index += 1;
