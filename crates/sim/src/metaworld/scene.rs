@@ -189,21 +189,22 @@ impl Scene {
 
     pub fn reset_hand_steps(&mut self, steps: usize) {
         if self.physics {
-            let mut key = Vec::new();
-            self.sim.dynamics_key(&mut key);
-            key.push(self.model_id);
-            key.push(steps as u64);
-            key.extend(self.hand_init_pos.map(f64::to_bits));
-            let cached = if self.hand_reset_cache {
+            let key = self.hand_reset_cache.then(|| {
+                let mut key = Vec::new();
+                self.sim.dynamics_key(&mut key);
+                key.push(self.model_id);
+                key.push(steps as u64);
+                key.extend(self.hand_init_pos.map(f64::to_bits));
+                key
+            });
+            let cached = key.as_ref().and_then(|key| {
                 hand_reset_cache()
                     .lock()
                     .unwrap_or_else(|e| e.into_inner())
                     .entries
-                    .get(&key)
+                    .get(key)
                     .cloned()
-            } else {
-                None
-            };
+            });
             let restored = cached.is_some_and(|hit| {
                 self.sim.set_integration_state(&hit.before_last_step) && {
                     self.sim.forward();
@@ -225,15 +226,13 @@ impl Scene {
                         self.sim.step();
                     }
                 }
-                let mut after = Vec::new();
-                self.sim.integration_state(&mut after);
-                let mut cache = hand_reset_cache().lock().unwrap_or_else(|e| e.into_inner());
-                if !self.hand_reset_cache {
-                    // Leave the cache as it is.
-                } else if cache.entries.len() >= HAND_RESET_CACHE_ENTRIES {
-                    cache.entries.clear();
-                }
-                if self.hand_reset_cache {
+                if let Some(key) = key {
+                    let mut after = Vec::new();
+                    self.sim.integration_state(&mut after);
+                    let mut cache = hand_reset_cache().lock().unwrap_or_else(|e| e.into_inner());
+                    if cache.entries.len() >= HAND_RESET_CACHE_ENTRIES {
+                        cache.entries.clear();
+                    }
                     cache.entries.insert(
                         key,
                         Arc::new(HandReset {
