@@ -93,11 +93,6 @@ fn api() -> Result<&'static ffi::MuJoCoLib> {
     }
 }
 
-/// Checks that the MuJoCo library loads and has the expected version.
-pub fn check_library() -> Result<i32> {
-    api().map(|_| MUJOCO_VERSION)
-}
-
 /// Object kinds that can be looked up by name.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ObjKind {
@@ -455,12 +450,6 @@ impl Simulation {
             q[4 * body + 3],
         ]
     }
-    /// World rotation matrix (row-major) of a body frame.
-    pub fn body_xmat(&self, body: usize) -> [f64; 9] {
-        // SAFETY: xmat has 9*nbody entries.
-        let m = unsafe { slice(self.d().xmat, 9 * self.nbody()) };
-        m[9 * body..9 * body + 9].try_into().expect("9 entries")
-    }
     /// World position of a site.
     pub fn site_xpos(&self, site: usize) -> [f64; 3] {
         // SAFETY: site_xpos has 3*nsite entries.
@@ -518,12 +507,6 @@ impl Simulation {
         // SAFETY: body_pos has 3*nbody entries; exclusive.
         let s = unsafe { slice_mut(self.model.as_ref().body_pos, n) };
         s[3 * body..3 * body + 3].copy_from_slice(&pos);
-    }
-    pub fn set_body_quat(&mut self, body: usize, quat: [f64; 4]) {
-        let n = 4 * self.nbody();
-        // SAFETY: body_quat has 4*nbody entries; exclusive.
-        let s = unsafe { slice_mut(self.model.as_ref().body_quat, n) };
-        s[4 * body..4 * body + 4].copy_from_slice(&quat);
     }
     /// Mocap index of a body, if it is a mocap body.
     pub fn body_mocapid(&self, body: usize) -> Option<usize> {

@@ -9,9 +9,6 @@ pub const DEFAULT_VALUE_AT_MARGIN: f64 = 0.1;
 pub enum Sigmoid {
     Gaussian,
     LongTail,
-    Reciprocal,
-    Linear,
-    Quadratic,
 }
 
 fn sigmoid(x: f64, value_at_1: f64, kind: Sigmoid) -> f64 {
@@ -23,26 +20,6 @@ fn sigmoid(x: f64, value_at_1: f64, kind: Sigmoid) -> f64 {
         Sigmoid::LongTail => {
             let scale = (1.0 / value_at_1 - 1.0).sqrt();
             1.0 / ((x * scale).powi(2) + 1.0)
-        }
-        Sigmoid::Reciprocal => {
-            let scale = 1.0 / value_at_1 - 1.0;
-            1.0 / (x.abs() * scale + 1.0)
-        }
-        Sigmoid::Linear => {
-            let scaled = x * (1.0 - value_at_1);
-            if scaled.abs() < 1.0 {
-                1.0 - scaled
-            } else {
-                0.0
-            }
-        }
-        Sigmoid::Quadratic => {
-            let scaled = x * (1.0 - value_at_1).sqrt();
-            if scaled.abs() < 1.0 {
-                1.0 - scaled * scaled
-            } else {
-                0.0
-            }
         }
     }
 }
@@ -71,11 +48,6 @@ pub fn tolerance_with(
 /// [`tolerance_with`] at the default value at the margin (0.1).
 pub fn tolerance(x: f64, bounds: (f64, f64), margin: f64, kind: Sigmoid) -> f64 {
     tolerance_with(x, bounds, margin, kind, DEFAULT_VALUE_AT_MARGIN)
-}
-
-/// 0 inside the bounds, rising towards 1 outside (reciprocal sigmoid by default in Python).
-pub fn inverse_tolerance(x: f64, bounds: (f64, f64), margin: f64, kind: Sigmoid) -> f64 {
-    1.0 - tolerance_with(x, bounds, margin, kind, 0.0)
 }
 
 /// Hamacher t-norm: `a*b / (a + b - a*b)`, 0 when both are 0.
@@ -127,11 +99,6 @@ pub fn norm(a: [f64; 3]) -> f64 {
 pub fn norm2(a: [f64; 3]) -> f64 {
     (a[0] * a[0] + a[1] * a[1]).sqrt()
 }
-/// Euclidean norm of a slice (numpy's `linalg.norm` of a vector).
-pub fn norm_n(a: &[f64]) -> f64 {
-    a.iter().map(|v| v * v).sum::<f64>().sqrt()
-}
-
 /// Quaternion (x, y, z, w) of a row-major rotation matrix exactly as
 /// `scipy.spatial.transform.Rotation.from_matrix(m).as_quat()` computes it (no sign
 /// canonicalisation: the branch is `argmax(m00, m11, m22, trace)`, first on ties).
