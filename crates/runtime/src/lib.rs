@@ -11,6 +11,37 @@ mod metaworld_vec;
 pub use config::{ClusterConfig, RunConfig};
 pub use metaworld_vec::MetaWorldVec;
 
+/// What a cluster service (learner or selector) needs to start.
+#[derive(Debug, Clone)]
+pub struct ServiceConfig {
+    pub run: RunConfig,
+    pub run_id: String,
+    /// gRPC listen address; port 0 picks a free port (see `<run_dir>/<service>.addr`).
+    pub addr: std::net::SocketAddr,
+    /// Actor processes that will connect (sizes the shared-memory services).
+    pub num_actors: usize,
+    /// `runs/<run-id>`: checkpoints, the address file.
+    pub run_dir: std::path::PathBuf,
+}
+
+impl ServiceConfig {
+    pub fn new(
+        run: RunConfig,
+        run_id: String,
+        addr: std::net::SocketAddr,
+        num_actors: usize,
+        run_dir: std::path::PathBuf,
+    ) -> Self {
+        Self {
+            run,
+            run_id,
+            addr,
+            num_actors,
+            run_dir,
+        }
+    }
+}
+
 /// Task names of a task spec: a task set (`mt10`, `mt1-ind`, ...) or comma-separated names,
 /// in order; task ids everywhere are positions in this list.
 pub fn resolve_tasks(spec: &str) -> anyhow::Result<Vec<&'static str>> {

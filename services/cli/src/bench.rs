@@ -4,7 +4,6 @@ use std::process::ExitCode;
 
 use anyhow::Result;
 use clap::Subcommand;
-use terl_sim::metaworld::task_set;
 
 #[derive(Debug, Subcommand)]
 pub enum BenchCommand {
@@ -71,16 +70,6 @@ pub enum BenchCommand {
     },
 }
 
-/// Expands "mt10" or "reach-v3,push-v3" into task names.
-pub fn resolve_tasks(spec: &str) -> Result<Vec<&'static str>> {
-    let mut out = Vec::new();
-    for part in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
-        out.extend(task_set(part)?);
-    }
-    anyhow::ensure!(!out.is_empty(), "no tasks given");
-    Ok(out)
-}
-
 pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
     match cmd {
         BenchCommand::Env { tasks, seconds, .. } => {
@@ -88,7 +77,7 @@ pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
                 seconds > 0.0 && seconds.is_finite(),
                 "--seconds must be positive"
             );
-            let tasks = resolve_tasks(&tasks)?;
+            let tasks = terl_runtime::resolve_tasks(&tasks)?;
             let report = terl_sim::bench::env_bench(&tasks, seconds)?;
             println!("{}", serde_json::to_string_pretty(&report)?);
             Ok(ExitCode::SUCCESS)

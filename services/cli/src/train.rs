@@ -67,7 +67,7 @@ pub fn run(args: TrainArgs) -> Result<std::process::ExitCode> {
         cfg.train.seed = s;
         cfg.sac.seed = s;
     }
-    let tasks = crate::bench::resolve_tasks(&cfg.tasks)?;
+    let tasks = terl_runtime::resolve_tasks(&cfg.tasks)?;
     cfg.sac.obs_dim = OBS_DIM;
     cfg.sac.act_dim = ACT_DIM;
     cfg.sac.num_tasks = tasks.len();

@@ -12,49 +12,18 @@
 mod trainer;
 
 use std::future::Future;
-use std::net::SocketAddr;
-use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{mpsc, Arc, Mutex};
 use std::time::Instant;
 
 use anyhow::Context;
-use terl_runtime::RunConfig;
 use terl_wire::{CheckpointRequest, CheckpointSaved, LearnerBackend, LearnerStatus, WeightHub};
 use tonic::Status;
 
 pub use trainer::CheckpointJob;
 
 /// Everything the learner needs to start.
-#[derive(Debug, Clone)]
-pub struct LearnerConfig {
-    pub run: RunConfig,
-    pub run_id: String,
-    /// gRPC listen address; port 0 picks a free port (see `<run_dir>/learner.addr`).
-    pub addr: SocketAddr,
-    /// Actor processes that will connect (sizes the shared-memory services).
-    pub num_actors: usize,
-    /// `runs/<run-id>`: checkpoints, the address file.
-    pub run_dir: PathBuf,
-}
-
-impl LearnerConfig {
-    pub fn new(
-        run: RunConfig,
-        run_id: String,
-        addr: SocketAddr,
-        num_actors: usize,
-        run_dir: PathBuf,
-    ) -> Self {
-        Self {
-            run,
-            run_id,
-            addr,
-            num_actors,
-            run_dir,
-        }
-    }
-}
+pub type LearnerConfig = terl_runtime::ServiceConfig;
 
 /// State shared between the trainer thread and the gRPC service.
 #[derive(Debug)]

@@ -5,45 +5,17 @@
 
 use std::collections::VecDeque;
 use std::future::Future;
-use std::net::SocketAddr;
-use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use terl_runtime::RunConfig;
 use terl_transport::{EpisodeSummary, ShmTransport, TransportConfig};
 use terl_wire::{SelectorBackend, SelectorStatus, TaskSuccess};
 use tonic::Status;
 
 /// Everything the selector needs to start.
-#[derive(Debug, Clone)]
-pub struct SelectorConfig {
-    pub run: RunConfig,
-    pub run_id: String,
-    pub addr: SocketAddr,
-    pub num_actors: usize,
-    pub run_dir: PathBuf,
-}
-
-impl SelectorConfig {
-    pub fn new(
-        run: RunConfig,
-        run_id: String,
-        addr: SocketAddr,
-        num_actors: usize,
-        run_dir: PathBuf,
-    ) -> Self {
-        Self {
-            run,
-            run_id,
-            addr,
-            num_actors,
-            run_dir,
-        }
-    }
-}
+pub type SelectorConfig = terl_runtime::ServiceConfig;
 
 /// Per-task episode statistics: a rolling success window plus running totals.
 #[derive(Debug, Clone, Default, PartialEq)]
