@@ -70,7 +70,16 @@ setup_grpc_venv() {
         || die "creating .deps/grpc-venv failed" "re-run crates/wire/tests/python/setup-venv.sh and read its output"
 }
 
-[ "$have_all" = 1 ] && { say "already set up ($STAMP_CONTENT)"; setup_grpc_venv; exit 0; }
+# ---------------------------------------------------------------- MCAP interop reader (crates/telemetry)
+# The terl-telemetry tests read our MCAP files back with the official Python `mcap` reader and
+# `mcap-protobuf-support`; their venv lives in .deps/mcap-venv. Idempotent (instant when done).
+setup_mcap_venv() {
+    python3 -c "import ensurepip, venv" 2>/dev/null || apt_install python3-venv
+    "$ROOT/crates/telemetry/tests/python/setup-venv.sh" >&2 \
+        || die "creating .deps/mcap-venv failed" "re-run crates/telemetry/tests/python/setup-venv.sh and read its output"
+}
+
+[ "$have_all" = 1 ] && { say "already set up ($STAMP_CONTENT)"; setup_grpc_venv; setup_mcap_venv; exit 0; }
 
 # ---------------------------------------------------------------- wheels
 python3 -m pip --version >/dev/null 2>&1 || die "python3 has no pip" "install python3-pip (apt-get install python3-pip)"
@@ -123,5 +132,6 @@ mv "$ROOT/assets/metaworld.tmp" "$ROOT/assets/metaworld"
 echo "$STAMP_CONTENT" >"$STAMP"
 say "done: libmujoco in .deps/mujoco/lib, Meta-World assets in assets/metaworld"
 
-# gRPC interop client venv (see setup_grpc_venv above).
+# gRPC interop client and MCAP reader venvs (see setup_grpc_venv and setup_mcap_venv above).
 setup_grpc_venv
+setup_mcap_venv

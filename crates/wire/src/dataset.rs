@@ -95,6 +95,22 @@ impl From<TepSample> for pb::TepSample {
     }
 }
 
+/// For writers that keep the sample (the MCAP dataset writer encodes borrowed samples).
+impl From<&TepSample> for pb::TepSample {
+    fn from(d: &TepSample) -> Self {
+        Self {
+            task: d.task.clone(),
+            trajectory_id: d.trajectory_id,
+            step: d.step,
+            priority: d.priority,
+            obs: d.obs.to_vec(),
+            next_obs: d.next_obs.to_vec(),
+            goal_obs: d.goal_obs.map(|g| g.to_vec()).unwrap_or_default(),
+            action: d.action.to_vec(),
+        }
+    }
+}
+
 /// One finished episode.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct EpisodeSummary {
