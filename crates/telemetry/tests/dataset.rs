@@ -149,7 +149,8 @@ fn create_refuses_to_overwrite_and_replace_starts_over() {
     let mut writer = TepDatasetWriter::create(&path).unwrap();
     writer.write(&samples(1)[0], 1).unwrap();
     drop(writer); // Drop finishes the file.
-    assert_eq!(read_tep_dataset(&path).unwrap().samples.len(), 1);
+    let got = read_tep_dataset(&path).unwrap();
+    assert_eq!((got.samples.len(), got.truncated), (1, false));
 
     let err = TepDatasetWriter::create(&path).unwrap_err();
     assert!(matches!(err, TelemetryError::AlreadyExists { .. }), "{err}");

@@ -230,6 +230,7 @@ mod tests {
             TepSample::try_from(pb::TepSample::from(s.clone())).unwrap(),
             s
         );
+        assert_eq!(pb::TepSample::from(&s), pb::TepSample::from(s.clone()));
         let mut m = pb::TepSample::from(s);
         m.obs.pop();
         assert_eq!(
