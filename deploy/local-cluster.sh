@@ -1,15 +1,18 @@
 #!/usr/bin/env bash
 # The main job: a local training cluster — one learner, one selector and N actors — on this machine.
 #
-#   ./deploy/local-cluster.sh [--config FILE] [--actors N] [--run-id ID]
+#   ./deploy/local-cluster.sh [--config FILE] [--actors N] [--run-id ID] [--tep-dataset MCAP]
 #                             [--learner-addr ADDR] [--selector-addr ADDR] [--no-build]
 #
-# --config       run file (default deploy/configs/mt10.toml; quick check: deploy/configs/cluster-smoke.toml)
+# --config       run file (default deploy/configs/mt10.toml; quick checks: deploy/configs/cluster-smoke.toml,
+#                and deploy/configs/smoke-terl.toml for the whole TERL loop within two minutes)
+# --tep-dataset  algorithm = "terl": start the planner's buffer from an earlier run's runs/<id>/tep-dataset.mcap
 # --actors       actor processes (default: cores - 1, at least 1)
 # --learner-addr / --selector-addr   gRPC addresses (default 127.0.0.1:50051 / 127.0.0.1:50052;
 #                port 0 picks a free port, written to runs/<id>/<service>.addr)
 # Logs, the resolved config and checkpoints go to runs/<id>/; progress (terl status) prints every
-# few seconds. Ctrl-C (or `terl cluster down`) stops every process and waits for them.
+# few seconds. Ctrl-C (or `terl cluster down`) stops every process and waits for them. With
+# algorithm = "terl" the selected samples also go to runs/<id>/tep-dataset.mcap.
 set -euo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$ROOT"
@@ -21,6 +24,7 @@ run_id=""
 learner_addr=127.0.0.1:50051
 selector_addr=127.0.0.1:50052
 build=1
+tep_dataset=""
 while [ $# -gt 0 ]; do
     case "$1" in
         --config) config=$2; shift 2 ;;
@@ -29,11 +33,13 @@ while [ $# -gt 0 ]; do
         --learner-addr) learner_addr=$2; shift 2 ;;
         --selector-addr) selector_addr=$2; shift 2 ;;
         --no-build) build=0; shift ;;
-        -h|--help) sed -n 2,13p "$0"; exit 0 ;;
+        --tep-dataset) tep_dataset=$2; shift 2 ;;
+        -h|--help) sed -n 2,16p "$0"; exit 0 ;;
         *) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
     esac
 done
 [ -f "$config" ] || { echo "config not found: $config" >&2; exit 2; }
+[ -z "$tep_dataset" ] || [ -f "$tep_dataset" ] || { echo "TEP dataset not found: $tep_dataset" >&2; exit 2; }
 [[ "$actors" =~ ^[1-9][0-9]*$ ]] || { echo "--actors must be a positive integer" >&2; exit 2; }
 
 if [ "$build" = 1 ]; then
@@ -77,15 +83,20 @@ trap 'interrupted=143' TERM
 
 common=(--config "$out/config.toml" --run-id "$run_id" --num-actors "$actors")
 rm -f "$out/learner.addr" "$out/selector.addr"
-"$bin/terl-learner" "${common[@]}" --addr "$learner_addr" --run-dir "$out" 2> "$out/learner.log" &
+wait_addr() {
+    for _ in $(seq 300); do [ -s "$out/$1.addr" ] && return 0; sleep 0.1; done
+    echo "[cluster] $1 did not start; see $out/$1.log" >&2; tail -5 "$out/$1.log" >&2; stop; exit 1
+}
+learner_extra=()
+[ -n "$tep_dataset" ] && learner_extra=(--tep-dataset "$tep_dataset")
+"$bin/terl-learner" "${common[@]}" --addr "$learner_addr" --run-dir "$out" "${learner_extra[@]}" 2> "$out/learner.log" &
 pids+=($!)
-"$bin/terl-selector" "${common[@]}" --addr "$selector_addr" --run-dir "$out" 2> "$out/selector.log" &
-pids+=($!)
-for f in learner selector; do
-    for _ in $(seq 300); do [ -s "$out/$f.addr" ] && break; sleep 0.1; done
-    [ -s "$out/$f.addr" ] || { echo "[cluster] $f did not start; see $out/$f.log" >&2; tail -5 "$out/$f.log" >&2; stop; exit 1; }
-done
+wait_addr learner
 learner_addr=$(cat "$out/learner.addr")
+# The selector follows the learner's weights (PTR scoring with algorithm = "terl").
+"$bin/terl-selector" "${common[@]}" --addr "$selector_addr" --run-dir "$out" --learner-addr "$learner_addr" 2> "$out/selector.log" &
+pids+=($!)
+wait_addr selector
 selector_addr=$(cat "$out/selector.addr")
 for ((i = 0; i < actors; i++)); do
     "$bin/terl-actor" "${common[@]}" --actor-id "$i" --learner-addr "$learner_addr" 2> "$out/actor-$i.log" &

@@ -14,6 +14,7 @@
 //! - [`ptr`]: PTR selection (GAE, priority, ranking in batches, success gate);
 //! - [`tep`], [`tep_buffer`]: the TEP planner (F, AN, targets, update) and its dataset buffer;
 //! - [`guidance`]: the TERL guidance rule and goal states;
+//! - [`value`]: `V(s)` and policy entropy from published weights, for PTR scoring;
 //! - [`bench`]: update throughput, achieved GFLOP/s against faer's GEMM rate, inference latency.
 
 pub mod batch;
@@ -30,6 +31,7 @@ pub mod tep;
 pub mod tep_buffer;
 pub mod toy;
 pub mod train;
+pub mod value;
 
 pub use batch::Batch;
 pub use config::SacConfig;

@@ -599,6 +599,38 @@ impl<T: Float> Sac<T> {
         out
     }
 
+    /// The two online critics as named `f32` tensors `qf{1,2}.{layer}.weight|bias` (qf1 first,
+    /// each in the [`Mlp`] parameter order), for the selector's value estimates
+    /// ([`crate::value::ValueEstimator::set_critics`] takes them concatenated).
+    pub fn critic_tensors(&self) -> Vec<Tensor> {
+        let mut out = Vec::new();
+        for (k, c) in self.critics.iter().enumerate() {
+            let net = &c.net;
+            let sizes = net.sizes();
+            for l in 0..net.num_layers() {
+                let w: Vec<f32> = net.params[net.weight_range(l)]
+                    .iter()
+                    .map(|v| v.f32())
+                    .collect();
+                let b: Vec<f32> = net.params[net.bias_range(l)]
+                    .iter()
+                    .map(|v| v.f32())
+                    .collect();
+                out.push(Tensor::from_values(
+                    format!("qf{}.{l}.weight", k + 1),
+                    vec![sizes[l + 1], sizes[l]],
+                    &w,
+                ));
+                out.push(Tensor::from_values(
+                    format!("qf{}.{l}.bias", k + 1),
+                    vec![sizes[l + 1]],
+                    &b,
+                ));
+            }
+        }
+        out
+    }
+
     /// All state of the learner as named tensors: networks, targets, Adam moments and steps,
     /// temperatures, counters. Metadata holds the config (TOML) and the noise generator state.
     pub fn checkpoint_tensors(&self) -> (Vec<Tensor>, BTreeMap<String, String>) {

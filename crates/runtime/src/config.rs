@@ -6,8 +6,30 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
+use terl_rl::guidance::GuidanceConfig;
+use terl_rl::ptr::PtrConfig;
 use terl_rl::train::TrainConfig;
-use terl_rl::SacConfig;
+use terl_rl::{SacConfig, TepConfig};
+
+/// What the cluster trains: plain multi-task SAC, or SAC with PTR selection, the TEP planner
+/// and guidance (the paper's TERL). Everything else is identical, so runs of the two are
+/// comparable at equal budget.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Algorithm {
+    #[default]
+    Mtsac,
+    Terl,
+}
+
+impl Algorithm {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Mtsac => "mtsac",
+            Self::Terl => "terl",
+        }
+    }
+}
 
 /// The run file.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -23,10 +45,23 @@ pub struct RunConfig {
     /// Seed of the goal variations (50 per task).
     #[serde(default)]
     pub variation_seed: u64,
+    /// `"mtsac"` (default) or `"terl"` (cluster only: PTR selection, TEP, guidance).
+    #[serde(default)]
+    pub algorithm: Algorithm,
     #[serde(default)]
     pub train: TrainConfig,
     #[serde(default)]
     pub sac: SacConfig,
+    /// PTR selection in the selector (`algorithm = "terl"`).
+    #[serde(default)]
+    pub ptr: PtrConfig,
+    /// The TEP planner trained by the learner (`algorithm = "terl"`); `obs_dim`/`act_dim` are
+    /// set from the environment.
+    #[serde(default)]
+    pub tep: TepConfig,
+    /// TERL guidance in the actors (`algorithm = "terl"`).
+    #[serde(default)]
+    pub guidance: GuidanceConfig,
     /// Distributed settings (ignored by the single-process trainer).
     #[serde(default)]
     pub cluster: ClusterConfig,
@@ -53,8 +88,12 @@ pub struct ClusterConfig {
     /// Slack of the rate limiter, in updates. Unset: `max(1, samples_per_insert)` times two
     /// transition batches, so a whole batch can always be inserted once training caught up.
     pub rate_error_buffer: Option<f64>,
-    /// The learner publishes new policy weights every this many updates.
+    /// The learner publishes new policy weights every this many updates (and new planner
+    /// weights with them, when TEP trained since).
     pub publish_every_updates: u64,
+    /// `algorithm = "terl"`: the learner publishes the critics (for the selector's PTR
+    /// scoring) at most every this many updates.
+    pub critic_publish_every_updates: u64,
     /// Seconds between periodic checkpoints (0: only at shutdown and on request).
     pub checkpoint_every_secs: f64,
     /// Periodic checkpoints kept (older ones are deleted).
@@ -73,6 +112,7 @@ impl Default for ClusterConfig {
             samples_per_insert: None,
             rate_error_buffer: None,
             publish_every_updates: 100,
+            critic_publish_every_updates: 1000,
             checkpoint_every_secs: 300.0,
             keep_checkpoints: 3,
             block_timeout_secs: 30.0,
@@ -107,6 +147,20 @@ impl RunConfig {
             "cluster.block_timeout_secs must be > 0"
         );
         anyhow::ensure!(c.buffer_batches > 0, "cluster.buffer_batches must be ≥ 1");
+        cfg.ptr
+            .validate()
+            .with_context(|| format!("[ptr] in {}", path.display()))?;
+        cfg.tep
+            .validate()
+            .with_context(|| format!("[tep] in {}", path.display()))?;
+        anyhow::ensure!(
+            cfg.guidance.sigma.is_finite() && (0.0..=1.0).contains(&cfg.guidance.sigma),
+            "guidance.sigma must be in [0, 1]"
+        );
+        anyhow::ensure!(
+            cfg.guidance.goal_source == terl_rl::guidance::GoalSource::ObsGoal,
+            "guidance.goal_source = \"nearest_successful_final\" is not implemented; use \"obs_goal\""
+        );
         Ok(cfg)
     }
 

@@ -8,7 +8,7 @@
 mod config;
 mod metaworld_vec;
 
-pub use config::{ClusterConfig, RunConfig};
+pub use config::{Algorithm, ClusterConfig, RunConfig};
 pub use metaworld_vec::MetaWorldVec;
 
 /// What a cluster service (learner or selector) needs to start.
@@ -22,6 +22,12 @@ pub struct ServiceConfig {
     pub num_actors: usize,
     /// `runs/<run-id>`: checkpoints, the address file.
     pub run_dir: std::path::PathBuf,
+    /// Selector with `algorithm = "terl"`: the learner whose weight stream (policy and critics)
+    /// the PTR scoring follows.
+    pub learner_addr: Option<String>,
+    /// Learner with `algorithm = "terl"`: a TEP dataset (MCAP) to load into the TEP buffer at
+    /// start-up, e.g. `runs/<older-run>/tep-dataset.mcap`.
+    pub tep_dataset: Option<std::path::PathBuf>,
 }
 
 impl ServiceConfig {
@@ -38,6 +44,8 @@ impl ServiceConfig {
             addr,
             num_actors,
             run_dir,
+            learner_addr: None,
+            tep_dataset: None,
         }
     }
 }

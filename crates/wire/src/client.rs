@@ -165,3 +165,38 @@ impl SelectorClient {
         &mut self.raw
     }
 }
+
+/// Follows the learner's weight stream for `kinds` forever: connects, hands every version to
+/// `sink`, and reconnects after a failure or when the learner goes away (every 500 ms; the
+/// first wait and every stream error are logged once). For the actors and the selector, which
+/// must keep working while the learner restarts. Cancel by dropping/aborting the future.
+pub async fn follow_weights(addr: String, kinds: Vec<WeightsKind>, mut sink: impl FnMut(Weights)) {
+    let mut logged_wait = false;
+    loop {
+        match connect_learner(&addr).await {
+            Ok(mut client) => match client.watch_weights(&kinds).await {
+                Ok(mut stream) => {
+                    tracing::info!(%addr, ?kinds, "following the learner's weights");
+                    logged_wait = false;
+                    while let Some(item) = futures_util::StreamExt::next(&mut stream).await {
+                        match item {
+                            Ok(weights) => sink(weights),
+                            Err(status) => {
+                                tracing::warn!(%status, "weights stream error");
+                                break;
+                            }
+                        }
+                    }
+                }
+                Err(status) => tracing::warn!(%status, "WatchWeights refused"),
+            },
+            Err(e) => {
+                if !logged_wait {
+                    tracing::info!("waiting for the learner: {e}");
+                    logged_wait = true;
+                }
+            }
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(500)).await;
+    }
+}

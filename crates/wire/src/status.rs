@@ -17,6 +17,8 @@ pub struct TaskSuccess {
     pub success_rate: f64,
     /// Episodes in the window.
     pub episodes: u64,
+    /// Learner only: share of the task's env steps in the last window that were guided, [0, 1].
+    pub guidance_rate: f64,
 }
 
 /// What one actor has delivered, as the learner sees it.
@@ -49,6 +51,17 @@ pub struct LearnerStatus {
     pub policy_version: u64,
     pub planner_version: u64,
     pub tep_updates: u64,
+    /// `mtsac` or `terl`.
+    pub algorithm: String,
+    pub tep_buffer_size: u64,
+    pub tep_buffer_capacity: u64,
+    /// Mean TEP losses over the last window (0 before the first TEP update).
+    pub tep_f_loss: f64,
+    pub tep_an_loss: f64,
+    /// Selected transitions received (from the selector or a loaded dataset).
+    pub selected_samples: u64,
+    /// Env steps executed with the Action Network, all actors.
+    pub guided_steps: u64,
 }
 
 /// Statistics of PTR priorities.
@@ -106,10 +119,18 @@ impl TryFrom<pb::TaskSuccess> for TaskSuccess {
                 m.success_rate
             )));
         }
+        let field = format!("task_success[{}].guidance_rate", m.task);
+        if !(0.0..=1.0).contains(&finite(&field, m.guidance_rate)?) {
+            return Err(Status::invalid_argument(format!(
+                "{field} is outside [0, 1] ({})",
+                m.guidance_rate
+            )));
+        }
         Ok(Self {
             task: m.task,
             success_rate: m.success_rate,
             episodes: m.episodes,
+            guidance_rate: m.guidance_rate,
         })
     }
 }
@@ -120,6 +141,7 @@ impl From<TaskSuccess> for pb::TaskSuccess {
             task: d.task,
             success_rate: d.success_rate,
             episodes: d.episodes,
+            guidance_rate: d.guidance_rate,
         }
     }
 }
@@ -169,6 +191,12 @@ impl TryFrom<pb::LearnerStatus> for LearnerStatus {
                 m.replay_size, m.replay_capacity
             )));
         }
+        if m.tep_buffer_size > m.tep_buffer_capacity {
+            return Err(Status::invalid_argument(format!(
+                "tep_buffer_size {} exceeds tep_buffer_capacity {}",
+                m.tep_buffer_size, m.tep_buffer_capacity
+            )));
+        }
         Ok(Self {
             run_id: m.run_id,
             uptime_seconds: non_negative("uptime_seconds", m.uptime_seconds)?,
@@ -185,6 +213,13 @@ impl TryFrom<pb::LearnerStatus> for LearnerStatus {
             policy_version: m.policy_version,
             planner_version: m.planner_version,
             tep_updates: m.tep_updates,
+            algorithm: m.algorithm,
+            tep_buffer_size: m.tep_buffer_size,
+            tep_buffer_capacity: m.tep_buffer_capacity,
+            tep_f_loss: finite("tep_f_loss", m.tep_f_loss)?,
+            tep_an_loss: finite("tep_an_loss", m.tep_an_loss)?,
+            selected_samples: m.selected_samples,
+            guided_steps: m.guided_steps,
         })
     }
 }
@@ -207,6 +242,13 @@ impl From<LearnerStatus> for pb::LearnerStatus {
             policy_version: d.policy_version,
             planner_version: d.planner_version,
             tep_updates: d.tep_updates,
+            algorithm: d.algorithm,
+            tep_buffer_size: d.tep_buffer_size,
+            tep_buffer_capacity: d.tep_buffer_capacity,
+            tep_f_loss: d.tep_f_loss,
+            tep_an_loss: d.tep_an_loss,
+            selected_samples: d.selected_samples,
+            guided_steps: d.guided_steps,
         }
     }
 }
@@ -289,6 +331,7 @@ mod tests {
                 task: "reach".into(),
                 success_rate: 1.5,
                 episodes: 3,
+                guidance_rate: 0.0,
             }],
             ..Default::default()
         };
@@ -297,6 +340,12 @@ mod tests {
             .message()
             .contains("task_success[reach].success_rate is outside [0, 1]"));
         m.task_success[0].success_rate = 0.5;
+        m.task_success[0].guidance_rate = -0.1;
+        let e = LearnerStatus::try_from(m.clone()).unwrap_err();
+        assert!(e
+            .message()
+            .contains("task_success[reach].guidance_rate is outside [0, 1]"));
+        m.task_success[0].guidance_rate = 0.25;
         m.updates_per_second = f64::NAN;
         let e = LearnerStatus::try_from(m.clone()).unwrap_err();
         assert_eq!(e.message(), "updates_per_second is not finite (NaN)");

@@ -42,13 +42,21 @@ fn learner_status() -> LearnerStatus {
             task: "door-open".into(),
             success_rate: 0.42,
             episodes: 50,
+            guidance_rate: 0.125,
         }],
         staleness_mean: 3.5,
         staleness_max: 9,
         rejected_batches: 2,
         policy_version: 7,
-        planner_version: 0,
-        tep_updates: 0,
+        planner_version: 3,
+        tep_updates: 40,
+        algorithm: "terl".into(),
+        tep_buffer_size: 2048,
+        tep_buffer_capacity: 6_000_000,
+        tep_f_loss: 1.75,
+        tep_an_loss: 12.5,
+        selected_samples: 2048,
+        guided_steps: 99,
     }
 }
 
@@ -87,6 +95,7 @@ impl SelectorBackend for TestSelector {
                 task: "reach".into(),
                 success_rate: 0.9,
                 episodes: 20,
+                guidance_rate: 0.0,
             }],
             selected_samples: 512,
             priority: PriorityStats {

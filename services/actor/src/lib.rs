@@ -3,20 +3,23 @@
 //! the first version arrives), sending transitions in batches and finished episodes over
 //! shared memory. Every transition carries the policy version that chose its action.
 //!
+//! With `algorithm = "terl"` the actor also follows the planner weights and applies TERL
+//! guidance (Eq. 15): when F says the policy's action does not bring the goal state closer than
+//! the previous step's did, it executes the Action Network's action with probability `σ^N`;
+//! such transitions carry the `GUIDED` flag (the learner reports the rate per task).
+//!
 //! The environment loop is CPU-bound and runs on its own thread; the weight stream is a tokio
 //! task that reconnects when the learner goes away and hands the newest version to the loop
-//! through a one-slot mailbox (latest wins: the loop never waits for weights).
+//! through one-slot mailboxes (latest wins: the loop never waits for weights).
 
 mod envloop;
 
 use std::future::Future;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
-use std::time::Duration;
 
-use futures_util::StreamExt;
-use terl_runtime::RunConfig;
-use terl_wire::WeightsKind;
+use terl_runtime::{Algorithm, RunConfig};
+use terl_wire::{Weights, WeightsKind};
 
 /// Everything an actor needs to start.
 #[derive(Debug, Clone)]
@@ -47,55 +50,49 @@ impl ActorConfig {
     }
 }
 
-/// The newest policy version received and not yet loaded: `(version, flat parameters)`.
+/// Planner weights received and not yet loaded: version, F's and AN's flat parameters.
+pub(crate) type PlannerParams = (u64, Vec<f32>, Vec<f32>);
+
+/// The newest weights received and not yet loaded.
 #[derive(Debug, Default)]
 pub(crate) struct Mailbox {
+    /// Policy: `(version, flat parameters)`.
     pub(crate) slot: Mutex<Option<(u64, Vec<f32>)>>,
+    pub(crate) planner: Mutex<Option<PlannerParams>>,
     /// Newest version received (for logs).
     pub(crate) received: AtomicU64,
     pub(crate) stop: AtomicBool,
 }
 
-/// Follows the learner's policy stream forever, reconnecting after failures.
-async fn follow_weights(addr: String, mailbox: Arc<Mailbox>) {
-    let mut logged_wait = false;
-    loop {
-        match terl_wire::connect_learner(&addr).await {
-            Ok(mut client) => match client.watch_weights(&[WeightsKind::Policy]).await {
-                Ok(mut stream) => {
-                    tracing::info!(%addr, "following the learner's policy weights");
-                    logged_wait = false;
-                    while let Some(item) = stream.next().await {
-                        match item {
-                            Ok(weights) => {
-                                let version = weights.version();
-                                let flat: Vec<f32> = weights
-                                    .into_tensors()
-                                    .into_iter()
-                                    .flat_map(|t| t.into_parts().2)
-                                    .collect();
-                                mailbox.received.store(version, Ordering::Relaxed);
-                                if let Ok(mut slot) = mailbox.slot.lock() {
-                                    *slot = Some((version, flat));
-                                }
-                            }
-                            Err(status) => {
-                                tracing::warn!(%status, "weights stream error");
-                                break;
-                            }
-                        }
-                    }
-                }
-                Err(status) => tracing::warn!(%status, "WatchWeights refused"),
-            },
-            Err(e) => {
-                if !logged_wait {
-                    tracing::info!("waiting for the learner: {e}");
-                    logged_wait = true;
+/// Hands one received weight version to the environment loop's mailbox.
+fn post(mailbox: &Mailbox, weights: Weights) {
+    let (kind, version) = (weights.kind(), weights.version());
+    match kind {
+        WeightsKind::Planner => {
+            let (mut f, mut an) = (Vec::new(), Vec::new());
+            for t in weights.into_tensors() {
+                let (name, _, values) = t.into_parts();
+                if name.starts_with("tep_f.") {
+                    f.extend(values);
+                } else if name.starts_with("tep_an.") {
+                    an.extend(values);
                 }
             }
+            if let Ok(mut slot) = mailbox.planner.lock() {
+                *slot = Some((version, f, an));
+            }
         }
-        tokio::time::sleep(Duration::from_millis(500)).await;
+        _ => {
+            let flat: Vec<f32> = weights
+                .into_tensors()
+                .into_iter()
+                .flat_map(|t| t.into_parts().2)
+                .collect();
+            mailbox.received.store(version, Ordering::Relaxed);
+            if let Ok(mut slot) = mailbox.slot.lock() {
+                *slot = Some((version, flat));
+            }
+        }
     }
 }
 
@@ -111,10 +108,18 @@ pub async fn run(
         config.num_actors
     );
     let mailbox = Arc::new(Mailbox::default());
-    let follower = tokio::spawn(follow_weights(
-        config.learner_addr.clone(),
-        Arc::clone(&mailbox),
-    ));
+    let kinds = match config.run.algorithm {
+        Algorithm::Mtsac => vec![WeightsKind::Policy],
+        Algorithm::Terl => vec![WeightsKind::Policy, WeightsKind::Planner],
+    };
+    let follower = {
+        let mailbox = Arc::clone(&mailbox);
+        tokio::spawn(terl_wire::follow_weights(
+            config.learner_addr.clone(),
+            kinds,
+            move |w| post(&mailbox, w),
+        ))
+    };
     let (done_tx, mut done_rx) = tokio::sync::watch::channel(false);
     let env_thread = {
         let mailbox = Arc::clone(&mailbox);

@@ -58,6 +58,19 @@ fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyho
         .map(|t| format!("{} {} ({})", t.task, percent(t.success_rate), t.episodes))
         .collect();
     println!("success   {}", tasks.join("  "));
+    if l.algorithm == "terl" {
+        let guidance: Vec<String> = l
+            .task_success
+            .iter()
+            .map(|t| format!("{} {}", t.task, percent(t.guidance_rate)))
+            .collect();
+        println!(
+            "tep       planner v{}  updates {}  buffer {}/{}  loss F {:.3} AN {:.3}  selected {}  guided steps {}",
+            l.planner_version, l.tep_updates, l.tep_buffer_size, l.tep_buffer_capacity,
+            l.tep_f_loss, l.tep_an_loss, l.selected_samples, l.guided_steps
+        );
+        println!("guidance  {}", guidance.join("  "));
+    }
     match selector {
         Ok(s) => {
             let tasks: Vec<String> = s
@@ -71,6 +84,13 @@ fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyho
                 s.selected_samples,
                 tasks.join("  ")
             );
+            if s.priority.scored > 0 {
+                let p = &s.priority;
+                println!(
+                    "priority  scored {}  mean {:.3}  min {:.3}  max {:.3}  selection threshold {:.3}  critic v{}",
+                    p.scored, p.mean, p.min, p.max, p.selection_threshold, s.critic_version
+                );
+            }
         }
         Err(e) => println!("selector  unreachable: {e:#}"),
     }

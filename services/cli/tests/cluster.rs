@@ -3,6 +3,11 @@
 //! transitions flow (env steps grow), actors act with new policy versions, status is
 //! consistent (success windows fill), checkpoints appear, and SIGTERM shuts everything down
 //! cleanly (exit 0, no shared-memory files left behind).
+//!
+//! The TERL test runs the same processes on `deploy/configs/smoke-terl.toml` and checks the
+//! paper's loop: the selector scores episodes and selects samples, the learner trains the
+//! planner on them (the F loss falls) and publishes it, actors take guided actions, the MCAP
+//! dataset holds the selected samples, and a new learner can start from that dataset.
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -47,12 +52,15 @@ fn service_binaries() -> PathBuf {
     bin_dir
 }
 
+/// iceoryx2's files in `/dev/shm`, except its per-version global management file
+/// (`iox2_<hash>_node.<version>.global_mgmt`): the first node on a machine creates it and it
+/// stays by design, so it is not a leftover of any run.
 fn shm_files() -> BTreeSet<String> {
     std::fs::read_dir("/dev/shm")
         .map(|d| {
             d.filter_map(|e| e.ok())
                 .map(|e| e.file_name().to_string_lossy().into_owned())
-                .filter(|n| n.starts_with("iox2_"))
+                .filter(|n| n.starts_with("iox2_") && !n.ends_with(".global_mgmt"))
                 .collect()
         })
         .unwrap_or_default()
@@ -128,10 +136,19 @@ fn u(v: &Value, path: &[&str]) -> u64 {
     v.as_u64().unwrap_or(0)
 }
 
-#[test]
-fn cluster_trains_and_shuts_down_cleanly() {
+/// A running cluster of real processes with its run folder.
+struct Running {
+    cluster: Cluster,
+    run_id: String,
+    run_dir: PathBuf,
+    learner: String,
+    selector: String,
+    _dir: tempfile::TempDir,
+}
+
+/// Starts learner, selector (following the learner) and two actors on `config`.
+fn start(config: &str, learner_extra: &[&str]) -> Running {
     let bins = service_binaries();
-    let shm_before = shm_files();
     let nanos = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .unwrap()
@@ -140,7 +157,7 @@ fn cluster_trains_and_shuts_down_cleanly() {
     let dir = tempfile::tempdir().unwrap();
     let run_dir = dir.path().join(&run_id);
     std::fs::create_dir_all(&run_dir).unwrap();
-    let config = workspace().join("deploy/configs/cluster-smoke.toml");
+    let config = workspace().join(config);
     let common = |extra: &[&str]| -> Vec<String> {
         let mut v = vec![
             "--config".to_string(),
@@ -155,19 +172,28 @@ fn cluster_trains_and_shuts_down_cleanly() {
     };
     let run_dir_s = run_dir.display().to_string();
     let mut cluster = Cluster { children: vec![] };
+    let mut learner_args = vec!["--addr", "127.0.0.1:0", "--run-dir", &run_dir_s];
+    learner_args.extend_from_slice(learner_extra);
     cluster.spawn(
         "learner",
         &bins.join("terl-learner"),
-        &common(&["--addr", "127.0.0.1:0", "--run-dir", &run_dir_s]),
-        &run_dir,
-    );
-    cluster.spawn(
-        "selector",
-        &bins.join("terl-selector"),
-        &common(&["--addr", "127.0.0.1:0", "--run-dir", &run_dir_s]),
+        &common(&learner_args),
         &run_dir,
     );
     let learner = wait_for_file(&run_dir.join("learner.addr"));
+    cluster.spawn(
+        "selector",
+        &bins.join("terl-selector"),
+        &common(&[
+            "--addr",
+            "127.0.0.1:0",
+            "--run-dir",
+            &run_dir_s,
+            "--learner-addr",
+            &learner,
+        ]),
+        &run_dir,
+    );
     let selector = wait_for_file(&run_dir.join("selector.addr"));
     for id in ["0", "1"] {
         cluster.spawn(
@@ -177,6 +203,58 @@ fn cluster_trains_and_shuts_down_cleanly() {
             &run_dir,
         );
     }
+    Running {
+        cluster,
+        run_id,
+        run_dir,
+        learner,
+        selector,
+        _dir: dir,
+    }
+}
+
+/// SIGTERMs every process at once, as the launcher does; everyone must exit 0, promptly.
+fn stop_all(cluster: &mut Cluster, run_dir: &Path) {
+    for (_, child) in &cluster.children {
+        let ok = Command::new("kill")
+            .args(["-TERM", &child.id().to_string()])
+            .status()
+            .unwrap()
+            .success();
+        assert!(ok);
+    }
+    let stop = Instant::now();
+    for (name, child) in &mut cluster.children {
+        let status = loop {
+            if let Some(status) = child.try_wait().unwrap() {
+                break status;
+            }
+            assert!(
+                stop.elapsed() < Duration::from_secs(30),
+                "{name} did not stop after SIGTERM"
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        };
+        assert!(
+            status.success(),
+            "{name} exited with {status}; log {}",
+            run_dir.join(format!("{name}.log")).display()
+        );
+    }
+    eprintln!("all processes stopped {:?} after SIGTERM", stop.elapsed());
+}
+
+#[test]
+fn cluster_trains_and_shuts_down_cleanly() {
+    let shm_before = shm_files();
+    let Running {
+        mut cluster,
+        run_id,
+        run_dir,
+        learner,
+        selector,
+        _dir,
+    } = start("deploy/configs/cluster-smoke.toml", &[]);
 
     // Poll until every property held at least once, remembering what grew.
     let start = Instant::now();
@@ -247,35 +325,122 @@ fn cluster_trains_and_shuts_down_cleanly() {
         std::thread::sleep(Duration::from_millis(200));
     }
 
-    // SIGTERM everything at once, as the launcher does; everyone must exit 0, promptly.
-    for (_, child) in &cluster.children {
-        let ok = Command::new("kill")
-            .args(["-TERM", &child.id().to_string()])
-            .status()
-            .unwrap()
-            .success();
-        assert!(ok);
-    }
-    let stop = Instant::now();
-    for (name, child) in &mut cluster.children {
-        let status = loop {
-            if let Some(status) = child.try_wait().unwrap() {
-                break status;
-            }
-            assert!(
-                stop.elapsed() < Duration::from_secs(30),
-                "{name} did not stop after SIGTERM"
-            );
-            std::thread::sleep(Duration::from_millis(50));
-        };
-        assert!(
-            status.success(),
-            "{name} exited with {status}; log {}",
-            run_dir.join(format!("{name}.log")).display()
-        );
-    }
-    eprintln!("all processes stopped {:?} after SIGTERM", stop.elapsed());
+    stop_all(&mut cluster, &run_dir);
     assert!(checkpoints.join("final.safetensors").is_file());
+
+    let leftover: Vec<String> = shm_files().difference(&shm_before).cloned().collect();
+    assert!(
+        leftover.is_empty(),
+        "shared-memory files left: {leftover:?}"
+    );
+}
+
+#[test]
+fn terl_cluster_selects_trains_the_planner_and_guides() {
+    let shm_before = shm_files();
+    let mut run = start("deploy/configs/smoke-terl.toml", &[]);
+    let start_time = Instant::now();
+    let timeout = Duration::from_secs(150);
+    let mut first_loss: Option<f64> = None;
+    let mut min_late_loss = f64::INFINITY;
+    let mut last = Value::Null;
+    loop {
+        assert!(
+            start_time.elapsed() < timeout,
+            "TERL loop incomplete after {timeout:?}; last status {last}; logs in {}",
+            run.run_dir.display()
+        );
+        std::thread::sleep(Duration::from_millis(1000));
+        let Some(s) = status(&run.learner, &run.selector) else {
+            continue;
+        };
+        let (l, sel) = (&s["learner"], &s["selector"]);
+        assert_eq!(l["algorithm"], "terl", "status: {s}");
+        assert!(u(l, &["tep_buffer_size"]) <= u(l, &["tep_buffer_capacity"]));
+        let loss = l["tep_f_loss"].as_f64().unwrap_or(0.0);
+        if loss > 0.0 {
+            if first_loss.is_none() {
+                first_loss = Some(loss);
+            } else {
+                min_late_loss = min_late_loss.min(loss);
+            }
+        }
+        let guided_rate_seen = l["task_success"].as_array().is_some_and(|ts| {
+            ts.iter()
+                .any(|t| t["guidance_rate"].as_f64().unwrap_or(0.0) > 0.0)
+        });
+        let done = u(sel, &["selected_samples"]) > 0
+            && u(sel, &["priority", "scored"]) > 0
+            && u(sel, &["critic_version"]) > 0
+            && u(l, &["selected_samples"]) > 0
+            && u(l, &["tep_updates"]) >= 20
+            && u(l, &["planner_version"]) > 0
+            && u(l, &["guided_steps"]) > 0
+            && guided_rate_seen
+            && first_loss.is_some_and(|f| min_late_loss < f);
+        last = s;
+        if done {
+            break;
+        }
+    }
+    eprintln!("status after {:?}: {last}", start_time.elapsed());
+    eprintln!("F loss first {first_loss:?}, lowest later {min_late_loss}");
+    let sel_selected = u(&last["selector"], &["selected_samples"]);
+    stop_all(&mut run.cluster, &run.run_dir);
+
+    // Every selected sample is in the dataset (flushed per batch, closed on shutdown); the
+    // learner's planner checkpoint exists.
+    let dataset = run.run_dir.join("tep-dataset.mcap");
+    let data = terl_telemetry::read_tep_dataset(&dataset).expect("dataset readable");
+    assert!(!data.truncated, "the selector closed the dataset cleanly");
+    assert_eq!(data.rejected, 0);
+    assert!(data.samples.len() as u64 >= sel_selected);
+    assert!(data
+        .samples
+        .iter()
+        .all(|x| ["reach-v3", "push-v3"].contains(&x.task.as_str())));
+    assert!(run
+        .run_dir
+        .join("checkpoints/planner.safetensors")
+        .is_file());
+
+    // A new learner starts its TEP buffer from that dataset.
+    let bins = service_binaries();
+    let run_id = format!("{}-reload", run.run_id);
+    let run_dir = run.run_dir.with_file_name(&run_id);
+    std::fs::create_dir_all(&run_dir).unwrap();
+    let mut again = Cluster { children: vec![] };
+    again.spawn(
+        "learner",
+        &bins.join("terl-learner"),
+        &[
+            "--config".to_string(),
+            workspace()
+                .join("deploy/configs/smoke-terl.toml")
+                .display()
+                .to_string(),
+            "--run-id".into(),
+            run_id.clone(),
+            "--addr".into(),
+            "127.0.0.1:0".into(),
+            "--run-dir".into(),
+            run_dir.display().to_string(),
+            "--tep-dataset".into(),
+            dataset.display().to_string(),
+        ],
+        &run_dir,
+    );
+    let learner = wait_for_file(&run_dir.join("learner.addr"));
+    let loaded = (0..100)
+        .find_map(|_| {
+            std::thread::sleep(Duration::from_millis(100));
+            let s = status(&learner, "127.0.0.1:1")?;
+            let n = u(&s["learner"], &["tep_buffer_size"]);
+            (n > 0).then_some(n)
+        })
+        .expect("the reloaded learner reports its TEP buffer");
+    assert_eq!(loaded, data.samples.len() as u64);
+    stop_all(&mut again, &run_dir);
 
     let leftover: Vec<String> = shm_files().difference(&shm_before).cloned().collect();
     assert!(

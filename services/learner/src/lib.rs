@@ -3,12 +3,19 @@
 //! K updates to the `WatchWeights` streams, writes periodic safetensors checkpoints, and
 //! answers `GetStatus`/`SaveCheckpoint` over gRPC.
 //!
+//! With `algorithm = "terl"` it also keeps the TEP buffer (selected samples from the selector,
+//! optionally started from an earlier run's dataset), interleaves TEP updates with the SAC
+//! updates, publishes the planner (and, for the selector's PTR scoring, the critics) on the
+//! same weight stream, and reports TEP losses and the guidance rate per task.
+//!
 //! Two halves: the training loop ([`trainer`]) is CPU-bound and runs on its own thread; the
 //! gRPC server runs on the tokio runtime of the caller. They share a status snapshot the
 //! trainer refreshes a few times a second, the [`WeightHub`], and a checkpoint-request channel.
 //! `run` returns when `shutdown` completes (or the trainer fails), after the trainer thread has
 //! written its final checkpoint and dropped its shared-memory node.
 
+mod dataset;
+mod planner;
 mod trainer;
 
 use std::future::Future;

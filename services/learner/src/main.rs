@@ -26,6 +26,10 @@ struct Args {
     /// Run folder (default runs/<run-id>).
     #[arg(long)]
     run_dir: Option<PathBuf>,
+    /// `algorithm = "terl"`: start the TEP buffer from this dataset (an earlier run's
+    /// `runs/<id>/tep-dataset.mcap`).
+    #[arg(long)]
+    tep_dataset: Option<PathBuf>,
 }
 
 #[tokio::main]
@@ -36,6 +40,7 @@ async fn main() -> anyhow::Result<()> {
     let run_dir = a
         .run_dir
         .unwrap_or_else(|| PathBuf::from("runs").join(&a.run_id));
-    let config = terl_learner::LearnerConfig::new(run, a.run_id, a.addr, a.num_actors, run_dir);
+    let mut config = terl_learner::LearnerConfig::new(run, a.run_id, a.addr, a.num_actors, run_dir);
+    config.tep_dataset = a.tep_dataset;
     terl_learner::run(config, terl_runtime::shutdown_signal()).await
 }

@@ -18,15 +18,17 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use terl_rl::replay::MultiTaskReplay;
 use terl_rl::{Batch, Sac, SacError};
+use terl_runtime::Algorithm;
 use terl_transport::{
-    EpisodeSummary, Message, MessageSource, RateLimiter, SelectedBatch, ShmTransport, Staleness,
-    TransitionBatch, TransportConfig, ACTION_DIM, OBS_DIM, TRANSITIONS_PER_BATCH,
+    flags, EpisodeSummary, Message, MessageSource, RateLimiter, SelectedBatch, ShmTransport,
+    Staleness, TransitionBatch, TransportConfig, ACTION_DIM, OBS_DIM, TRANSITIONS_PER_BATCH,
 };
 use terl_wire::{
     ActorStats, CheckpointRequest, CheckpointSaved, LearnerStatus, TaskSuccess, Tensor, WeightHub,
     Weights, WeightsKind,
 };
 
+use crate::planner::PlannerTrainer;
 use crate::{LearnerConfig, Shared};
 
 /// A `SaveCheckpoint` request handed to the trainer thread, with where to send the answer.
@@ -67,8 +69,14 @@ struct Counters {
     failed_in_a_row: u64,
     selected_samples: u64,
     policy_version: u64,
+    critic_version: u64,
     updates_window: (Instant, u64),
     updates_per_second: f64,
+    /// Per task, `(guided, all)` env steps in the current rate window.
+    guidance_window: Vec<(u64, u64)>,
+    /// Per task, the guided share of the last completed window.
+    guidance_shown: Vec<f64>,
+    guided_steps: u64,
 }
 
 /// Batches taken out of shared memory and not yet in replay, one queue per actor.
@@ -164,6 +172,11 @@ fn ingest(
     }
     let now = Instant::now();
     for t in ts {
+        let guided = t.flags & flags::GUIDED != 0;
+        let g = &mut c.guidance_window[t.task as usize];
+        g.0 += u64::from(guided);
+        g.1 += 1;
+        c.guided_steps += u64::from(guided);
         replay.push(
             t.task as usize,
             &t.obs,
@@ -185,21 +198,19 @@ fn ingest(
     n
 }
 
-fn policy_weights(sac: &Sac<f32>, version: u64) -> anyhow::Result<Weights> {
-    let tensors = sac
-        .policy_tensors()
+fn sac_weights(sac: &Sac<f32>, kind: WeightsKind, version: u64) -> anyhow::Result<Weights> {
+    let tensors = match kind {
+        WeightsKind::Critic => sac.critic_tensors(),
+        _ => sac.policy_tensors(),
+    };
+    let tensors = tensors
         .into_iter()
         .map(|t| {
             let values = t.values::<f32>()?;
             Ok(Tensor::new(t.name.clone(), t.shape.clone(), values)?)
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
-    Ok(Weights::new(
-        WeightsKind::Policy,
-        version,
-        sac.updates(),
-        tensors,
-    )?)
+    Ok(Weights::new(kind, version, sac.updates(), tensors)?)
 }
 
 struct Checkpointer {
@@ -217,6 +228,16 @@ impl Checkpointer {
             .with_context(|| format!("writing {}", tmp.display()))?;
         std::fs::rename(&tmp, &path).with_context(|| format!("renaming to {}", path.display()))?;
         Ok(path)
+    }
+
+    /// The planner's checkpoint (one file, replaced each time).
+    fn planner(&self, planner: Option<&PlannerTrainer>) -> anyhow::Result<()> {
+        if let Some(p) = planner {
+            let path = self.dir.join("planner.safetensors");
+            p.save(&path)
+                .with_context(|| format!("writing {}", path.display()))?;
+        }
+        Ok(())
     }
 
     fn periodic(&mut self, sac: &Sac<f32>) -> anyhow::Result<PathBuf> {
@@ -259,6 +280,16 @@ pub(crate) fn run(
     let mut staging = Staging::new(config.num_actors * run.cluster.buffer_batches);
     let mut episodes = transport.shm_source::<EpisodeSummary>()?;
     let mut selected = transport.shm_source::<SelectedBatch>()?;
+    let terl = run.algorithm == Algorithm::Terl;
+    let mut planner = if terl {
+        let mut p = PlannerTrainer::new(run.tep.clone(), nt, run.train.seed)?;
+        if let Some(path) = &config.tep_dataset {
+            crate::dataset::load_into(path, &tasks, &mut p)?;
+        }
+        Some(p)
+    } else {
+        None
+    };
 
     let spi = run.samples_per_insert();
     let mut limiter = RateLimiter::new(
@@ -295,8 +326,12 @@ pub(crate) fn run(
         failed_in_a_row: 0,
         selected_samples: 0,
         policy_version: 0,
+        critic_version: 0,
         updates_window: (start, 0),
         updates_per_second: 0.0,
+        guidance_window: vec![(0, 0); nt],
+        guidance_shown: vec![0.0; nt],
+        guided_steps: 0,
     };
     let mut last_status = start - STATUS_EVERY;
     let mut last_log = start;
@@ -305,6 +340,7 @@ pub(crate) fn run(
         samples_per_insert = spi,
         warmup = run.train.warmup_env_steps,
         publish_every = run.cluster.publish_every_updates,
+        algorithm = run.algorithm.as_str(),
         "trainer started"
     );
 
@@ -330,9 +366,12 @@ pub(crate) fn run(
         })? {
             busy = true;
         }
-        while let Some(n) = selected.try_receive_with(|s| s.as_slice().len() as u64)? {
-            // TEP training arrives with the PTR/TEP issues; counted so status shows the flow.
+        while let Some(n) = selected.try_receive_with(|s| match planner.as_mut() {
+            Some(p) => p.ingest_batch(s),
+            None => s.as_slice().len() as u64,
+        })? {
             c.selected_samples += n;
+            busy = true;
         }
 
         for _ in 0..MAX_UPDATES_PER_ROUND {
@@ -355,10 +394,24 @@ pub(crate) fn run(
                 Err(e) => return Err(e.into()),
             }
         }
+        if let Some(p) = planner.as_mut() {
+            if p.train(sac.updates())? > 0 {
+                busy = true;
+            }
+        }
         if sac.updates() >= c.policy_version + run.cluster.publish_every_updates {
             let version = sac.updates();
-            hub.publish(&policy_weights(&sac, version)?)?;
+            hub.publish(&sac_weights(&sac, WeightsKind::Policy, version)?)?;
             c.policy_version = version;
+            if terl && version >= c.critic_version + run.cluster.critic_publish_every_updates {
+                hub.publish(&sac_weights(&sac, WeightsKind::Critic, version)?)?;
+                c.critic_version = version;
+            }
+            if let Some(p) = planner.as_mut() {
+                if let Some(w) = p.weights_to_publish()? {
+                    hub.publish(&w)?;
+                }
+            }
         }
 
         while let Ok(job) = checkpoint_jobs.try_recv() {
@@ -379,14 +432,28 @@ pub(crate) fn run(
         if checkpoint_every.is_some_and(|every| last_checkpoint.elapsed() >= every) {
             last_checkpoint = Instant::now();
             let path = checkpointer.periodic(&sac)?;
+            checkpointer.planner(planner.as_ref())?;
             tracing::info!(path = %path.display(), updates = sac.updates(), "checkpoint");
         }
 
         let now = Instant::now();
         if now - last_status >= STATUS_EVERY {
             last_status = now;
-            refresh_rates(&mut c, sac.updates(), now);
-            let status = snapshot(config, &tasks, &c, &sac, &replay, capacity, now);
+            if refresh_rates(&mut c, sac.updates(), now) {
+                if let Some(p) = planner.as_mut() {
+                    p.roll_window();
+                }
+            }
+            let mut status = snapshot(config, &tasks, &c, &sac, &replay, capacity, now);
+            status.algorithm = run.algorithm.as_str().to_string();
+            if let Some(p) = &planner {
+                status.tep_updates = p.updates();
+                status.planner_version = p.published_version();
+                status.tep_buffer_size = p.buffer_len() as u64;
+                status.tep_buffer_capacity = p.buffer_capacity() as u64;
+                status.tep_f_loss = p.shown_f_loss;
+                status.tep_an_loss = p.shown_an_loss;
+            }
             if now - last_log >= Duration::from_secs(10) {
                 last_log = now;
                 tracing::info!(
@@ -396,6 +463,10 @@ pub(crate) fn run(
                     replay = status.replay_size,
                     policy_version = status.policy_version,
                     staleness_mean = format!("{:.0}", status.staleness_mean),
+                    tep_updates = status.tep_updates,
+                    tep_buffer = status.tep_buffer_size,
+                    tep_f_loss = format!("{:.3}", status.tep_f_loss),
+                    guided_steps = status.guided_steps,
                     "progress"
                 );
             }
@@ -409,17 +480,26 @@ pub(crate) fn run(
     }
 
     let path = checkpointer.write(&sac, "final")?;
+    checkpointer.planner(planner.as_ref())?;
     tracing::info!(path = %path.display(), updates = sac.updates(), env_steps = c.env_steps, "trainer stopped; final checkpoint written");
     Ok(())
 }
 
-fn refresh_rates(c: &mut Counters, updates: u64, now: Instant) {
+/// Refreshes the windowed rates; true when a window closed.
+fn refresh_rates(c: &mut Counters, updates: u64, now: Instant) -> bool {
     let (t0, u0) = c.updates_window;
     let dt = (now - t0).as_secs_f64();
-    if now - t0 >= RATE_WINDOW {
+    let closed = now - t0 >= RATE_WINDOW;
+    if closed {
         c.updates_per_second = (updates - u0) as f64 / dt;
         c.updates_window = (now, updates);
         c.staleness_shown = std::mem::take(&mut c.staleness);
+        for (shown, w) in c.guidance_shown.iter_mut().zip(&mut c.guidance_window) {
+            if w.1 > 0 {
+                *shown = w.0 as f64 / w.1 as f64;
+            }
+            *w = (0, 0);
+        }
     }
     for track in c.actors.values_mut() {
         match track.window {
@@ -431,6 +511,7 @@ fn refresh_rates(c: &mut Counters, updates: u64, now: Instant) {
             Some(_) => {}
         }
     }
+    closed
 }
 
 fn snapshot(
@@ -464,7 +545,8 @@ fn snapshot(
         task_success: tasks
             .iter()
             .zip(&c.windows)
-            .map(|(task, w)| TaskSuccess {
+            .zip(&c.guidance_shown)
+            .map(|((task, w), &guidance_rate)| TaskSuccess {
                 task: (*task).to_string(),
                 success_rate: if w.is_empty() {
                     0.0
@@ -472,13 +554,15 @@ fn snapshot(
                     w.iter().filter(|&&s| s).count() as f64 / w.len() as f64
                 },
                 episodes: w.len() as u64,
+                guidance_rate,
             })
             .collect(),
         staleness_mean: c.staleness_shown.mean(),
         staleness_max: c.staleness_shown.max,
         rejected_batches: c.rejected_batches + sac.rejected_batches(),
         policy_version: c.policy_version,
-        planner_version: 0,
-        tep_updates: 0,
+        selected_samples: c.selected_samples,
+        guided_steps: c.guided_steps,
+        ..LearnerStatus::default()
     }
 }

@@ -1,7 +1,11 @@
 //! The selector service: receives every finished episode the actors send over shared memory,
-//! keeps per-task success-rate windows (the gate PTR selection opens at 85 %) and episode
-//! statistics, and serves them in `GetStatus`. Priority scoring and the selected-sample stream
-//! to the learner arrive with the PTR issue; the statistics here are what that gate reads.
+//! keeps per-task success-rate windows and episode statistics, and serves them in `GetStatus`.
+//!
+//! With `algorithm = "terl"` it also runs PTR selection ([`scoring`]): it follows the learner's
+//! policy and critic weights, scores the episodes of tasks whose success gate is open, sends the
+//! top transitions of every batch of 512 to the learner's TEP buffer over shared memory and
+//! appends them to the run's TEP dataset (`runs/<id>/tep-dataset.mcap`, flushed after every
+//! batch, so a killed selector loses at most the batch it was writing).
 
 use std::collections::VecDeque;
 use std::future::Future;
@@ -10,9 +14,17 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use terl_transport::{EpisodeSummary, ShmTransport, TransportConfig};
-use terl_wire::{SelectorBackend, SelectorStatus, TaskSuccess};
+use terl_runtime::Algorithm;
+use terl_transport::{
+    EpisodeSummary, Message, MessageSink, MessageSource, SelectedBatch, SelectedSample,
+    ShmTransport, TransportConfig, TransportError, ACTION_DIM, OBS_DIM, SELECTED_PER_BATCH,
+};
+use terl_wire::{PriorityStats, SelectorBackend, SelectorStatus, TaskSuccess, WeightsKind};
 use tonic::Status;
+
+pub mod scoring;
+
+use scoring::Scorer;
 
 /// Everything the selector needs to start.
 pub type SelectorConfig = terl_runtime::ServiceConfig;
@@ -86,9 +98,25 @@ impl EpisodeStats {
                     t.window.iter().filter(|&&s| s).count() as f64 / t.window.len() as f64
                 },
                 episodes: t.window.len() as u64,
+                guidance_rate: 0.0,
             })
             .collect()
     }
+}
+
+/// What PTR selection has done, for status.
+#[derive(Debug, Clone, Default)]
+struct Selection {
+    selected: u64,
+    priority: PriorityStats,
+    critic_version: u64,
+}
+
+/// Newest weights received and not yet loaded, per kind (latest wins).
+#[derive(Debug, Default)]
+struct WeightSlots {
+    policy: Option<(u64, Vec<f32>)>,
+    critic: Option<(u64, Vec<f32>)>,
 }
 
 #[derive(Debug)]
@@ -96,6 +124,8 @@ struct Shared {
     started: Instant,
     run_id: String,
     stats: Mutex<EpisodeStats>,
+    selection: Mutex<Selection>,
+    weights: Mutex<WeightSlots>,
     stop: AtomicBool,
 }
 
@@ -109,25 +139,154 @@ impl SelectorBackend for Backend {
             .stats
             .lock()
             .map_err(|_| Status::internal("stats lock poisoned"))?;
+        let selection = self
+            .0
+            .selection
+            .lock()
+            .map_err(|_| Status::internal("selection lock poisoned"))?
+            .clone();
         Ok(SelectorStatus {
             run_id: self.0.run_id.clone(),
             uptime_seconds: self.0.started.elapsed().as_secs_f64(),
             episodes_seen: stats.episodes_seen,
             task_success: stats.task_success(),
-            ..SelectorStatus::default()
+            selected_samples: selection.selected,
+            priority: selection.priority,
+            critic_version: selection.critic_version,
         })
     }
 }
 
+/// The TERL half of the receive loop: scoring, the selected-sample stream, the dataset.
+struct Selecting {
+    scorer: Scorer,
+    sink: Box<dyn MessageSink<SelectedBatch>>,
+    batch: Box<SelectedBatch>,
+    sequence: u64,
+    dataset: terl_telemetry::TepDatasetWriter,
+    tasks: Vec<String>,
+    started: Instant,
+}
+
+impl Selecting {
+    fn load_weights(&mut self, shared: &Shared) {
+        let fresh = match shared.weights.lock() {
+            Ok(mut slots) => std::mem::take(&mut *slots),
+            Err(_) => return,
+        };
+        let estimator = self.scorer.estimator_mut();
+        if let Some((version, params)) = fresh.policy {
+            if let Err(e) = estimator.set_policy(&params, version) {
+                tracing::warn!(version, "ignoring policy weights: {e}");
+            }
+        }
+        if let Some((version, params)) = fresh.critic {
+            match estimator.set_critics(&params, version) {
+                Ok(()) => tracing::debug!(version, "loaded critic weights"),
+                Err(e) => tracing::warn!(version, "ignoring critic weights: {e}"),
+            }
+        }
+    }
+
+    /// Sends the selection of one or more ranked batches (grouped by trajectory, steps
+    /// ascending, so the learner can store them as segments) and appends it to the dataset.
+    fn deliver(&mut self, mut selected: Vec<(f64, SelectedSample)>) -> anyhow::Result<()> {
+        if selected.is_empty() {
+            return Ok(());
+        }
+        let nanos = |t: Instant| t.duration_since(self.started).as_nanos() as u64;
+        let log_time = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(nanos(Instant::now()), |d| d.as_nanos() as u64);
+        for (p, s) in &selected {
+            let sample = terl_wire::TepSample {
+                task: self.tasks[usize::from(s.task)].clone(),
+                trajectory_id: s.trajectory_id,
+                step: u32::from(s.step_index),
+                priority: *p,
+                obs: s.obs,
+                next_obs: s.next_obs,
+                goal_obs: None,
+                action: s.action,
+            };
+            self.dataset.write(&sample, log_time)?;
+        }
+        self.dataset.flush()?;
+        selected.sort_by_key(|(_, s)| (s.trajectory_id, s.step_index));
+        for chunk in selected.chunks(SELECTED_PER_BATCH) {
+            self.batch.len = 0;
+            for (_, s) in chunk {
+                let _ = self.batch.push(*s);
+            }
+            self.batch.sequence = self.sequence;
+            self.sequence += 1;
+            match self.sink.send(&self.batch) {
+                Ok(_) => {}
+                Err(e @ TransportError::BlockTimeout { .. }) => {
+                    // Still in the dataset; the learner was paused longer than the timeout.
+                    tracing::warn!("selected samples not delivered: {e}");
+                }
+                Err(e) => return Err(e.into()),
+            }
+        }
+        Ok(())
+    }
+}
+
 fn receive_loop(config: &SelectorConfig, shared: &Shared) -> anyhow::Result<()> {
-    let transport_config = TransportConfig::new(config.run_id.clone(), config.num_actors);
+    let run = &config.run;
+    let transport_config = TransportConfig {
+        block_timeout: Duration::from_secs_f64(run.cluster.block_timeout_secs),
+        ..TransportConfig::new(config.run_id.clone(), config.num_actors)
+    };
     let transport = ShmTransport::open(transport_config, "selector")?;
     let mut episodes = transport.shm_source::<EpisodeSummary>()?;
+    let mut selecting = if run.algorithm == Algorithm::Terl {
+        let tasks: Vec<String> = terl_runtime::resolve_tasks(&run.tasks)?
+            .into_iter()
+            .map(str::to_owned)
+            .collect();
+        let mut sac = run.sac.clone();
+        sac.obs_dim = OBS_DIM;
+        sac.act_dim = ACTION_DIM;
+        sac.num_tasks = tasks.len();
+        let path = terl_telemetry::dataset_path(&config.run_dir);
+        let dataset = terl_telemetry::TepDatasetWriter::create(&path)
+            .with_context(|| format!("cannot create the TEP dataset {}", path.display()))?;
+        tracing::info!(path = %path.display(), "writing selected samples to the TEP dataset");
+        Some(Selecting {
+            scorer: Scorer::new(run.ptr.clone(), &sac),
+            sink: Box::new(transport.shm_sink::<SelectedBatch>()?),
+            batch: Box::new(SelectedBatch::EMPTY),
+            sequence: 0,
+            dataset,
+            tasks,
+            started: Instant::now(),
+        })
+    } else {
+        None
+    };
     let mut last_log = Instant::now();
+    let mut received: Vec<Box<EpisodeSummary>> = Vec::new();
+    let mut spare: Vec<Box<EpisodeSummary>> = Vec::new();
     while !shared.stop.load(Ordering::Relaxed) {
-        let mut got = 0;
-        while let Some(()) = episodes.try_receive_with(|e| {
-            if let Ok(mut stats) = shared.stats.lock() {
+        if let Some(sel) = selecting.as_mut() {
+            sel.load_weights(shared);
+        }
+        loop {
+            let mut e = spare.pop().unwrap_or_else(EpisodeSummary::empty);
+            if !episodes.try_receive_into(&mut e)? {
+                spare.push(e);
+                break;
+            }
+            received.push(e);
+            if received.len() >= 16 {
+                break;
+            }
+        }
+        let got = received.len();
+        if let Ok(mut stats) = shared.stats.lock() {
+            for e in &received {
                 stats.record(
                     usize::from(e.task),
                     e.succeeded(),
@@ -135,18 +294,45 @@ fn receive_loop(config: &SelectorConfig, shared: &Shared) -> anyhow::Result<()> 
                     e.length,
                 );
             }
-        })? {
-            got += 1;
         }
+        if let Some(sel) = selecting.as_mut() {
+            let mut chosen = Vec::new();
+            for e in &received {
+                if usize::from(e.task) < sel.tasks.len() {
+                    chosen.extend(sel.scorer.on_episode(e));
+                }
+            }
+            sel.deliver(chosen)?;
+            if let Ok(mut s) = shared.selection.lock() {
+                s.selected = sel.scorer.selected;
+                s.priority = sel.scorer.priority_stats();
+                s.critic_version = sel.scorer.critic_version();
+            }
+        }
+        spare.append(&mut received);
         if last_log.elapsed() >= Duration::from_secs(10) {
             last_log = Instant::now();
             if let Ok(stats) = shared.stats.lock() {
-                tracing::info!(episodes = stats.episodes_seen, "progress");
+                match &selecting {
+                    Some(sel) => tracing::info!(
+                        episodes = stats.episodes_seen,
+                        selected = sel.scorer.selected,
+                        scored = sel.scorer.priority_stats().scored,
+                        unscored_no_weights = sel.scorer.unscored_no_weights,
+                        critic_version = sel.scorer.critic_version(),
+                        "progress"
+                    ),
+                    None => tracing::info!(episodes = stats.episodes_seen, "progress"),
+                }
             }
         }
         if got == 0 {
             std::thread::sleep(Duration::from_millis(2));
         }
+    }
+    if let Some(sel) = selecting {
+        let n = sel.dataset.finish()?;
+        tracing::info!(samples = n, "TEP dataset closed");
     }
     Ok(())
 }
@@ -170,8 +356,37 @@ pub async fn run(
         started: Instant::now(),
         run_id: config.run_id.clone(),
         stats: Mutex::new(EpisodeStats::new(tasks, config.run.train.success_window)),
+        selection: Mutex::new(Selection::default()),
+        weights: Mutex::new(WeightSlots::default()),
         stop: AtomicBool::new(false),
     });
+    let follower = match (config.run.algorithm, &config.learner_addr) {
+        (Algorithm::Terl, Some(addr)) => {
+            let shared = Arc::clone(&shared);
+            Some(tokio::spawn(terl_wire::follow_weights(
+                addr.clone(),
+                vec![WeightsKind::Policy, WeightsKind::Critic],
+                move |w| {
+                    let (kind, version) = (w.kind(), w.version());
+                    let flat: Vec<f32> = w
+                        .into_tensors()
+                        .into_iter()
+                        .flat_map(|t| t.into_parts().2)
+                        .collect();
+                    if let Ok(mut slots) = shared.weights.lock() {
+                        match kind {
+                            WeightsKind::Critic => slots.critic = Some((version, flat)),
+                            _ => slots.policy = Some((version, flat)),
+                        }
+                    }
+                },
+            )))
+        }
+        (Algorithm::Terl, None) => {
+            anyhow::bail!("algorithm = \"terl\" needs the learner's address (--learner-addr)")
+        }
+        (Algorithm::Mtsac, _) => None,
+    };
     let (done_tx, mut done_rx) = tokio::sync::watch::channel(false);
     let receiver = {
         let shared = Arc::clone(&shared);
@@ -192,6 +407,9 @@ pub async fn run(
     let served =
         terl_wire::serve_selector(listener, Backend(Arc::clone(&shared)), stop_serving).await;
     shared.stop.store(true, Ordering::Relaxed);
+    if let Some(f) = follower {
+        f.abort();
+    }
     let received = tokio::task::spawn_blocking(move || receiver.join())
         .await?
         .map_err(|_| anyhow::anyhow!("episode receiver panicked"))?;

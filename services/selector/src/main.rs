@@ -25,6 +25,10 @@ struct Args {
     /// Run folder (default runs/<run-id>).
     #[arg(long)]
     run_dir: Option<PathBuf>,
+    /// `algorithm = "terl"`: the learner's gRPC address; PTR scoring follows its policy and
+    /// critic weights.
+    #[arg(long)]
+    learner_addr: Option<String>,
 }
 
 #[tokio::main(flavor = "current_thread")]
@@ -35,6 +39,8 @@ async fn main() -> anyhow::Result<()> {
     let run_dir = a
         .run_dir
         .unwrap_or_else(|| PathBuf::from("runs").join(&a.run_id));
-    let config = terl_selector::SelectorConfig::new(run, a.run_id, a.addr, a.num_actors, run_dir);
+    let mut config =
+        terl_selector::SelectorConfig::new(run, a.run_id, a.addr, a.num_actors, run_dir);
+    config.learner_addr = a.learner_addr;
     terl_selector::run(config, terl_runtime::shutdown_signal()).await
 }

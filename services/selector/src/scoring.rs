@@ -1,0 +1,305 @@
+//! PTR scoring of finished episodes (`algorithm = "terl"`, paper Sec. IV.A).
+//!
+//! Per episode of a task whose success gate is open (rolling training success ≥ threshold):
+//! `V(s_0..s_T)` and `H(s_0..s_{T−1})` from the newest policy and critics on the weight stream,
+//! GAE with bootstrap from `V(s_T)` (Meta-World episodes end by the time limit), priority
+//! `P_t = α·mean(GAE) + (1 − α)·H(s_t)` per transition; transitions enter batches of 512 in
+//! arrival order and each full batch's top fraction is selected. Episodes of closed gates, or
+//! before both weight kinds arrived, are counted and not scored.
+
+use terl_rl::ptr::{trajectory_priorities, PtrBatcher, PtrConfig, SuccessGate, TrajectoryEnd};
+use terl_rl::value::ValueEstimator;
+use terl_rl::SacConfig;
+#[cfg(test)]
+use terl_transport::Message;
+use terl_transport::{EpisodeSummary, SelectedSample, OBS_DIM};
+use terl_wire::PriorityStats;
+
+/// Globally unique trajectory id: actor in the top 16 bits, the actor's episode counter below.
+pub fn trajectory_id(actor_id: u16, episode_index: u64) -> u64 {
+    (u64::from(actor_id) << 48) | (episode_index & ((1 << 48) - 1))
+}
+
+/// Running statistics of the priorities computed so far.
+#[derive(Debug, Clone, Default)]
+struct Priorities {
+    scored: u64,
+    sum: f64,
+    min: f64,
+    max: f64,
+    threshold: f64,
+}
+
+impl Priorities {
+    fn record(&mut self, p: f64) {
+        if self.scored == 0 {
+            (self.min, self.max) = (p, p);
+        }
+        self.scored += 1;
+        self.sum += p;
+        self.min = self.min.min(p);
+        self.max = self.max.max(p);
+    }
+}
+
+/// Gate, value estimates, batching and statistics.
+#[derive(Debug)]
+pub struct Scorer {
+    cfg: PtrConfig,
+    gate: SuccessGate,
+    estimator: ValueEstimator,
+    batcher: PtrBatcher<SelectedSample>,
+    obs: Vec<f32>,
+    values: Vec<f64>,
+    entropies: Vec<f64>,
+    rewards: Vec<f64>,
+    priorities: Priorities,
+    /// Episodes of open gates that arrived before the weights did.
+    pub unscored_no_weights: u64,
+    /// Episodes whose scores were not finite (a diverged critic); dropped.
+    pub unscored_non_finite: u64,
+    pub selected: u64,
+}
+
+impl Scorer {
+    pub fn new(cfg: PtrConfig, sac: &SacConfig) -> Self {
+        Self {
+            gate: SuccessGate::new(&cfg, sac.num_tasks),
+            estimator: ValueEstimator::new(sac, 256),
+            batcher: PtrBatcher::new(&cfg),
+            cfg,
+            obs: Vec::new(),
+            values: Vec::new(),
+            entropies: Vec::new(),
+            rewards: Vec::new(),
+            priorities: Priorities::default(),
+            unscored_no_weights: 0,
+            unscored_non_finite: 0,
+            selected: 0,
+        }
+    }
+
+    pub fn estimator_mut(&mut self) -> &mut ValueEstimator {
+        &mut self.estimator
+    }
+
+    pub fn critic_version(&self) -> u64 {
+        self.estimator.critic_version()
+    }
+
+    pub fn gate_open(&self, task: usize) -> bool {
+        self.gate.is_open(task)
+    }
+
+    /// Records `episode` in the gate and, if its task's gate is open and weights are loaded,
+    /// scores it. Returns the selections of every batch this episode completed (highest
+    /// priority first within a batch).
+    pub fn on_episode(&mut self, e: &EpisodeSummary) -> Vec<(f64, SelectedSample)> {
+        let task = usize::from(e.task);
+        if !self.gate.record(task, e.succeeded()) {
+            return Vec::new();
+        }
+        if !self.estimator.is_ready() {
+            self.unscored_no_weights += 1;
+            return Vec::new();
+        }
+        let steps = e.steps();
+        let n = steps.len();
+        if n == 0 {
+            return Vec::new();
+        }
+        self.obs.clear();
+        for s in steps {
+            self.obs.extend_from_slice(&s.obs);
+        }
+        self.obs.extend_from_slice(&e.final_obs);
+        self.values.resize(n + 1, 0.0);
+        self.entropies.resize(n + 1, 0.0);
+        if let Err(err) =
+            self.estimator
+                .evaluate(&self.obs, task, &mut self.values, &mut self.entropies)
+        {
+            tracing::warn!("episode not scored: {err}");
+            return Vec::new();
+        }
+        self.rewards.clear();
+        self.rewards
+            .extend(steps.iter().map(|s| f64::from(s.reward)));
+        let end = TrajectoryEnd::Truncated {
+            last_value: self.values[n],
+        };
+        let (prios, _mean_gae) = trajectory_priorities(
+            &self.cfg,
+            &self.rewards,
+            &self.values[..n],
+            end,
+            &self.entropies[..n],
+        );
+        if prios.iter().any(|p| !p.is_finite()) {
+            self.unscored_non_finite += 1;
+            return Vec::new();
+        }
+        let id = trajectory_id(e.actor_id, e.episode_index);
+        let mut out = Vec::new();
+        for (t, &p) in prios.iter().enumerate() {
+            self.priorities.record(p);
+            let next_obs: [f32; OBS_DIM] = if t + 1 < n {
+                steps[t + 1].obs
+            } else {
+                e.final_obs
+            };
+            let sample = SelectedSample {
+                trajectory_id: id,
+                obs: steps[t].obs,
+                next_obs,
+                action: steps[t].action,
+                reward: steps[t].reward,
+                priority: p as f32,
+                step_index: t as u16,
+                task: e.task,
+                reserved: [0; 4],
+            };
+            if let Some(sel) = self.batcher.push(p, sample) {
+                if let Some(&(last, _)) = sel.last() {
+                    self.priorities.threshold = last;
+                }
+                self.selected += sel.len() as u64;
+                out.extend(sel);
+            }
+        }
+        out
+    }
+
+    /// Priority statistics for status.
+    pub fn priority_stats(&self) -> PriorityStats {
+        let p = &self.priorities;
+        PriorityStats {
+            scored: p.scored,
+            mean: if p.scored > 0 {
+                p.sum / p.scored as f64
+            } else {
+                0.0
+            },
+            min: p.min,
+            max: p.max,
+            selection_threshold: p.threshold,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use terl_rl::Sac;
+    use terl_transport::TrajectoryStep;
+
+    fn sac_config() -> SacConfig {
+        SacConfig {
+            obs_dim: OBS_DIM,
+            act_dim: 4,
+            num_tasks: 2,
+            policy_hidden: vec![8],
+            critic_hidden: vec![8],
+            batch_size: 4,
+            ..SacConfig::default()
+        }
+    }
+
+    fn episode(task: u16, index: u64, success: bool, len: usize) -> Box<EpisodeSummary> {
+        let mut e = EpisodeSummary::empty();
+        e.task = task;
+        e.actor_id = 3;
+        e.episode_index = index;
+        e.success = u8::from(success);
+        for t in 0..len {
+            let mut s = TrajectoryStep::ZERO;
+            s.obs[0] = t as f32 * 0.01;
+            s.reward = if t % 7 == 0 { 1.0 } else { 0.0 };
+            assert!(e.push_step(s));
+        }
+        e.length = len as u32;
+        e
+    }
+
+    fn loaded(cfg: PtrConfig) -> Scorer {
+        let sc = sac_config();
+        let sac: Sac<f32> = Sac::new(sc.clone()).unwrap();
+        let mut s = Scorer::new(cfg, &sc);
+        s.estimator_mut()
+            .set_policy(&sac.policy_params_f32(), 1)
+            .unwrap();
+        let critics: Vec<f32> = sac
+            .critic_tensors()
+            .iter()
+            .flat_map(|t| t.values::<f32>().unwrap())
+            .collect();
+        s.estimator_mut().set_critics(&critics, 1).unwrap();
+        s
+    }
+
+    #[test]
+    fn nothing_is_scored_until_the_gate_opens() {
+        let cfg = PtrConfig {
+            success_threshold: 0.5,
+            success_window: 4,
+            batch_size: 16,
+            top_fraction: 0.25,
+            ..PtrConfig::default()
+        };
+        let mut s = loaded(cfg);
+        // 1 success of 4: 25 % < 50 %.
+        for (k, ok) in [false, false, false, true].into_iter().enumerate() {
+            assert!(s.on_episode(&episode(0, k as u64, ok, 10)).is_empty());
+        }
+        assert_eq!(s.priority_stats().scored, 0);
+        // Task 1 opening does not open task 0.
+        for k in 0..4 {
+            s.on_episode(&episode(1, 10 + k, true, 10));
+        }
+        assert!(s.gate_open(1) && !s.gate_open(0));
+        // The gate opens with the 4th episode (min_episodes = window = 4), which is scored.
+        assert_eq!(s.priority_stats().scored, 10);
+        s.on_episode(&episode(1, 20, false, 10));
+        assert_eq!(s.priority_stats().scored, 20, "the gate latches open");
+    }
+
+    #[test]
+    fn selections_are_the_top_fraction_of_each_batch_and_keep_their_origin() {
+        let cfg = PtrConfig {
+            success_threshold: 0.0,
+            min_episodes: Some(1),
+            batch_size: 16,
+            top_fraction: 0.25,
+            ..PtrConfig::default()
+        };
+        let mut s = loaded(cfg);
+        let sel = s.on_episode(&episode(1, 5, true, 20));
+        assert_eq!(sel.len(), 4, "one full batch of 16 → top 4");
+        assert!(sel.windows(2).all(|w| w[0].0 >= w[1].0));
+        for (p, x) in &sel {
+            assert_eq!(x.trajectory_id, trajectory_id(3, 5));
+            assert_eq!(x.task, 1);
+            assert_eq!(x.priority, *p as f32);
+            let t = usize::from(x.step_index);
+            assert!(t < 16, "only the first batch is complete");
+            assert_eq!(x.obs[0], t as f32 * 0.01);
+            assert_eq!(x.next_obs[0], (t + 1) as f32 * 0.01);
+        }
+        let stats = s.priority_stats();
+        assert_eq!(stats.scored, 20);
+        assert!(stats.min <= stats.mean && stats.mean <= stats.max);
+        assert_eq!(stats.selection_threshold, sel.last().unwrap().0);
+    }
+
+    #[test]
+    fn episodes_before_the_weights_are_counted() {
+        let cfg = PtrConfig {
+            success_threshold: 0.0,
+            min_episodes: Some(1),
+            ..PtrConfig::default()
+        };
+        let mut s = Scorer::new(cfg, &sac_config());
+        assert!(s.on_episode(&episode(0, 0, false, 10)).is_empty());
+        assert_eq!(s.unscored_no_weights, 1);
+    }
+}
