@@ -342,6 +342,11 @@ pub async fn run(
     config: SelectorConfig,
     shutdown: impl Future<Output = ()> + Send,
 ) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        config.run.algorithm == Algorithm::Mtsac || config.learner_addr.is_some(),
+        "algorithm = \"terl\" needs the learner's address (--learner-addr): PTR scoring follows \
+         its policy and critic weights"
+    );
     let tasks = terl_runtime::resolve_tasks(&config.run.tasks)?
         .into_iter()
         .map(str::to_owned)
@@ -382,10 +387,7 @@ pub async fn run(
                 },
             )))
         }
-        (Algorithm::Terl, None) => {
-            anyhow::bail!("algorithm = \"terl\" needs the learner's address (--learner-addr)")
-        }
-        (Algorithm::Mtsac, _) => None,
+        _ => None,
     };
     let (done_tx, mut done_rx) = tokio::sync::watch::channel(false);
     let receiver = {

@@ -1,0 +1,155 @@
+//! TERL-mode services refuse bad input at start-up with a clear message and a non-zero exit:
+//! a missing or foreign `--tep-dataset`, a selector without the learner's address, and a run
+//! file with invalid `[ptr]`/`[tep]` sections.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::time::{Duration, Instant};
+
+fn workspace() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// Builds the service binaries with this test's profile (a no-op when fresh).
+fn binaries() -> PathBuf {
+    let bin_dir = Path::new(env!("CARGO_BIN_EXE_terl"))
+        .parent()
+        .expect("target dir")
+        .to_path_buf();
+    let profile = match bin_dir.file_name().and_then(|n| n.to_str()) {
+        Some("debug") | None => "dev".to_string(),
+        Some(other) => other.to_string(),
+    };
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let ok = Command::new(cargo)
+        .current_dir(workspace())
+        .args(["build", "-q", "--profile", &profile])
+        .args(["-p", "terl-learner", "-p", "terl-selector"])
+        .status()
+        .expect("cargo runs")
+        .success();
+    assert!(ok, "building the services failed");
+    bin_dir
+}
+
+/// Runs a service that must fail on its own within 60 s.
+fn run_failing(bin: &Path, args: &[&str]) -> Output {
+    let mut child = Command::new(bin)
+        .args(args)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if start.elapsed() > Duration::from_secs(60) {
+            let _ = child.kill();
+            panic!("{} kept running on bad input", bin.display());
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let out = child.wait_with_output().unwrap();
+    assert!(
+        !out.status.success(),
+        "{} accepted bad input",
+        bin.display()
+    );
+    out
+}
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+fn args<'a>(config: &'a str, run_id: &'a str, run_dir: &'a str) -> Vec<&'a str> {
+    vec![
+        "--config",
+        config,
+        "--run-id",
+        run_id,
+        "--addr",
+        "127.0.0.1:0",
+        "--run-dir",
+        run_dir,
+    ]
+}
+
+#[test]
+fn terl_services_refuse_bad_datasets_configs_and_missing_addresses() {
+    let bins = binaries();
+    let dir = tempfile::tempdir().unwrap();
+    let config = workspace().join("deploy/configs/smoke-terl.toml");
+    let config = config.to_str().unwrap();
+    let run_dir = dir.path().join("run");
+    let run_dir = run_dir.to_str().unwrap();
+    let id = format!("bad-{}", std::process::id());
+
+    // A dataset path that does not exist: named in the error.
+    let missing = dir.path().join("nope.mcap");
+    let mut a = args(config, &id, run_dir);
+    a.extend(["--tep-dataset", missing.to_str().unwrap()]);
+    let e = stderr(&run_failing(&bins.join("terl-learner"), &a));
+    assert!(
+        e.contains("cannot load the TEP dataset") && e.contains("nope.mcap"),
+        "{e}"
+    );
+
+    // Not an MCAP file.
+    let garbage = dir.path().join("garbage.mcap");
+    std::fs::write(&garbage, b"this is not a dataset").unwrap();
+    let mut a = args(config, &id, run_dir);
+    a.extend(["--tep-dataset", garbage.to_str().unwrap()]);
+    let e = stderr(&run_failing(&bins.join("terl-learner"), &a));
+    assert!(e.contains("not an MCAP file"), "{e}");
+
+    // A valid dataset of tasks this run does not train.
+    let foreign = dir.path().join("foreign.mcap");
+    let mut w = terl_telemetry::TepDatasetWriter::create(&foreign).unwrap();
+    w.write(
+        &terl_wire::TepSample {
+            task: "door-open-v3".into(),
+            trajectory_id: 1,
+            step: 0,
+            priority: 1.0,
+            obs: [0.0; 39],
+            next_obs: [0.0; 39],
+            goal_obs: None,
+            action: [0.0; 4],
+        },
+        1,
+    )
+    .unwrap();
+    w.finish().unwrap();
+    let mut a = args(config, &id, run_dir);
+    a.extend(["--tep-dataset", foreign.to_str().unwrap()]);
+    let e = stderr(&run_failing(&bins.join("terl-learner"), &a));
+    assert!(e.contains("has no sample of this run's tasks"), "{e}");
+
+    // The selector cannot score without the learner's weights.
+    let e = stderr(&run_failing(
+        &bins.join("terl-selector"),
+        &args(config, &id, run_dir),
+    ));
+    assert!(e.contains("--learner-addr"), "{e}");
+
+    // Invalid [ptr] and [tep] values are named.
+    let text = std::fs::read_to_string(config).unwrap();
+    for (from, to, needle) in [
+        ("top_fraction = 0.25", "top_fraction = 1.5", "top_fraction"),
+        (
+            "updates_per_sac_update = 0.1",
+            "updates_per_sac_update = -1.0",
+            "updates_per_sac_update",
+        ),
+        ("sigma = 0.98", "sigma = 2.0", "guidance.sigma"),
+    ] {
+        assert!(text.contains(from), "smoke-terl.toml changed: {from}");
+        let bad = dir.path().join("bad.toml");
+        std::fs::write(&bad, text.replace(from, to)).unwrap();
+        let e = stderr(&run_failing(
+            &bins.join("terl-learner"),
+            &args(bad.to_str().unwrap(), &id, run_dir),
+        ));
+        assert!(e.contains(needle), "{needle}: {e}");
+    }
+}
