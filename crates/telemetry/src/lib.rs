@@ -1,4 +1,7 @@
-//! The MCAP logs of a run. For now: the TEP dataset, `<run_dir>/tep-dataset.mcap`.
+//! The MCAP logs of a run: the TEP dataset (`<run_dir>/tep-dataset.mcap`, written by the
+//! selector), learner metrics (`metrics.mcap`) and finished episodes (`episodes.mcap`, selector),
+//! each one protobuf channel with the same layout and crash recovery as described here for the
+//! dataset.
 //!
 //! # The TEP dataset file
 //!
@@ -29,10 +32,16 @@
 //! process had flushed survives a kill; surviving a power loss additionally needs the file synced,
 //! which [`TepDatasetWriter::finish`] does.
 
+mod log;
+mod records;
 mod tep;
 
 use std::path::{Path, PathBuf};
 
+pub use records::{
+    episodes_path, metrics_path, read_log, EpisodeLogWriter, LogRecord, LogWriter, Logged,
+    MetricsWriter,
+};
 pub use tep::{read_tep_dataset, TepDataset, TepDatasetWriter, TEP_SCHEMA_NAME, TEP_TOPIC};
 
 /// File name of the TEP dataset inside a run directory.
@@ -41,6 +50,20 @@ pub const TEP_DATASET_FILE: &str = "tep-dataset.mcap";
 /// Where a run keeps its TEP dataset: `run_dir/tep-dataset.mcap`.
 pub fn dataset_path(run_dir: &Path) -> PathBuf {
     run_dir.join(TEP_DATASET_FILE)
+}
+
+/// `run_dir/<stem>.mcap`, or `run_dir/<stem>.<k>.mcap` (k = 2, 3, …) for the first that does not
+/// exist yet: a service restarted into the same run folder starts a new file next to the
+/// earlier ones instead of failing or overwriting them.
+pub fn fresh_path(run_dir: &Path, stem: &str) -> PathBuf {
+    let first = run_dir.join(format!("{stem}.mcap"));
+    if !first.exists() {
+        return first;
+    }
+    (2u64..)
+        .map(|k| run_dir.join(format!("{stem}.{k}.mcap")))
+        .find(|p| !p.exists())
+        .expect("some index is free")
 }
 
 /// What can go wrong writing or reading a telemetry file.
@@ -53,8 +76,8 @@ pub enum TelemetryError {
         source: std::io::Error,
     },
     #[error(
-        "{path} already exists; TepDatasetWriter::create never overwrites a dataset \
-         (use TepDatasetWriter::replace to start it over)"
+        "{path} already exists; log writers never overwrite a file \
+         (TepDatasetWriter::replace starts a dataset over)"
     )]
     AlreadyExists { path: PathBuf },
     #[error("{path}: MCAP error: {source}")]
@@ -69,11 +92,20 @@ pub enum TelemetryError {
         #[source]
         source: mcap::McapError,
     },
-    #[error("{path} has no channel on topic {TEP_TOPIC} (not a TEP dataset){}",
+    #[error("{path} has no channel on topic {topic} (not a {what}){}",
         if *truncated { "; the file is also truncated" } else { "" })]
-    NoTepChannel { path: PathBuf, truncated: bool },
-    #[error("{path}: channel {TEP_TOPIC} {problem}")]
-    WrongSchema { path: PathBuf, problem: String },
+    NoChannel {
+        path: PathBuf,
+        topic: &'static str,
+        what: &'static str,
+        truncated: bool,
+    },
+    #[error("{path}: channel {topic} {problem}")]
+    WrongSchema {
+        path: PathBuf,
+        topic: &'static str,
+        problem: String,
+    },
 }
 
 /// Result of this crate's operations.

@@ -260,7 +260,7 @@ fn garbage_and_foreign_files_are_clear_errors() {
         &[b"x".to_vec()],
     );
     let err = read_tep_dataset(&path).unwrap_err();
-    assert!(matches!(err, TelemetryError::NoTepChannel { .. }), "{err}");
+    assert!(matches!(err, TelemetryError::NoChannel { .. }), "{err}");
     assert!(err.to_string().contains("/tep/samples"), "{err}");
 
     // Our topic with someone else's schema.

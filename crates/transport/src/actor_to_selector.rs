@@ -46,7 +46,10 @@ pub struct EpisodeSummary {
     pub task: u16,
     /// 1 if the task reported success at any step, else 0.
     pub success: u8,
-    pub reserved: [u8; 5],
+    pub reserved0: u8,
+    /// Steps that executed the Action Network's action (TERL guidance).
+    pub guided_steps: u16,
+    pub reserved: [u8; 2],
     /// Observation after the last step (s_T), so GAE can bootstrap on truncation.
     pub final_obs: [f32; OBS_DIM],
     pub trajectory: [TrajectoryStep; MAX_EPISODE_STEPS],
@@ -68,7 +71,9 @@ impl EpisodeSummary {
         env_index: 0,
         task: 0,
         success: 0,
-        reserved: [0; 5],
+        reserved0: 0,
+        guided_steps: 0,
+        reserved: [0; 2],
         final_obs: [0.0; OBS_DIM],
         trajectory: [TrajectoryStep::ZERO; MAX_EPISODE_STEPS],
     };

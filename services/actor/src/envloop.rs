@@ -258,6 +258,7 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
             if guide.as_ref().is_some_and(|g| g.guided[i]) {
                 f |= flags::GUIDED;
                 guided_steps += 1;
+                trajectories[i].guided_steps = trajectories[i].guided_steps.saturating_add(1);
             }
             let transition = Transition {
                 policy_version: policy.version,

@@ -325,8 +325,37 @@ fn cluster_trains_and_shuts_down_cleanly() {
         std::thread::sleep(Duration::from_millis(200));
     }
 
+    let episodes_seen = u(&last["selector"], &["episodes_seen"]);
     stop_all(&mut cluster, &run_dir);
     assert!(checkpoints.join("final.safetensors").is_file());
+
+    // The learner's metrics and the selector's episode log are complete MCAP files.
+    let metrics = terl_telemetry::read_log::<terl_wire::Metric>(run_dir.join("metrics.mcap"))
+        .expect("metrics log readable");
+    assert!(!metrics.truncated && metrics.rejected == 0);
+    for name in [
+        "losses/qf_loss",
+        "charts/updates_per_second",
+        "success_rate/push-v3",
+    ] {
+        assert!(
+            metrics.records.iter().any(|m| m.name == name),
+            "no {name} in the metrics log"
+        );
+    }
+    assert!(
+        !metrics.records.iter().any(|m| m.name.starts_with("tep/")),
+        "an mtsac run logs no TEP metrics"
+    );
+    let episodes =
+        terl_telemetry::read_log::<terl_wire::EpisodeSummary>(run_dir.join("episodes.mcap"))
+            .expect("episode log readable");
+    assert!(!episodes.truncated);
+    assert!(episodes.records.len() as u64 >= episodes_seen);
+    assert!(episodes
+        .records
+        .iter()
+        .all(|e| e.length == 500 && e.guided_steps == 0));
 
     let leftover: Vec<String> = shm_files().difference(&shm_before).cloned().collect();
     assert!(
@@ -403,6 +432,21 @@ fn terl_cluster_selects_trains_the_planner_and_guides() {
         .run_dir
         .join("checkpoints/planner.safetensors")
         .is_file());
+    let metrics = terl_telemetry::read_log::<terl_wire::Metric>(run.run_dir.join("metrics.mcap"))
+        .expect("metrics log readable");
+    let logged = |name: &str| metrics.records.iter().filter(|m| m.name == name).count();
+    assert!(logged("tep/f_loss") > 0 && logged("guidance/rate/reach-v3") > 0);
+    assert!(metrics
+        .records
+        .iter()
+        .any(|m| m.name.starts_with("guidance/rate/") && m.value > 0.0));
+    let episodes =
+        terl_telemetry::read_log::<terl_wire::EpisodeSummary>(run.run_dir.join("episodes.mcap"))
+            .expect("episode log readable");
+    assert!(
+        episodes.records.iter().any(|e| e.guided_steps > 0),
+        "guided steps are counted per episode"
+    );
 
     // A new learner starts its TEP buffer from that dataset.
     let bins = service_binaries();

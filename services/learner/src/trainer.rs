@@ -28,6 +28,7 @@ use terl_wire::{
     Weights, WeightsKind,
 };
 
+use crate::metrics::MetricsLog;
 use crate::planner::PlannerTrainer;
 use crate::{LearnerConfig, Shared};
 
@@ -301,6 +302,7 @@ pub(crate) fn run(
     let mut replay = MultiTaskReplay::new(nt, capacity, OBS_DIM, ACTION_DIM);
     let mut batch = Batch::with_capacity(sac_config.batch_size, OBS_DIM, ACTION_DIM);
     let mut rng = ChaCha8Rng::seed_from_u64(run.train.seed ^ 0x1ea7_7e55);
+    let mut metrics = MetricsLog::create(&config.run_dir)?;
     let checkpoint_dir = config.run_dir.join("checkpoints");
     std::fs::create_dir_all(&checkpoint_dir)
         .with_context(|| format!("cannot create {}", checkpoint_dir.display()))?;
@@ -382,7 +384,10 @@ pub(crate) fn run(
             limiter.record_sample(1);
             busy = true;
             match sac.update(&batch) {
-                Ok(_) => c.failed_in_a_row = 0,
+                Ok(stats) => {
+                    c.failed_in_a_row = 0;
+                    metrics.record_update(&stats);
+                }
                 Err(SacError::NonFiniteBatch { .. }) => {}
                 Err(e @ (SacError::NonFiniteLoss { .. } | SacError::NonFiniteGradient { .. })) => {
                     c.failed_updates += 1;
@@ -439,7 +444,8 @@ pub(crate) fn run(
         let now = Instant::now();
         if now - last_status >= STATUS_EVERY {
             last_status = now;
-            if refresh_rates(&mut c, sac.updates(), now) {
+            let window_closed = refresh_rates(&mut c, sac.updates(), now);
+            if window_closed {
                 if let Some(p) = planner.as_mut() {
                     p.roll_window();
                 }
@@ -470,6 +476,9 @@ pub(crate) fn run(
                     "progress"
                 );
             }
+            if window_closed {
+                metrics.write_window(&status)?;
+            }
             if let Ok(mut s) = shared.status.lock() {
                 *s = status;
             }
@@ -479,6 +488,7 @@ pub(crate) fn run(
         }
     }
 
+    metrics.finish()?;
     let path = checkpointer.write(&sac, "final")?;
     checkpointer.planner(planner.as_ref())?;
     tracing::info!(path = %path.display(), updates = sac.updates(), env_steps = c.env_steps, "trainer stopped; final checkpoint written");

@@ -250,7 +250,7 @@ fn receive_loop(config: &SelectorConfig, shared: &Shared) -> anyhow::Result<()> 
         sac.obs_dim = OBS_DIM;
         sac.act_dim = ACTION_DIM;
         sac.num_tasks = tasks.len();
-        let path = terl_telemetry::dataset_path(&config.run_dir);
+        let path = terl_telemetry::fresh_path(&config.run_dir, "tep-dataset");
         let dataset = terl_telemetry::TepDatasetWriter::create(&path)
             .with_context(|| format!("cannot create the TEP dataset {}", path.display()))?;
         tracing::info!(path = %path.display(), "writing selected samples to the TEP dataset");
@@ -266,6 +266,11 @@ fn receive_loop(config: &SelectorConfig, shared: &Shared) -> anyhow::Result<()> 
     } else {
         None
     };
+    let tasks: Vec<&str> = terl_runtime::resolve_tasks(&run.tasks)?;
+    let episode_path = terl_telemetry::fresh_path(&config.run_dir, "episodes");
+    let mut episode_log = terl_telemetry::EpisodeLogWriter::create(&episode_path)
+        .with_context(|| format!("cannot create the episode log {}", episode_path.display()))?;
+    let mut last_flush = Instant::now();
     let mut last_log = Instant::now();
     let mut received: Vec<Box<EpisodeSummary>> = Vec::new();
     let mut spare: Vec<Box<EpisodeSummary>> = Vec::new();
@@ -285,6 +290,31 @@ fn receive_loop(config: &SelectorConfig, shared: &Shared) -> anyhow::Result<()> 
             }
         }
         let got = received.len();
+        let now_ns = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos() as u64);
+        for e in &received {
+            let Some(task) = tasks.get(usize::from(e.task)) else {
+                continue;
+            };
+            let record = terl_wire::EpisodeSummary {
+                task: (*task).to_string(),
+                actor_id: u32::from(e.actor_id),
+                episode_index: e.episode_index,
+                episode_return: f64::from(e.episode_return),
+                success: e.succeeded(),
+                length: e.length,
+                policy_version: e.policy_version,
+                guided_steps: u32::from(e.guided_steps).min(e.length),
+            };
+            if record.episode_return.is_finite() {
+                episode_log.write(&record, now_ns)?;
+            }
+        }
+        if last_flush.elapsed() >= Duration::from_secs(1) {
+            last_flush = Instant::now();
+            episode_log.flush()?;
+        }
         if let Ok(mut stats) = shared.stats.lock() {
             for e in &received {
                 stats.record(
@@ -330,6 +360,8 @@ fn receive_loop(config: &SelectorConfig, shared: &Shared) -> anyhow::Result<()> 
             std::thread::sleep(Duration::from_millis(2));
         }
     }
+    let n = episode_log.finish()?;
+    tracing::info!(episodes = n, "episode log closed");
     if let Some(sel) = selecting {
         let n = sel.dataset.finish()?;
         tracing::info!(samples = n, "TEP dataset closed");

@@ -1,0 +1,196 @@
+//! The run's other logs: learner metrics (`metrics.mcap`, topic `/metrics`, `terl.v1.Metric`)
+//! and finished episodes (`episodes.mcap`, topic `/episodes`, `terl.v1.EpisodeSummary`). Same
+//! file layout and crash recovery as the TEP dataset (crate docs).
+
+use std::{fmt, marker::PhantomData, path::Path};
+
+use prost::Message as _;
+use terl_wire::{pb, EpisodeSummary, Metric};
+
+use crate::log::{read_channel, Channel, ProtoWriter};
+use crate::Result;
+
+/// A record type with its own channel.
+pub trait LogRecord: Sized {
+    #[doc(hidden)]
+    type Proto: prost::Message + Default;
+    #[doc(hidden)]
+    const CHANNEL: Channel;
+    #[doc(hidden)]
+    fn to_proto(&self) -> Self::Proto;
+    #[doc(hidden)]
+    fn from_proto(p: Self::Proto) -> std::result::Result<Self, String>;
+}
+
+impl LogRecord for Metric {
+    type Proto = pb::Metric;
+    const CHANNEL: Channel = Channel {
+        topic: "/metrics",
+        schema: "terl.v1.Metric",
+        what: "metrics log",
+    };
+    fn to_proto(&self) -> pb::Metric {
+        pb::Metric::from(self.clone())
+    }
+    fn from_proto(p: pb::Metric) -> std::result::Result<Self, String> {
+        Metric::try_from(p).map_err(|s| s.message().to_owned())
+    }
+}
+
+impl LogRecord for EpisodeSummary {
+    type Proto = pb::EpisodeSummary;
+    const CHANNEL: Channel = Channel {
+        topic: "/episodes",
+        schema: "terl.v1.EpisodeSummary",
+        what: "episode log",
+    };
+    fn to_proto(&self) -> pb::EpisodeSummary {
+        pb::EpisodeSummary::from(self.clone())
+    }
+    fn from_proto(p: pb::EpisodeSummary) -> std::result::Result<Self, String> {
+        EpisodeSummary::try_from(p).map_err(|s| s.message().to_owned())
+    }
+}
+
+/// Appends records of one type to a new MCAP file; flush to make them survive a kill, finish
+/// (or drop) to write the summary.
+pub struct LogWriter<R: LogRecord> {
+    inner: ProtoWriter,
+    _record: PhantomData<fn(&R)>,
+}
+
+/// `runs/<id>/metrics.mcap`.
+pub type MetricsWriter = LogWriter<Metric>;
+/// `runs/<id>/episodes.mcap`.
+pub type EpisodeLogWriter = LogWriter<EpisodeSummary>;
+
+impl<R: LogRecord> fmt::Debug for LogWriter<R> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("LogWriter")
+            .field("topic", &R::CHANNEL.topic)
+            .field("path", &self.inner.path())
+            .field("messages", &self.inner.messages())
+            .finish_non_exhaustive()
+    }
+}
+
+impl<R: LogRecord> LogWriter<R> {
+    /// Creates the file (never overwrites: [`crate::TelemetryError::AlreadyExists`]).
+    pub fn create(path: impl AsRef<Path>) -> Result<Self> {
+        Ok(Self {
+            inner: ProtoWriter::open(path.as_ref(), R::CHANNEL, false)?,
+            _record: PhantomData,
+        })
+    }
+
+    pub fn path(&self) -> &Path {
+        self.inner.path()
+    }
+
+    pub fn messages(&self) -> u64 {
+        self.inner.messages()
+    }
+
+    /// Appends one record with log time `log_time_ns` (nanoseconds since the Unix epoch).
+    pub fn write(&mut self, record: &R, log_time_ns: u64) -> Result<()> {
+        self.inner.write(&record.to_proto(), log_time_ns)
+    }
+
+    pub fn flush(&mut self) -> Result<()> {
+        self.inner.flush()
+    }
+
+    /// Writes the summary and footer, syncs, returns the message count.
+    pub fn finish(mut self) -> Result<u64> {
+        self.inner.finish()
+    }
+}
+
+/// The records of a log file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Logged<R> {
+    pub records: Vec<R>,
+    /// Messages that did not decode or failed validation (skipped).
+    pub rejected: u64,
+    /// The writer was killed: `records` is what was flushed before.
+    pub truncated: bool,
+}
+
+/// Reads every record of type `R` from its channel in the MCAP file at `path`.
+pub fn read_log<R: LogRecord>(path: impl AsRef<Path>) -> Result<Logged<R>> {
+    let read = read_channel(path.as_ref(), R::CHANNEL, |bytes| {
+        R::Proto::decode(bytes)
+            .map_err(|e| format!("protobuf decode failed: {e}"))
+            .and_then(R::from_proto)
+    })?;
+    Ok(Logged {
+        records: read.items,
+        rejected: read.rejected,
+        truncated: read.truncated,
+    })
+}
+
+/// Where a run keeps its learner metrics: `run_dir/metrics.mcap`.
+pub fn metrics_path(run_dir: &Path) -> std::path::PathBuf {
+    run_dir.join("metrics.mcap")
+}
+
+/// Where a run keeps its episode log: `run_dir/episodes.mcap`.
+pub fn episodes_path(run_dir: &Path) -> std::path::PathBuf {
+    run_dir.join("episodes.mcap")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn metrics_and_episodes_round_trip_and_do_not_mix() {
+        let dir = std::env::temp_dir().join(format!("terl-records-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let mut m = MetricsWriter::create(metrics_path(&dir)).unwrap();
+        let metrics: Vec<Metric> = (0..300)
+            .map(|i| Metric {
+                name: format!("guidance/rate/task-{}", i % 3),
+                value: f64::from(i) * 0.5,
+                step: i as u64,
+                unix_time_nanos: 1_000 + i as u64,
+            })
+            .collect();
+        for x in &metrics {
+            m.write(x, x.unix_time_nanos).unwrap();
+        }
+        m.flush().unwrap();
+        assert_eq!(m.finish().unwrap(), 300);
+        let got = read_log::<Metric>(metrics_path(&dir)).unwrap();
+        assert_eq!(
+            (got.records, got.rejected, got.truncated),
+            (metrics, 0, false)
+        );
+
+        let mut e = EpisodeLogWriter::create(episodes_path(&dir)).unwrap();
+        let ep = EpisodeSummary {
+            task: "reach-v3".into(),
+            actor_id: 1,
+            episode_index: 4,
+            episode_return: 12.5,
+            success: true,
+            length: 500,
+            policy_version: 9,
+            guided_steps: 7,
+        };
+        e.write(&ep, 5).unwrap();
+        drop(e);
+        assert_eq!(
+            read_log::<EpisodeSummary>(episodes_path(&dir))
+                .unwrap()
+                .records,
+            vec![ep]
+        );
+        // A metrics file is not an episode log: a clear error, not an empty result.
+        let err = read_log::<EpisodeSummary>(metrics_path(&dir)).unwrap_err();
+        assert!(err.to_string().contains("/episodes"), "{err}");
+        assert!(MetricsWriter::create(metrics_path(&dir)).is_err());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

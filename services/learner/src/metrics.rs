@@ -1,0 +1,111 @@
+//! The learner's metrics log, `runs/<id>/metrics.mcap` (`terl.v1.Metric` on `/metrics`): one
+//! sample of every metric per status window, flushed at once so a killed learner keeps its
+//! history. cleanrl-style names: `charts/…`, `losses/…`, `replay/…`, `tep/…`,
+//! `success_rate/<task>`, `guidance/rate/<task>`.
+
+use std::path::Path;
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use anyhow::Context;
+use terl_rl::UpdateStats;
+use terl_telemetry::MetricsWriter;
+use terl_wire::{LearnerStatus, Metric};
+
+/// SAC losses summed over the current window.
+#[derive(Debug, Default)]
+struct LossSums {
+    qf: f64,
+    actor: f64,
+    alpha: f64,
+    n: u64,
+}
+
+pub(crate) struct MetricsLog {
+    writer: MetricsWriter,
+    sums: LossSums,
+}
+
+impl MetricsLog {
+    pub(crate) fn create(run_dir: &Path) -> anyhow::Result<Self> {
+        let path = terl_telemetry::fresh_path(run_dir, "metrics");
+        let writer = MetricsWriter::create(&path)
+            .with_context(|| format!("cannot create the metrics log {}", path.display()))?;
+        Ok(Self {
+            writer,
+            sums: LossSums::default(),
+        })
+    }
+
+    pub(crate) fn record_update(&mut self, s: &UpdateStats) {
+        self.sums.qf += 0.5 * (s.qf1_loss + s.qf2_loss);
+        self.sums.actor += s.actor_loss;
+        self.sums.alpha += s.alpha_mean;
+        self.sums.n += 1;
+    }
+
+    /// Writes one sample of every metric in `status` (at learner step `status.updates`).
+    pub(crate) fn write_window(&mut self, status: &LearnerStatus) -> anyhow::Result<()> {
+        let now = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos() as u64);
+        let step = status.updates;
+        let mut out: Vec<(String, f64)> = vec![
+            (
+                "charts/updates_per_second".into(),
+                status.updates_per_second,
+            ),
+            (
+                "charts/env_steps_per_second".into(),
+                status.actors.iter().map(|a| a.env_steps_per_second).sum(),
+            ),
+            ("charts/env_steps".into(), status.env_steps_total as f64),
+            ("replay/size".into(), status.replay_size as f64),
+            ("replay/staleness_mean".into(), status.staleness_mean),
+            (
+                "replay/rejected_batches".into(),
+                status.rejected_batches as f64,
+            ),
+        ];
+        let s = std::mem::take(&mut self.sums);
+        if s.n > 0 {
+            let n = s.n as f64;
+            out.push(("losses/qf_loss".into(), s.qf / n));
+            out.push(("losses/actor_loss".into(), s.actor / n));
+            out.push(("losses/alpha".into(), s.alpha / n));
+        }
+        for t in &status.task_success {
+            out.push((format!("success_rate/{}", t.task), t.success_rate));
+        }
+        if status.algorithm == "terl" {
+            out.extend([
+                ("tep/updates".into(), status.tep_updates as f64),
+                ("tep/buffer_size".into(), status.tep_buffer_size as f64),
+                ("tep/f_loss".into(), status.tep_f_loss),
+                ("tep/an_loss".into(), status.tep_an_loss),
+                (
+                    "tep/selected_samples".into(),
+                    status.selected_samples as f64,
+                ),
+                ("guidance/guided_steps".into(), status.guided_steps as f64),
+            ]);
+            for t in &status.task_success {
+                out.push((format!("guidance/rate/{}", t.task), t.guidance_rate));
+            }
+        }
+        for (name, value) in out {
+            let m = Metric {
+                name,
+                value,
+                step,
+                unix_time_nanos: now,
+            };
+            self.writer.write(&m, now)?;
+        }
+        self.writer.flush()?;
+        Ok(())
+    }
+
+    pub(crate) fn finish(self) -> anyhow::Result<u64> {
+        Ok(self.writer.finish()?)
+    }
+}
