@@ -110,7 +110,18 @@ while [ -z "$interrupted" ]; do
     [ -n "$interrupted" ] && break
     for p in "${pids[@]}"; do
         if ! kill -0 "$p" 2>/dev/null; then
-            echo "[cluster] process $p exited; stopping the cluster (logs in $out/)" >&2
+            code=0
+            wait "$p" || code=$?
+            learner_pid=${pids[0]}
+            rest=()
+            for q in "${pids[@]}"; do [ "$q" = "$p" ] || rest+=("$q"); done
+            pids=("${rest[@]}")
+            if [ "$p" = "$learner_pid" ] && [ "$code" = 0 ]; then
+                echo "[cluster] the learner finished (train.total_env_steps reached); stopping the cluster" >&2
+                stop || true
+                exit 0
+            fi
+            echo "[cluster] process $p exited with code $code; stopping the cluster (logs in $out/)" >&2
             stop || true
             exit 1
         fi

@@ -73,10 +73,12 @@ fn one() -> usize {
 
 /// How the learner, the selector and the actors share the run.
 ///
-/// From `[train]` the cluster uses `warmup_env_steps` (transitions before the first update;
-/// actors act randomly until the first policy version arrives anyway),
-/// `replay_capacity_per_task`, `success_window` and `seed`; `total_env_steps` and the evaluation
-/// settings are single-process only (a cluster trains until it is stopped).
+/// From `[train]` the cluster uses `total_env_steps` (the learner stops after receiving that
+/// many transitions, writes its final checkpoint and exits 0; the launcher then stops the
+/// cluster: equal budgets make MTSAC and TERL runs comparable; 0 trains until stopped),
+/// `warmup_env_steps` (transitions before the first update; actors act randomly until the first
+/// policy version arrives anyway), `replay_capacity_per_task`, `success_window` and `seed`; the
+/// evaluation settings are single-process only.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ClusterConfig {

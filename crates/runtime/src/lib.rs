@@ -97,7 +97,8 @@ pub fn write_addr_file(
     Ok(path)
 }
 
-/// Initialises `tracing` for a service binary: `RUST_LOG` or `info`, to stderr.
+/// Initialises `tracing` for a service binary: `RUST_LOG` or `info`, to stderr (colours only on
+/// a terminal).
 pub fn init_tracing() {
     let _ = tracing_subscriber::fmt()
         .with_env_filter(
@@ -105,5 +106,7 @@ pub fn init_tracing() {
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
         )
         .with_writer(std::io::stderr)
+        // Plain text when logs go to a file (the launcher writes runs/<id>/*.log).
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .try_init();
 }

@@ -119,7 +119,7 @@ pub async fn run(
     let stop_serving = async {
         tokio::select! {
             () = shutdown => {}
-            _ = done_rx.wait_for(|done| *done) => tracing::warn!("trainer stopped; shutting down"),
+            _ = done_rx.wait_for(|done| *done) => tracing::info!("trainer stopped; shutting down"),
         }
     };
     let served = terl_wire::serve_learner(listener, backend, stop_serving).await;

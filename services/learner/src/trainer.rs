@@ -346,7 +346,16 @@ pub(crate) fn run(
         "trainer started"
     );
 
+    let budget = run.train.total_env_steps;
     while !shared.stop.load(Ordering::Relaxed) {
+        if budget > 0 && c.env_steps >= budget {
+            tracing::info!(
+                env_steps = c.env_steps,
+                updates = sac.updates(),
+                "training budget reached (train.total_env_steps); stopping"
+            );
+            break;
+        }
         let mut busy = staging.fill(transitions.as_mut())?;
         for _ in 0..MAX_BATCHES_PER_ROUND {
             if !limiter.can_insert(TRANSITIONS_PER_BATCH as u64) {
