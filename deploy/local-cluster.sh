@@ -47,7 +47,7 @@ if [ "$build" = 1 ]; then
     echo "[cluster] building release binaries (first time: a few minutes)" >&2
     cargo build --release -q -p terl-cli -p terl-learner -p terl-actor -p terl-selector
 fi
-bin=target/release
+bin=${CARGO_TARGET_DIR:-target}/release
 
 run_id=${run_id:-"$(basename "$config" .toml)-$(date +%Y%m%d-%H%M%S)"}
 out="runs/$run_id"

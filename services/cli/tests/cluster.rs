@@ -492,3 +492,76 @@ fn terl_cluster_selects_trains_the_planner_and_guides() {
         "shared-memory files left: {leftover:?}"
     );
 }
+
+/// The README's launcher on a run with a training budget: the learner stops by itself at
+/// `train.total_env_steps`, and `deploy/local-cluster.sh` then stops the cluster and exits 0.
+#[test]
+fn launcher_stops_the_cluster_at_the_training_budget() {
+    let shm_before = shm_files();
+    service_binaries();
+    let root = workspace();
+    let release = Path::new(env!("CARGO_BIN_EXE_terl"))
+        .parent()
+        .and_then(Path::file_name)
+        .is_some_and(|n| n == "release");
+    if !release {
+        eprintln!("the launcher runs target/release binaries; run this test with --release");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(root.join("deploy/configs/cluster-smoke.toml")).unwrap();
+    assert!(text.contains("warmup_env_steps = 1_000"));
+    let config = dir.path().join("budget.toml");
+    std::fs::write(
+        &config,
+        text.replace(
+            "warmup_env_steps = 1_000",
+            "total_env_steps = 4_000\nwarmup_env_steps = 1_000",
+        ),
+    )
+    .unwrap();
+    let run_id = format!("it-budget-{}", std::process::id());
+    let start = Instant::now();
+    let mut child = Command::new(root.join("deploy/local-cluster.sh"))
+        .current_dir(&root)
+        .args(["--config", config.to_str().unwrap(), "--actors", "1"])
+        .args(["--run-id", &run_id, "--no-build"])
+        .args([
+            "--learner-addr",
+            "127.0.0.1:0",
+            "--selector-addr",
+            "127.0.0.1:0",
+        ])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if start.elapsed() > Duration::from_secs(120) {
+            let _ = Command::new("kill")
+                .args(["-INT", &child.id().to_string()])
+                .status();
+            panic!("the cluster did not stop at its budget");
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    let mut err = String::new();
+    std::io::Read::read_to_string(child.stderr.as_mut().unwrap(), &mut err).unwrap();
+    let run_dir = root.join("runs").join(&run_id);
+    let final_ckpt = run_dir.join("checkpoints/final.safetensors").is_file();
+    let _ = std::fs::remove_dir_all(&run_dir);
+    assert!(status.success(), "launcher exited with {status}: {err}");
+    assert!(
+        err.contains("training budget") || err.contains("total_env_steps reached"),
+        "{err}"
+    );
+    assert!(final_ckpt, "no final checkpoint");
+    let leftover: Vec<String> = shm_files().difference(&shm_before).cloned().collect();
+    assert!(
+        leftover.is_empty(),
+        "shared-memory files left: {leftover:?}"
+    );
+}
