@@ -14,10 +14,12 @@
 //! - [`ptr`]: PTR selection (GAE, priority, ranking in batches, success gate);
 //! - [`tep`], [`tep_buffer`]: the TEP planner (F, AN, targets, update) and its dataset buffer;
 //! - [`guidance`]: the TERL guidance rule and goal states;
-//! - [`bench`]: update throughput, achieved GFLOP/s against faer's GEMM rate, inference latency.
+//! - [`bench`]: update throughput, achieved GFLOP/s against faer's GEMM rate, inference latency;
+//! - [`bench_tep`]: the same for the TEP update, and planner latency.
 
 pub mod batch;
 pub mod bench;
+pub mod bench_tep;
 pub mod config;
 pub mod env;
 pub mod error;
