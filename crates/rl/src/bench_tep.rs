@@ -98,6 +98,12 @@ pub struct GuidanceOverhead {
     /// Fraction of steps that executed the planner's action (random weights: not meaningful
     /// for learning, only a check that the path runs).
     pub guided_fraction: f64,
+    /// Median step time when `AN` runs only on the rows guidance selects (after deciding).
+    pub step_us_with_lazy_an: f64,
+    /// Median over rounds of `(with_lazy_an − without) / without`.
+    pub guidance_overhead_ratio_lazy_an: f64,
+    /// `guided_fraction` of the lazy variant.
+    pub guided_fraction_lazy_an: f64,
 }
 
 /// Measured numbers (the same fields as the PyTorch script's JSON, plus `guidance`).

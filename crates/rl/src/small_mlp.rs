@@ -25,9 +25,9 @@ pub(crate) struct SmallBatchMlp {
     /// Per layer, the weight packed in panels: `out_pad(l) / PANEL` blocks of `[in, PANEL]`.
     panels: Vec<Vec<f32>>,
     biases: Vec<Vec<f32>>,
-    /// The input rows, padded to a multiple of [`ROW_BLOCK`] rows (padding rows are zero).
+    /// The input rows.
     input: Vec<f32>,
-    /// Per layer, outputs of up to `max_rows` (padded) rows, `out_pad(l)` columns each.
+    /// Per layer, outputs of up to `max_rows` rows, `out_pad(l)` columns each.
     outs: Vec<Vec<f32>>,
     /// The network's output rows without padding.
     result: Vec<f32>,
@@ -46,7 +46,7 @@ impl SmallBatchMlp {
         let layers = sizes.len() - 1;
         let mut activations = vec![spec.hidden_activation; layers];
         activations[layers - 1] = spec.output_activation;
-        let rows = padded(max_rows.max(1), ROW_BLOCK);
+        let rows = max_rows;
         let mut m = Self {
             panels: sizes
                 .windows(2)
@@ -98,22 +98,20 @@ impl SmallBatchMlp {
             self.max_rows
         );
         assert_eq!(input.len(), rows * self.sizes[0], "input of the wrong size");
-        let rows_pad = padded(rows.max(1), ROW_BLOCK);
         let n0 = self.sizes[0];
         self.input[..rows * n0].copy_from_slice(input);
-        self.input[rows * n0..rows_pad * n0].fill(0.0);
         let layers = self.sizes.len() - 1;
         for l in 0..layers {
             let (n_in, n_out) = (self.sizes[l], self.sizes[l + 1]);
             let out_pad = padded(n_out, PANEL);
             let (before, rest) = self.outs.split_at_mut(l);
             let (x, x_stride) = if l == 0 {
-                (&self.input[..rows_pad * n0], n0)
+                (&self.input[..rows * n0], n0)
             } else {
                 let stride = padded(n_in, PANEL);
-                (&before[l - 1][..rows_pad * stride], stride)
+                (&before[l - 1][..rows * stride], stride)
             };
-            let y = &mut rest[0][..rows_pad * out_pad];
+            let y = &mut rest[0][..rows * out_pad];
             let kernel = PanelKernel {
                 x,
                 x_stride,
@@ -158,8 +156,7 @@ impl SmallBatchMlp {
     }
 }
 
-/// `y[r][p·PANEL + j] = Σ_k x[r][k] · panel_p[k][j]` for all rows (a multiple of [`ROW_BLOCK`])
-/// and panels. Returns `false` (nothing written) unless the SIMD width is 8 `f32` lanes.
+/// `y[r][p·PANEL + j] = Σ_k x[r][k] · panel_p[k][j]` for all rows and panels. Returns `false` (nothing written) unless the SIMD width is 8 `f32` lanes.
 struct PanelKernel<'a> {
     x: &'a [f32],
     x_stride: usize,
@@ -186,30 +183,55 @@ impl WithSimd for PanelKernel<'_> {
             y_stride,
         } = self;
         let rows = x.len() / x_stride;
+        let full = rows - rows % ROW_BLOCK;
         for (p, panel) in panels.chunks_exact(n_in * PANEL).enumerate() {
             let (w, _) = S::as_simd_f32s(panel);
-            for g in (0..rows).step_by(ROW_BLOCK) {
-                let xr: [&[f32]; ROW_BLOCK] =
-                    std::array::from_fn(|r| &x[(g + r) * x_stride..][..n_in]);
-                let zero = simd.splat_f32s(0.0);
-                let mut acc = [[zero; 2]; ROW_BLOCK];
-                for (k, w) in w.chunks_exact(2).enumerate() {
-                    let (w0, w1) = (w[0], w[1]);
-                    for (a, xr) in acc.iter_mut().zip(&xr) {
-                        let b = simd.splat_f32s(xr[k]);
-                        a[0] = simd.mul_add_f32s(b, w0, a[0]);
-                        a[1] = simd.mul_add_f32s(b, w1, a[1]);
-                    }
-                }
-                for (r, a) in acc.iter().enumerate() {
-                    let out = &mut y[(g + r) * y_stride + p * PANEL..][..PANEL];
-                    let (o, _) = S::as_mut_simd_f32s(out);
-                    o[0] = a[0];
-                    o[1] = a[1];
-                }
+            let y = &mut *y;
+            let col = p * PANEL;
+            for g in (0..full).step_by(ROW_BLOCK) {
+                row_block::<S, ROW_BLOCK>(simd, w, x, x_stride, n_in, g, y, y_stride, col);
+            }
+            match rows - full {
+                1 => row_block::<S, 1>(simd, w, x, x_stride, n_in, full, y, y_stride, col),
+                2 => row_block::<S, 2>(simd, w, x, x_stride, n_in, full, y, y_stride, col),
+                3 => row_block::<S, 3>(simd, w, x, x_stride, n_in, full, y, y_stride, col),
+                _ => {}
             }
         }
         true
+    }
+}
+
+/// Rows `g..g + R` of one panel: `R × 2` vector accumulators over all `n_in` inputs.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn row_block<S: Simd, const R: usize>(
+    simd: S,
+    w: &[S::f32s],
+    x: &[f32],
+    x_stride: usize,
+    n_in: usize,
+    g: usize,
+    y: &mut [f32],
+    y_stride: usize,
+    col: usize,
+) {
+    let xr: [&[f32]; R] = std::array::from_fn(|r| &x[(g + r) * x_stride..][..n_in]);
+    let zero = simd.splat_f32s(0.0);
+    let mut acc = [[zero; 2]; R];
+    for (k, w) in w.chunks_exact(2).enumerate() {
+        let (w0, w1) = (w[0], w[1]);
+        for (a, xr) in acc.iter_mut().zip(&xr) {
+            let b = simd.splat_f32s(xr[k]);
+            a[0] = simd.mul_add_f32s(b, w0, a[0]);
+            a[1] = simd.mul_add_f32s(b, w1, a[1]);
+        }
+    }
+    for (r, a) in acc.iter().enumerate() {
+        let out = &mut y[(g + r) * y_stride + col..][..PANEL];
+        let (o, _) = S::as_mut_simd_f32s(out);
+        o[0] = a[0];
+        o[1] = a[1];
     }
 }
 
@@ -248,9 +270,8 @@ mod tests {
     fn faer_matches(spec: &MlpSpec, net: &Mlp<f32>, rows: usize) -> bool {
         let small = SmallBatchMlp::new(spec, net, rows);
         let (n_in, n_out) = (net.sizes()[0], padded(net.sizes()[1], PANEL));
-        let rows_pad = padded(rows, ROW_BLOCK);
-        let x: Vec<f32> = (0..rows_pad * n_in).map(|i| (i % 7) as f32 - 3.0).collect();
-        let (mut a, mut b) = (vec![0.0; rows_pad * n_out], vec![0.0; rows_pad * n_out]);
+        let x: Vec<f32> = (0..rows * n_in).map(|i| (i % 7) as f32 - 3.0).collect();
+        let (mut a, mut b) = (vec![0.0; rows * n_out], vec![0.0; rows * n_out]);
         faer_panels(&x, n_in, n_in, &small.panels[0], &mut a, n_out);
         let kernel = PanelKernel {
             x: &x,
@@ -285,7 +306,7 @@ mod tests {
             let net: Mlp<f32> = Mlp::new(&spec, &mut rng);
             let mut small = SmallBatchMlp::new(&spec, &net, 8);
             let mut cache = MlpCache::new(&net, 8);
-            for rows in [1, 5, 8] {
+            for rows in [1, 2, 3, 5, 7, 8] {
                 assert!(faer_matches(&spec, &net, rows));
                 let x: Vec<f32> = (0..rows * 13).map(|_| rng.gen_range(-2.0..2.0)).collect();
                 cache.input_mut(0..rows).copy_from_slice(&x);

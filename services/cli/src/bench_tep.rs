@@ -7,6 +7,10 @@
 //! environment's `Guidance::decide` swap in the planner's action. Both variants run on their own
 //! `VecEnv` (same tasks, same seed) in alternating rounds; per-step times and their ratio are
 //! medians over rounds, as `terl bench env` does, so background load hits both alike.
+//!
+//! A third variant evaluates `AN` lazily: `Guidance::decide` first (it needs only `F`), then `AN`
+//! on just the guided rows, and not at all when no row is guided (the common case once `σ^N`
+//! has decayed). Same decisions, same executed actions; only the unused `AN` rows are skipped.
 
 use std::time::{Duration, Instant};
 
@@ -23,6 +27,12 @@ pub const ROUNDS: usize = 10;
 
 /// The guidance part of one actor: planner, goal states, per-env rule state.
 struct Guide {
+    /// Evaluate `AN` only on the rows the rule guides (else on all rows, before deciding).
+    lazy: bool,
+    /// Rows of the lazy `AN` call: observations, goals, indices.
+    lazy_obs: Vec<f32>,
+    lazy_goals: Vec<f32>,
+    lazy_rows: Vec<usize>,
     planner: Planner,
     targets: Vec<GoalTarget>,
     goals: Vec<f32>,
@@ -50,6 +60,7 @@ impl ActorLoop {
         num_envs: usize,
         policy_hidden: &[usize],
         planner: Option<&TepConfig>,
+        lazy: bool,
     ) -> Result<Self> {
         let env = VecEnv::round_robin(all_tasks, num_envs, 3)?;
         let tasks: Vec<usize> = env
@@ -71,6 +82,10 @@ impl ActorLoop {
         };
         let sigma = GuidanceConfig::default().sigma;
         let guide = planner.map(|cfg| Guide {
+            lazy,
+            lazy_obs: Vec::with_capacity(num_envs * OBS_DIM),
+            lazy_goals: Vec::with_capacity(num_envs * OBS_DIM),
+            lazy_rows: Vec::with_capacity(num_envs),
             planner: Planner::new(cfg, num_envs),
             targets: tasks
                 .iter()
@@ -111,14 +126,41 @@ impl ActorLoop {
             }
             g.planner
                 .reach(&self.obs, &g.goals, &self.actions, &mut g.reach);
-            g.planner.actions(&self.obs, &g.goals, &mut g.planned);
-            for (i, rule) in g.rules.iter_mut().enumerate() {
-                if rule.decide(f64::from(g.reach[i]), &mut self.rng) {
-                    let row = i * ACT_DIM..(i + 1) * ACT_DIM;
-                    self.actions[row.clone()].copy_from_slice(&g.planned[row]);
-                    g.guided += 1;
+            if g.lazy {
+                g.lazy_rows.clear();
+                for (i, rule) in g.rules.iter_mut().enumerate() {
+                    if rule.decide(f64::from(g.reach[i]), &mut self.rng) {
+                        g.lazy_rows.push(i);
+                    }
                 }
-                g.decided += 1;
+                g.decided += g.rules.len() as u64;
+                if !g.lazy_rows.is_empty() {
+                    g.lazy_obs.clear();
+                    g.lazy_goals.clear();
+                    for &i in &g.lazy_rows {
+                        let row = i * OBS_DIM..(i + 1) * OBS_DIM;
+                        g.lazy_obs.extend_from_slice(&self.obs[row.clone()]);
+                        g.lazy_goals.extend_from_slice(&g.goals[row]);
+                    }
+                    let n = g.lazy_rows.len();
+                    let planned = &mut g.planned[..n * ACT_DIM];
+                    g.planner.actions(&g.lazy_obs, &g.lazy_goals, planned);
+                    for (k, &i) in g.lazy_rows.iter().enumerate() {
+                        self.actions[i * ACT_DIM..(i + 1) * ACT_DIM]
+                            .copy_from_slice(&planned[k * ACT_DIM..(k + 1) * ACT_DIM]);
+                    }
+                    g.guided += n as u64;
+                }
+            } else {
+                g.planner.actions(&self.obs, &g.goals, &mut g.planned);
+                for (i, rule) in g.rules.iter_mut().enumerate() {
+                    if rule.decide(f64::from(g.reach[i]), &mut self.rng) {
+                        let row = i * ACT_DIM..(i + 1) * ACT_DIM;
+                        self.actions[row.clone()].copy_from_slice(&g.planned[row]);
+                        g.guided += 1;
+                    }
+                    g.decided += 1;
+                }
             }
         }
         self.env.step(&self.actions)?;
@@ -159,27 +201,37 @@ pub fn guidance_overhead(
         planner.obs_dim == OBS_DIM && planner.act_dim == ACT_DIM,
         "guidance needs the Meta-World planner dimensions {OBS_DIM}/{ACT_DIM}"
     );
-    let mut without = ActorLoop::new(tasks, num_envs, policy_hidden, None)?;
-    let mut with = ActorLoop::new(tasks, num_envs, policy_hidden, Some(planner))?;
+    // Without guidance, with it, with it and lazy AN.
+    let mut actors = [
+        ActorLoop::new(tasks, num_envs, policy_hidden, None, false)?,
+        ActorLoop::new(tasks, num_envs, policy_hidden, Some(planner), false)?,
+        ActorLoop::new(tasks, num_envs, policy_hidden, Some(planner), true)?,
+    ];
     // Warm-up: first steps touch cold caches and code.
-    without.run(Duration::from_millis(50))?;
-    with.run(Duration::from_millis(50))?;
-    let slice = Duration::from_secs_f64(seconds / ROUNDS as f64);
-    let (mut t_without, mut t_with, mut ratios) = (Vec::new(), Vec::new(), Vec::new());
-    for round in 0..ROUNDS {
-        // Alternate which variant goes first so neither always follows the other.
-        let (a, b) = if round % 2 == 0 {
-            let a = without.run(slice)?;
-            (a, with.run(slice)?)
-        } else {
-            let b = with.run(slice)?;
-            (without.run(slice)?, b)
-        };
-        t_without.push(a);
-        t_with.push(b);
-        ratios.push((b - a) / a);
+    for actor in &mut actors {
+        actor.run(Duration::from_millis(50))?;
     }
-    let g = with.guide.as_ref().expect("the guided loop has a guide");
+    let slice = Duration::from_secs_f64(seconds / ROUNDS as f64);
+    let mut times: [Vec<f64>; 3] = Default::default();
+    let (mut ratios, mut lazy_ratios) = (Vec::new(), Vec::new());
+    for round in 0..ROUNDS {
+        // Rotate the order so no variant always follows the same one.
+        let mut t = [0.0; 3];
+        for k in 0..3 {
+            let v = (round + k) % 3;
+            t[v] = actors[v].run(slice)?;
+        }
+        for (times, t) in times.iter_mut().zip(t) {
+            times.push(t);
+        }
+        ratios.push((t[1] - t[0]) / t[0]);
+        lazy_ratios.push((t[2] - t[0]) / t[0]);
+    }
+    let fraction = |a: &ActorLoop| {
+        let g = a.guide.as_ref().expect("a guided loop has a guide");
+        g.guided as f64 / g.decided.max(1) as f64
+    };
+    let [t_without, t_with, t_lazy] = times;
     Ok(GuidanceOverhead {
         num_envs,
         tasks: tasks.iter().map(|t| t.to_string()).collect(),
@@ -188,7 +240,10 @@ pub fn guidance_overhead(
         step_us_without: median(t_without),
         step_us_with: median(t_with),
         guidance_overhead_ratio: median(ratios),
-        guided_fraction: g.guided as f64 / g.decided.max(1) as f64,
+        guided_fraction: fraction(&actors[1]),
+        step_us_with_lazy_an: median(t_lazy),
+        guidance_overhead_ratio_lazy_an: median(lazy_ratios),
+        guided_fraction_lazy_an: fraction(&actors[2]),
     })
 }
 
@@ -212,6 +267,8 @@ mod tests {
         assert!((0.0..=1.0).contains(&r.guided_fraction));
         // The first step of an episode is never guided, later ones may be.
         assert!(r.guided_fraction < 1.0);
+        assert!(r.step_us_with_lazy_an > 0.0 && r.guidance_overhead_ratio_lazy_an > -1.0);
+        assert!((0.0..1.0).contains(&r.guided_fraction_lazy_an));
     }
 
     #[test]
