@@ -4,7 +4,7 @@
 //! The actor step is what `terl-actor`'s loop does per step: `Policy::act` on E observations,
 //! then `VecEnv::step`. With guidance it also builds E goal states (`goal_state_into`), runs
 //! `Planner::reach` on the policy's actions and `Planner::actions` on all E rows, and lets each
-//! environment's `Guidance::decide` swap in the planner's action. Both variants run on their own
+//! environment's `Guidance::decide` swap in the planner's action. The variants run on their own
 //! `VecEnv` (same tasks, same seed) in alternating rounds; per-step times and their ratio are
 //! medians over rounds, as `terl bench env` does, so background load hits both alike.
 //!
@@ -22,7 +22,7 @@ use terl_rl::guidance::{goal_state_into, GoalTarget, Guidance, GuidanceConfig};
 use terl_rl::{Planner, Policy, PolicySpec, TepConfig};
 use terl_sim::{VecEnv, ACT_DIM, OBS_DIM};
 
-/// Alternating rounds of the with/without measurement.
+/// Alternating rounds of the guidance measurement.
 pub const ROUNDS: usize = 10;
 
 /// The guidance part of one actor: planner, goal states, per-env rule state.
