@@ -213,7 +213,7 @@ fn inference_latency_us(sac: &Sac<f32>, rows: usize, seconds: f64) -> Result<f64
     Ok(start.elapsed().as_secs_f64() * 1e6 / calls as f64)
 }
 
-fn square_gemm_gflops(n: usize, threads: usize, seconds: f64) -> f64 {
+pub(crate) fn square_gemm_gflops(n: usize, threads: usize, seconds: f64) -> f64 {
     let a = vec![0.5f32; n * n];
     let b = vec![0.25f32; n * n];
     let mut c = vec![0.0f32; n * n];
@@ -240,7 +240,7 @@ fn square_gemm_gflops(n: usize, threads: usize, seconds: f64) -> f64 {
 
 /// One GEMM of the update, in the layout the update uses.
 #[derive(Debug)]
-enum GemmKind {
+pub(crate) enum GemmKind {
     /// `y [rows, out] = x [rows, in] · wᵀ`
     Forward,
     /// `dw [out, in] = dzᵀ · x`
@@ -250,7 +250,7 @@ enum GemmKind {
 }
 
 #[derive(Debug)]
-struct GemmOp {
+pub(crate) struct GemmOp {
     kind: GemmKind,
     rows: usize,
     n_in: usize,
@@ -261,7 +261,7 @@ struct GemmOp {
 }
 
 impl GemmOp {
-    fn new(kind: GemmKind, rows: usize, n_in: usize, n_out: usize) -> Self {
+    pub(crate) fn new(kind: GemmKind, rows: usize, n_in: usize, n_out: usize) -> Self {
         let (a, b, c) = match kind {
             GemmKind::Forward => (rows * n_in, n_out * n_in, rows * n_out),
             GemmKind::WeightGrad => (rows * n_out, rows * n_in, n_out * n_in),
@@ -278,7 +278,7 @@ impl GemmOp {
         }
     }
 
-    fn flops(&self) -> u64 {
+    pub(crate) fn flops(&self) -> u64 {
         let inner = match self.kind {
             GemmKind::InputGrad { cols } => cols,
             _ => self.n_in,
@@ -286,7 +286,7 @@ impl GemmOp {
         2 * (self.rows * inner * self.n_out) as u64
     }
 
-    fn run(&mut self, par: Par) {
+    pub(crate) fn run(&mut self, par: Par) {
         let (r, i, o) = (self.rows, self.n_in, self.n_out);
         match self.kind {
             GemmKind::Forward => matmul(

@@ -15,10 +15,12 @@
 //! - [`tep`], [`tep_buffer`]: the TEP planner (F, AN, targets, update) and its dataset buffer;
 //! - [`guidance`]: the TERL guidance rule and goal states;
 //! - [`value`]: `V(s)` and policy entropy from published weights, for PTR scoring;
-//! - [`bench`]: update throughput, achieved GFLOP/s against faer's GEMM rate, inference latency.
+//! - [`bench`]: update throughput, achieved GFLOP/s against faer's GEMM rate, inference latency;
+//! - [`bench_tep`]: the same for the TEP update, and planner latency.
 
 pub mod batch;
 pub mod bench;
+pub mod bench_tep;
 pub mod config;
 pub mod env;
 pub mod error;
@@ -27,6 +29,7 @@ pub mod policy;
 pub mod ptr;
 pub mod replay;
 pub mod sac;
+mod small_mlp;
 pub mod tep;
 pub mod tep_buffer;
 pub mod toy;

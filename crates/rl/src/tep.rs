@@ -24,6 +24,7 @@
 //! F's output is linear (the paper's `F ∈ ℝ₊` is not enforced; the targets are ≥ 1 anyway).
 
 use crate::error::SacError;
+use crate::small_mlp::SmallBatchMlp;
 use crate::tep_buffer::TepBatch;
 use faer::Par;
 use rand::SeedableRng;
@@ -534,15 +535,19 @@ impl<T: Float> Tep<T> {
 }
 
 /// Inference-only planner for actors: `F(s, g, a)` and `AN(s, g)` over small batches, `f32`,
-/// sequential GEMMs, no allocation per call.
+/// sequential GEMMs on weights packed for few rows (see [`SmallBatchMlp`]), no allocation per
+/// call.
 #[derive(Debug)]
 pub struct Planner {
     obs_dim: usize,
     act_dim: usize,
     f: Mlp<f32>,
     an: Mlp<f32>,
-    f_cache: MlpCache<f32>,
-    an_cache: MlpCache<f32>,
+    f_small: SmallBatchMlp,
+    an_small: SmallBatchMlp,
+    /// Input rows `[s, g, a]` of F and `[s, g]` of AN.
+    f_input: Vec<f32>,
+    an_input: Vec<f32>,
     version: u64,
 }
 
@@ -556,8 +561,10 @@ impl Planner {
         Self {
             obs_dim: config.obs_dim,
             act_dim: config.act_dim,
-            f_cache: MlpCache::new(&f, max_rows),
-            an_cache: MlpCache::new(&an, max_rows),
+            f_small: SmallBatchMlp::new(&config.f_spec(), &f, max_rows),
+            an_small: SmallBatchMlp::new(&config.an_spec(), &an, max_rows),
+            f_input: vec![0.0; max_rows * config.f_input()],
+            an_input: vec![0.0; max_rows * config.an_input()],
             f,
             an,
             version: 0,
@@ -580,6 +587,8 @@ impl Planner {
         }
         self.f.params.copy_from_slice(f);
         self.an.params.copy_from_slice(an);
+        self.f_small.load(&self.f);
+        self.an_small.load(&self.an);
         self.version = version;
         Ok(())
     }
@@ -589,20 +598,24 @@ impl Planner {
         self.version
     }
 
+    /// Rows one call can evaluate.
+    pub fn max_rows(&self) -> usize {
+        self.f_small.max_rows()
+    }
+
     /// `out[i] = F(obs_i, goal_i, action_i)` for `out.len()` rows.
     pub fn reach(&mut self, obs: &[f32], goals: &[f32], actions: &[f32], out: &mut [f32]) {
         let (n, od, ad) = (out.len(), self.obs_dim, self.act_dim);
         assert!(obs.len() == n * od && goals.len() == n * od && actions.len() == n * ad);
         let w = 2 * od + ad;
-        let x = self.f_cache.input_mut(0..n);
+        let x = &mut self.f_input[..n * w];
         for i in 0..n {
             let r = &mut x[i * w..(i + 1) * w];
             r[..od].copy_from_slice(&obs[i * od..(i + 1) * od]);
             r[od..2 * od].copy_from_slice(&goals[i * od..(i + 1) * od]);
             r[2 * od..].copy_from_slice(&actions[i * ad..(i + 1) * ad]);
         }
-        self.f.forward(&mut self.f_cache, n, Par::Seq);
-        out.copy_from_slice(self.f_cache.output(0..n));
+        out.copy_from_slice(self.f_small.forward(x, n));
     }
 
     /// `out` rows = `AN(obs_i, goal_i)` (`out.len() / act_dim` rows).
@@ -610,12 +623,11 @@ impl Planner {
         let (od, ad) = (self.obs_dim, self.act_dim);
         let n = out.len() / ad;
         assert!(obs.len() == n * od && goals.len() == n * od && out.len() == n * ad);
-        let x = self.an_cache.input_mut(0..n);
+        let x = &mut self.an_input[..n * 2 * od];
         for i in 0..n {
             x[i * 2 * od..i * 2 * od + od].copy_from_slice(&obs[i * od..(i + 1) * od]);
             x[i * 2 * od + od..(i + 1) * 2 * od].copy_from_slice(&goals[i * od..(i + 1) * od]);
         }
-        self.an.forward(&mut self.an_cache, n, Par::Seq);
-        out.copy_from_slice(self.an_cache.output(0..n));
+        out.copy_from_slice(self.an_small.forward(x, n));
     }
 }

@@ -68,6 +68,38 @@ pub enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// Full TEP updates per second (F and AN losses, both Adam steps, both targets), achieved
+    /// GFLOP/s against the same-run GEMM rate, and the actor-side cost of guidance with E
+    /// Meta-World environments (step time with and without it, alternating rounds).
+    Tep {
+        #[arg(long, default_value_t = 1024)]
+        batch: usize,
+        #[arg(long, default_value_t = 2)]
+        threads: usize,
+        /// Seconds of timed updates, and of each guidance variant.
+        #[arg(long, default_value_t = 5.0)]
+        seconds: f64,
+        /// Width of every hidden layer of F and AN.
+        #[arg(long, default_value_t = 512)]
+        hidden: usize,
+        /// Number of hidden layers of F and AN.
+        #[arg(long, default_value_t = 3)]
+        layers: usize,
+        /// Environments of the guided actor.
+        #[arg(long, default_value_t = 8)]
+        envs: usize,
+        /// Task set or comma-separated task names of the actor (the one-hot spans all of them).
+        #[arg(long, default_value = "mt10")]
+        tasks: String,
+        /// Width of every hidden layer of the actor's policy (3 layers).
+        #[arg(long, default_value_t = 400)]
+        policy_hidden: usize,
+        /// Skip the guidance measurement (no MuJoCo needed).
+        #[arg(long)]
+        no_guidance: bool,
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
@@ -149,6 +181,50 @@ pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
                 num_tasks,
             };
             let report = terl_rl::bench::sac_bench(&cfg)?;
+            println!("{}", serde_json::to_string_pretty(&report)?);
+            Ok(ExitCode::SUCCESS)
+        }
+        BenchCommand::Tep {
+            batch,
+            threads,
+            seconds,
+            hidden,
+            layers,
+            envs,
+            tasks,
+            policy_hidden,
+            no_guidance,
+            ..
+        } => {
+            anyhow::ensure!(
+                seconds > 0.0 && seconds.is_finite(),
+                "--seconds must be positive"
+            );
+            anyhow::ensure!(threads > 0, "--threads must be at least 1");
+            anyhow::ensure!(batch > 0, "--batch must be at least 1");
+            anyhow::ensure!(envs > 0, "--envs must be at least 1");
+            anyhow::ensure!(policy_hidden > 0, "--policy-hidden must be at least 1");
+            let cfg = terl_rl::bench_tep::TepBenchConfig {
+                obs_dim: terl_sim::OBS_DIM,
+                act_dim: terl_sim::ACT_DIM,
+                hidden,
+                layers,
+                batch,
+                threads,
+                seconds,
+            };
+            let tep_cfg = cfg.tep_config()?;
+            let tasks = terl_runtime::resolve_tasks(&tasks)?;
+            let mut report = terl_rl::bench_tep::tep_bench(&cfg)?;
+            if !no_guidance {
+                report.guidance = Some(crate::bench_tep::guidance_overhead(
+                    &tasks,
+                    envs,
+                    &[policy_hidden; 3],
+                    &tep_cfg,
+                    seconds,
+                )?);
+            }
             println!("{}", serde_json::to_string_pretty(&report)?);
             Ok(ExitCode::SUCCESS)
         }

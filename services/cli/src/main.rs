@@ -1,6 +1,7 @@
 //! `terl`: the command line of the terl system.
 
 mod bench;
+mod bench_tep;
 mod cluster;
 mod env;
 mod status;
