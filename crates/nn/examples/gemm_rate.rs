@@ -149,29 +149,92 @@ fn main() {
     let shapes: Vec<(&str, usize, usize, usize, Layout)> = vec![
         ("square 1024 col-major", 1024, 1024, 1024, Layout::ColMajor),
         ("square 1024 row·rowT", 1024, 1024, 1024, Layout::RowMajorBt),
-        ("fwd 1280x400x400 col-major", 1280, 400, 400, Layout::ColMajor),
-        ("fwd 1280x400x400 row-major", 1280, 400, 400, Layout::RowMajor),
-        ("fwd 1280x400x400 X·Wᵀ (mlp)", 1280, 400, 400, Layout::RowMajorBt),
-        ("fwd 2560x400x400 X·Wᵀ (mlp)", 2560, 400, 400, Layout::RowMajorBt),
-        ("dW 400x400x1280 dYᵀ·X (mlp)", 400, 400, 1280, Layout::RowMajorAt),
-        ("dW 400x400x1280 col-major", 400, 400, 1280, Layout::ColMajor),
-        ("dX 1280x400x400 dY·W (mlp)", 1280, 400, 400, Layout::RowMajor),
-        ("fwd 1280x400x49 X·Wᵀ (mlp)", 1280, 400, 49, Layout::RowMajorBt),
-        ("fwd 256x400x400 X·Wᵀ (mlp)", 256, 400, 400, Layout::RowMajorBt),
+        (
+            "fwd 1280x400x400 col-major",
+            1280,
+            400,
+            400,
+            Layout::ColMajor,
+        ),
+        (
+            "fwd 1280x400x400 row-major",
+            1280,
+            400,
+            400,
+            Layout::RowMajor,
+        ),
+        (
+            "fwd 1280x400x400 X·Wᵀ (mlp)",
+            1280,
+            400,
+            400,
+            Layout::RowMajorBt,
+        ),
+        (
+            "fwd 2560x400x400 X·Wᵀ (mlp)",
+            2560,
+            400,
+            400,
+            Layout::RowMajorBt,
+        ),
+        (
+            "dW 400x400x1280 dYᵀ·X (mlp)",
+            400,
+            400,
+            1280,
+            Layout::RowMajorAt,
+        ),
+        (
+            "dW 400x400x1280 col-major",
+            400,
+            400,
+            1280,
+            Layout::ColMajor,
+        ),
+        (
+            "dX 1280x400x400 dY·W (mlp)",
+            1280,
+            400,
+            400,
+            Layout::RowMajor,
+        ),
+        (
+            "fwd 1280x400x49 X·Wᵀ (mlp)",
+            1280,
+            400,
+            49,
+            Layout::RowMajorBt,
+        ),
+        (
+            "fwd 256x400x400 X·Wᵀ (mlp)",
+            256,
+            400,
+            400,
+            Layout::RowMajorBt,
+        ),
         ("fwd 256x400x400 col-major", 256, 400, 400, Layout::ColMajor),
-        ("dW 400x400x256 dYᵀ·X (mlp)", 400, 400, 256, Layout::RowMajorAt),
+        (
+            "dW 400x400x256 dYᵀ·X (mlp)",
+            400,
+            400,
+            256,
+            Layout::RowMajorAt,
+        ),
         ("dX 256x400x400 dY·W (mlp)", 256, 400, 400, Layout::RowMajor),
-        ("fwd 256x256x256 X·Wᵀ (mlp)", 256, 256, 256, Layout::RowMajorBt),
+        (
+            "fwd 256x256x256 X·Wᵀ (mlp)",
+            256,
+            256,
+            256,
+            Layout::RowMajorBt,
+        ),
         ("fwd 8x400x400 X·Wᵀ (mlp)", 8, 400, 400, Layout::RowMajorBt),
     ];
     let mut cases: Vec<(&str, Case)> = shapes
         .into_iter()
         .map(|(s, m, n, k, l)| (s, Case::new(m, n, k, l)))
         .collect();
-    let pars = [
-        ("Seq", Par::Seq),
-        ("rayon(2)", Par::rayon(2)),
-    ];
+    let pars = [("Seq", Par::Seq), ("rayon(2)", Par::rayon(2))];
     let mut results = vec![vec![Vec::new(); pars.len()]; cases.len()];
     let mut lanes = 0;
     for _ in 0..rounds {
@@ -199,7 +262,10 @@ fn main() {
         "FMA peak, 1 core, {lanes} f32 lanes, 12 independent chains: median {:.1} GFLOP/s",
         median(&mut peak)
     );
-    println!("{:<32} {:>10} {:>10}   (median GFLOP/s over {rounds} rounds)", "case", pars[0].0, pars[1].0);
+    println!(
+        "{:<32} {:>10} {:>10}   (median GFLOP/s over {rounds} rounds)",
+        "case", pars[0].0, pars[1].0
+    );
     for (ci, (label, _)) in cases.iter().enumerate() {
         println!(
             "{:<32} {:>10.1} {:>10.1}",

@@ -27,6 +27,7 @@ pub mod policy;
 pub mod ptr;
 pub mod replay;
 pub mod sac;
+mod small_mlp;
 pub mod tep;
 pub mod tep_buffer;
 pub mod toy;
