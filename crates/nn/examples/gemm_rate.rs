@@ -1,6 +1,10 @@
 //! faer `f32` GEMM rate for the SAC update's shapes in several operand layouts, sequential and
 //! on a rayon pool, against a plain column-major GEMM of the same size and the core's FMA peak.
 //!   cargo run --release -p terl-nn --example gemm_rate -- [seconds_per_case] [rounds]
+//!
+//! The FMA peak line is the ceiling to compare against, not a vendor figure: a Zen 1 core (CPU
+//! family 23, model 1) splits every 256-bit FMA into two 128-bit halves, so it retires 16 `f32`
+//! FLOP per cycle (about 39 GFLOP/s at its clock), half of what a Zen 2 or later core does.
 
 use faer::linalg::matmul::matmul;
 use faer::traits::pulp::{self, Simd, WithSimd};
