@@ -13,12 +13,13 @@ PYTHON=${PYTHON:-.deps/bench-venv/bin/python}
 # is what PyTorch should get on a shared machine (measured: 3.3 vs 19.3 updates/s, 2x256 b256).
 export OMP_WAIT_POLICY=${OMP_WAIT_POLICY:-PASSIVE}
 cargo build --release -q -p terl-rl --example sac_bench
+BIN=${CARGO_TARGET_DIR:-target}/release/examples/sac_bench
 for round in $(seq "$ROUNDS"); do
   for cfg in "3 400 1280" "3 400 256" "2 256 256"; do
     set -- $cfg
     for threads in 1 2; do
       args=(--layers "$1" --hidden "$2" --batch "$3" --threads "$threads" --seconds "$SECONDS_PER_RUN")
-      ./target/release/examples/sac_bench "${args[@]}"
+      "$BIN" "${args[@]}"
       CUDA_VISIBLE_DEVICES= "$PYTHON" deploy/bench/sac_torch.py "${args[@]}"
     done
   done
