@@ -90,20 +90,25 @@ pub struct GuidanceOverhead {
     pub rounds: usize,
     /// Median time of one actor step (`Policy::act` + `VecEnv::step` for all envs), in µs.
     pub step_us_without: f64,
-    /// The same with guidance: goal states, `Planner::reach` and `Planner::actions` on all
-    /// rows, `Guidance::decide` per env.
+    /// The same with guidance as the actor runs it ([`crate::guidance::BatchGuidance`]) at the
+    /// start of guidance (`N = 0`, `σ^N = 1`: F on every row, AN on the guided ones).
     pub step_us_with: f64,
     /// Median over rounds of `(with − without) / without`.
     pub guidance_overhead_ratio: f64,
     /// Fraction of steps that executed the planner's action (random weights: not meaningful
     /// for learning, only a check that the path runs).
     pub guided_fraction: f64,
-    /// Median step time when `AN` runs only on the rows guidance selects (after deciding).
-    pub step_us_with_lazy_an: f64,
-    /// Median over rounds of `(with_lazy_an − without) / without`.
-    pub guidance_overhead_ratio_lazy_an: f64,
-    /// `guided_fraction` of the lazy variant.
-    pub guided_fraction_lazy_an: f64,
+    /// Finished episodes `N` of the decayed variant.
+    pub decayed_episodes: u64,
+    /// `σ^N` of the decayed variant.
+    pub decayed_probability: f64,
+    /// Median step time with guidance after `decayed_episodes` episodes: F only where a
+    /// decision can use it (about `2σ^N` of the rows).
+    pub step_us_with_decayed: f64,
+    /// Median over rounds of `(with_decayed − without) / without`.
+    pub guidance_overhead_ratio_decayed: f64,
+    /// `guided_fraction` of the decayed variant.
+    pub guided_fraction_decayed: f64,
 }
 
 /// Measured numbers (the same fields as the PyTorch script's JSON, plus `guidance`).

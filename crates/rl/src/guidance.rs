@@ -14,6 +14,7 @@
 //! `f_{t−1}` and is never guided. The random number is drawn at every step (guided or not), so
 //! the stream of draws does not depend on F.
 
+use crate::tep::{Planner, TepConfig};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 
@@ -157,6 +158,14 @@ impl Guidance {
         guided
     }
 
+    /// One step decided without evaluating F, because the draw made guidance impossible both
+    /// now and at the next step (see [`BatchGuidance`]): never guided, and the next step has no
+    /// `f_{t−1}` (it is not guided either, which its own draw already decided).
+    pub fn skip(&mut self) {
+        self.prev = None;
+        self.steps += 1;
+    }
+
     /// The episode ended: forget `f_{t−1}` and count it (`N += 1`).
     pub fn end_episode(&mut self) {
         self.prev = None;
@@ -185,5 +194,181 @@ impl Guidance {
         } else {
             self.guided as f64 / self.steps as f64
         }
+    }
+}
+
+/// Eq. 15 for an actor's `E` environments with one planner, computing only what a decision can
+/// use:
+///
+/// - The uniform draw `u_t` of each environment is taken one step ahead. A step needs
+///   `f_t = F(s_t, g, π(s_t))` only if `u_t < σ^N` (this step may be guided: compare with
+///   `f_{t−1}`) or `u_{t+1} < σ^N` (the next step may be: it compares with `f_t`); otherwise F
+///   is skipped for that environment ([`Guidance::skip`]). Decisions are exactly those of
+///   evaluating F everywhere with the same draws, and the cost decays with `σ^N`.
+/// - `AN(s_t, g)` runs only on the rows that are guided.
+///
+/// F and AN run on the needed rows gathered into one small batch each.
+#[derive(Debug)]
+pub struct BatchGuidance {
+    planner: Planner,
+    per_env: Vec<Guidance>,
+    targets: Vec<GoalTarget>,
+    next_draw: Vec<Option<f64>>,
+    guided: Vec<bool>,
+    obs_dim: usize,
+    act_dim: usize,
+    rows: Vec<usize>,
+    draws: Vec<f64>,
+    obs: Vec<f32>,
+    goals: Vec<f32>,
+    actions: Vec<f32>,
+    reach: Vec<f32>,
+    planned: Vec<f32>,
+    f_rows: u64,
+    an_rows: u64,
+}
+
+impl BatchGuidance {
+    /// Guidance for environments whose goal targets are `targets` (one per environment), with a
+    /// planner shaped by `config` (weights are a placeholder until [`Self::planner_mut`] loads
+    /// real ones; nothing is guided before that).
+    pub fn new(config: &TepConfig, sigma: f64, targets: Vec<GoalTarget>) -> Self {
+        let n = targets.len();
+        let (od, ad) = (config.obs_dim, config.act_dim);
+        Self {
+            planner: Planner::new(config, n.max(1)),
+            per_env: (0..n).map(|_| Guidance::new(sigma)).collect(),
+            next_draw: vec![None; n],
+            guided: vec![false; n],
+            obs_dim: od,
+            act_dim: ad,
+            rows: Vec::with_capacity(n),
+            draws: vec![0.0; n],
+            obs: vec![0.0; n * od],
+            goals: vec![0.0; n * od],
+            actions: vec![0.0; n * ad],
+            reach: vec![0.0; n],
+            planned: vec![0.0; n * ad],
+            targets,
+            f_rows: 0,
+            an_rows: 0,
+        }
+    }
+
+    /// Starts every environment at `episodes` finished episodes (benchmarks, restarts).
+    pub fn with_episodes(mut self, episodes: u64) -> Self {
+        for g in &mut self.per_env {
+            *g = Guidance::with_episodes(g.sigma, episodes);
+        }
+        self
+    }
+
+    pub fn planner(&self) -> &Planner {
+        &self.planner
+    }
+
+    pub fn planner_mut(&mut self) -> &mut Planner {
+        &mut self.planner
+    }
+
+    /// Whether planner weights were loaded (version > 0): guidance only acts then.
+    pub fn active(&self) -> bool {
+        self.planner.version() > 0
+    }
+
+    /// Which environments executed the planner's action at the last [`Self::apply`].
+    pub fn guided(&self) -> &[bool] {
+        &self.guided
+    }
+
+    /// `(decisions, F rows evaluated, AN rows evaluated)` so far.
+    pub fn counts(&self) -> (u64, u64, u64) {
+        let decisions = self.per_env.iter().map(|g| g.counts().0).sum();
+        (decisions, self.f_rows, self.an_rows)
+    }
+
+    /// Replaces the rows of `actions` (the policy's, `E × act_dim`) that Eq. 15 guides with
+    /// `AN(s, g(s))`; `obs` is `E × obs_dim`. Returns how many rows were guided.
+    pub fn apply(&mut self, obs: &[f32], actions: &mut [f32], rng: &mut impl Rng) -> usize {
+        let (od, ad) = (self.obs_dim, self.act_dim);
+        let n = self.per_env.len();
+        assert!(
+            obs.len() == n * od && actions.len() == n * ad,
+            "one row per environment"
+        );
+        self.guided.fill(false);
+        if !self.active() {
+            return 0;
+        }
+        self.rows.clear();
+        for i in 0..n {
+            let u_t = self.next_draw[i].take().unwrap_or_else(|| rng.gen());
+            let u_next: f64 = rng.gen();
+            self.next_draw[i] = Some(u_next);
+            let p = self.per_env[i].probability();
+            if u_t < p || u_next < p {
+                self.draws[self.rows.len()] = u_t;
+                self.rows.push(i);
+            } else {
+                self.per_env[i].skip();
+            }
+        }
+        let k = self.rows.len();
+        if k == 0 {
+            return 0;
+        }
+        for (j, &i) in self.rows.iter().enumerate() {
+            let o = &obs[i * od..(i + 1) * od];
+            self.obs[j * od..(j + 1) * od].copy_from_slice(o);
+            goal_state_into(o, self.targets[i], &mut self.goals[j * od..(j + 1) * od]);
+            self.actions[j * ad..(j + 1) * ad].copy_from_slice(&actions[i * ad..(i + 1) * ad]);
+        }
+        self.planner.reach(
+            &self.obs[..k * od],
+            &self.goals[..k * od],
+            &self.actions[..k * ad],
+            &mut self.reach[..k],
+        );
+        self.f_rows += k as u64;
+        // Compact the guided rows to the front of the gathered buffers.
+        let mut m = 0;
+        for j in 0..k {
+            let i = self.rows[j];
+            if self.per_env[i].decide_with_draw(f64::from(self.reach[j]), self.draws[j]) {
+                self.guided[i] = true;
+                self.rows[m] = i;
+                self.obs.copy_within(j * od..(j + 1) * od, m * od);
+                self.goals.copy_within(j * od..(j + 1) * od, m * od);
+                m += 1;
+            }
+        }
+        if m == 0 {
+            return 0;
+        }
+        self.planner.actions(
+            &self.obs[..m * od],
+            &self.goals[..m * od],
+            &mut self.planned[..m * ad],
+        );
+        self.an_rows += m as u64;
+        for (j, &i) in self.rows[..m].iter().enumerate() {
+            for (d, &p) in actions[i * ad..(i + 1) * ad]
+                .iter_mut()
+                .zip(&self.planned[j * ad..(j + 1) * ad])
+            {
+                *d = p.clamp(-1.0, 1.0);
+            }
+        }
+        m
+    }
+
+    /// Environment `env` finished an episode. `N` counts episodes since guidance became
+    /// active (the first planner version): counting earlier ones would decay the probability
+    /// to nothing before a planner exists.
+    pub fn end_episode(&mut self, env: usize) {
+        if self.active() {
+            self.per_env[env].end_episode();
+        }
+        self.next_draw[env] = None;
     }
 }

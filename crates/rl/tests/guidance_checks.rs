@@ -80,3 +80,102 @@ fn goal_state_replaces_object_or_hand_position_with_the_goal() {
     assert_eq!(GoalTarget::for_task("reach-v3"), GoalTarget::Hand);
     assert_eq!(GoalTarget::for_task("pick-place"), GoalTarget::Object);
 }
+
+/// The batched actor-side guidance (F only where a decision can use it, AN only on guided
+/// rows) decides exactly as the plain rule with F evaluated everywhere and the same draws,
+/// and its F work shrinks as σ^N decays.
+#[test]
+fn batch_guidance_matches_the_plain_rule_and_skips_unneeded_evaluations() {
+    use rand::Rng;
+    use terl_rl::guidance::{goal_state_into, BatchGuidance};
+    use terl_rl::{Tep, TepConfig};
+
+    let (e, od, ad, sigma) = (6usize, 39usize, 4usize, 0.9);
+    let cfg = TepConfig {
+        f_hidden: vec![32],
+        an_hidden: vec![32],
+        seed: 5,
+        ..TepConfig::default()
+    };
+    let tep: Tep<f32> = Tep::new(cfg.clone()).unwrap();
+    let (f, an) = tep.planner_params_f32();
+    let targets: Vec<GoalTarget> = (0..e)
+        .map(|i| {
+            if i % 2 == 0 {
+                GoalTarget::Hand
+            } else {
+                GoalTarget::Object
+            }
+        })
+        .collect();
+    let mut batch = BatchGuidance::new(&cfg, sigma, targets.clone());
+    assert_eq!(
+        batch.apply(
+            &vec![0.0; e * od],
+            &mut vec![0.0; e * ad],
+            &mut ChaCha8Rng::seed_from_u64(0)
+        ),
+        0,
+        "inactive without weights"
+    );
+    batch.planner_mut().set_params(&f, &an, 1).unwrap();
+    let mut reference = tep.planner(1);
+    let mut plain: Vec<Guidance> = (0..e).map(|_| Guidance::new(sigma)).collect();
+
+    // The batch draws u_t one step ahead: replay its draw order to get the same numbers.
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let mut shadow = ChaCha8Rng::seed_from_u64(11);
+    let mut ahead: Vec<Option<f64>> = vec![None; e];
+    let mut data = ChaCha8Rng::seed_from_u64(3);
+    let (mut guided_total, mut f_late) = (0usize, 0u64);
+    for step in 0..400 {
+        let obs: Vec<f32> = (0..e * od).map(|_| data.gen_range(-1.0..1.0)).collect();
+        let policy: Vec<f32> = (0..e * ad).map(|_| data.gen_range(-1.0..1.0)).collect();
+        let mut actions = policy.clone();
+        let (_, f_before, _) = batch.counts();
+        let n = batch.apply(&obs, &mut actions, &mut rng);
+        guided_total += n;
+        if step >= 300 {
+            f_late += batch.counts().1 - f_before;
+        }
+        for i in 0..e {
+            let u_t = ahead[i].take().unwrap_or_else(|| shadow.gen());
+            ahead[i] = Some(shadow.gen());
+            let o = &obs[i * od..(i + 1) * od];
+            let mut g = vec![0.0; od];
+            goal_state_into(o, targets[i], &mut g);
+            let mut out = [0.0f32];
+            reference.reach(o, &g, &policy[i * ad..(i + 1) * ad], &mut out);
+            let want = plain[i].decide_with_draw(f64::from(out[0]), u_t);
+            assert_eq!(batch.guided()[i], want, "step {step}, env {i}");
+            let row = &actions[i * ad..(i + 1) * ad];
+            if want {
+                let mut a = [0.0f32; 4];
+                reference.actions(o, &g, &mut a);
+                for (x, y) in row.iter().zip(a) {
+                    assert!((x - y.clamp(-1.0, 1.0)).abs() < 1e-5);
+                }
+            } else {
+                assert_eq!(row, &policy[i * ad..(i + 1) * ad]);
+            }
+        }
+        // Episodes of 10 steps: N grows, σ^N decays (0.9^40 ≈ 0.015 at the end).
+        if step % 10 == 9 {
+            for i in 0..e {
+                batch.end_episode(i);
+                plain[i].end_episode();
+                ahead[i] = None;
+            }
+        }
+    }
+    assert!(guided_total > 20, "some steps were guided: {guided_total}");
+    let (decisions, f_rows, an_rows) = batch.counts();
+    assert_eq!(decisions, 400 * e as u64);
+    assert_eq!(an_rows, guided_total as u64);
+    // Late in the run F is needed on only a few rows (p ≈ 0.02–0.05: about 2p of them).
+    assert!(
+        f_late < 100 * e as u64 / 5,
+        "F rows in the last 100 steps: {f_late}"
+    );
+    assert!(f_rows < decisions);
+}

@@ -7,8 +7,8 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use terl_rl::guidance::{goal_state_into, GoalTarget, Guidance};
-use terl_rl::{Planner, Policy, PolicySpec};
+use terl_rl::guidance::{BatchGuidance, GoalTarget};
+use terl_rl::{Policy, PolicySpec};
 use terl_runtime::{Algorithm, RunConfig};
 use terl_sim::VecEnv;
 use terl_transport::{
@@ -55,84 +55,6 @@ fn send<M: Message>(
     }
 }
 
-/// TERL guidance for the actor's `E` environments (Eq. 15; see `terl_rl::guidance`).
-///
-/// `N` in `σ^N` counts the episodes an environment finished since the first planner weights
-/// arrived: guidance cannot happen before, and counting earlier episodes would decay the
-/// probability to nothing before the planner exists (the selection gate opens late).
-struct Guide {
-    planner: Planner,
-    per_env: Vec<Guidance>,
-    targets: Vec<GoalTarget>,
-    goals: Vec<f32>,
-    reach: Vec<f32>,
-    planned: Vec<f32>,
-    guided: Vec<bool>,
-}
-
-impl Guide {
-    fn new(run: &RunConfig, env_task_names: &[&str]) -> Self {
-        let n = env_task_names.len();
-        let mut cfg = run.tep.clone();
-        cfg.obs_dim = OBS_DIM;
-        cfg.act_dim = ACTION_DIM;
-        Self {
-            planner: Planner::new(&cfg, n),
-            per_env: (0..n).map(|_| Guidance::new(run.guidance.sigma)).collect(),
-            targets: env_task_names
-                .iter()
-                .map(|t| GoalTarget::for_task(t))
-                .collect(),
-            goals: vec![0.0; n * OBS_DIM],
-            reach: vec![0.0; n],
-            planned: vec![0.0; n * ACTION_DIM],
-            guided: vec![false; n],
-        }
-    }
-
-    fn active(&self) -> bool {
-        self.planner.version() > 0
-    }
-
-    /// Replaces rows of `actions` by the Action Network's where Eq. 15 says so; marks them in
-    /// `self.guided`.
-    fn apply(&mut self, obs: &[f32], actions: &mut [f32], rng: &mut impl Rng) {
-        self.guided.fill(false);
-        if !self.active() {
-            return;
-        }
-        for (i, target) in self.targets.iter().enumerate() {
-            goal_state_into(
-                &obs[i * OBS_DIM..(i + 1) * OBS_DIM],
-                *target,
-                &mut self.goals[i * OBS_DIM..(i + 1) * OBS_DIM],
-            );
-        }
-        self.planner
-            .reach(obs, &self.goals, actions, &mut self.reach);
-        let mut any = false;
-        for (i, g) in self.per_env.iter_mut().enumerate() {
-            self.guided[i] = g.decide(f64::from(self.reach[i]), rng);
-            any |= self.guided[i];
-        }
-        if any {
-            self.planner.actions(obs, &self.goals, &mut self.planned);
-            for (i, _) in self.guided.iter().enumerate().filter(|(_, g)| **g) {
-                let a = &mut actions[i * ACTION_DIM..(i + 1) * ACTION_DIM];
-                for (d, &p) in a.iter_mut().zip(&self.planned[i * ACTION_DIM..]) {
-                    *d = p.clamp(-1.0, 1.0);
-                }
-            }
-        }
-    }
-
-    fn end_episode(&mut self, env: usize) {
-        if self.active() {
-            self.per_env[env].end_episode();
-        }
-    }
-}
-
 fn row<const N: usize>(flat: &[f32], i: usize) -> [f32; N] {
     flat[i * N..(i + 1) * N]
         .try_into()
@@ -172,7 +94,17 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
     let mut policy = Policy::new(spec, num_envs);
     let policy_tasks: Vec<usize> = global_task.iter().map(|&t| usize::from(t)).collect();
     let env_task_names: Vec<&str> = env.env_tasks().iter().map(|&k| env.tasks()[k]).collect();
-    let mut guide = (run.algorithm == Algorithm::Terl).then(|| Guide::new(run, &env_task_names));
+    // TERL guidance (Eq. 15); `N` counts episodes since the first planner version.
+    let mut guide = (run.algorithm == Algorithm::Terl).then(|| {
+        let mut cfg = run.tep.clone();
+        cfg.obs_dim = OBS_DIM;
+        cfg.act_dim = ACTION_DIM;
+        let targets = env_task_names
+            .iter()
+            .map(|t| GoalTarget::for_task(t))
+            .collect();
+        BatchGuidance::new(&cfg, run.guidance.sigma, targets)
+    });
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
 
     let transport_config = TransportConfig {
@@ -224,7 +156,7 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
         if let Some(g) = guide.as_mut() {
             let fresh = mailbox.planner.lock().ok().and_then(|mut s| s.take());
             if let Some((version, f, an)) = fresh {
-                match g.planner.set_params(&f, &an, version) {
+                match g.planner_mut().set_params(&f, &an, version) {
                     Ok(()) => tracing::debug!(version, "loaded planner weights"),
                     Err(e) => tracing::warn!(version, "ignoring planner weights: {e}"),
                 }
@@ -255,7 +187,7 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
             if env.success()[i] {
                 f |= flags::SUCCESS;
             }
-            if guide.as_ref().is_some_and(|g| g.guided[i]) {
+            if guide.as_ref().is_some_and(|g| g.guided()[i]) {
                 f |= flags::GUIDED;
                 guided_steps += 1;
                 trajectories[i].guided_steps = trajectories[i].guided_steps.saturating_add(1);
@@ -327,7 +259,7 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
                 episodes = episodes_done,
                 successes,
                 guided_steps,
-                planner_version = guide.as_ref().map_or(0, |g| g.planner.version()),
+                planner_version = guide.as_ref().map_or(0, |g| g.planner().version()),
                 transitions = ?transitions.stats(),
                 "progress"
             );

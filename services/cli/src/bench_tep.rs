@@ -2,15 +2,11 @@
 //! of guidance, which needs real Meta-World environments (hence here, not in `terl-rl`).
 //!
 //! The actor step is what `terl-actor`'s loop does per step: `Policy::act` on E observations,
-//! then `VecEnv::step`. With guidance it also builds E goal states (`goal_state_into`), runs
-//! `Planner::reach` on the policy's actions and `Planner::actions` on all E rows, and lets each
-//! environment's `Guidance::decide` swap in the planner's action. The variants run on their own
-//! `VecEnv` (same tasks, same seed) in alternating rounds; per-step times and their ratio are
-//! medians over rounds, as `terl bench env` does, so background load hits both alike.
-//!
-//! A third variant evaluates `AN` lazily: `Guidance::decide` first (it needs only `F`), then `AN`
-//! on just the guided rows, and not at all when no row is guided (the common case once `σ^N`
-//! has decayed). Same decisions, same executed actions; only the unused `AN` rows are skipped.
+//! then `VecEnv::step`. With guidance it also runs `BatchGuidance::apply`, exactly as the actor
+//! does: goal states, F on the rows whose decision can need it, Eq. 15, AN on the guided rows.
+//! Three variants (without; with at `N = 0`; with after `DECAYED_EPISODES` episodes) run on
+//! their own `VecEnv` (same tasks, same seed) in alternating rounds; per-step times and ratios
+//! are medians over rounds, as `terl bench env` does, so background load hits all alike.
 
 use std::time::{Duration, Instant};
 
@@ -18,30 +14,15 @@ use anyhow::Result;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use terl_rl::bench_tep::{median, GuidanceOverhead};
-use terl_rl::guidance::{goal_state_into, GoalTarget, Guidance, GuidanceConfig};
-use terl_rl::{Planner, Policy, PolicySpec, TepConfig};
+use terl_rl::guidance::{guidance_probability, BatchGuidance, GoalTarget, GuidanceConfig};
+use terl_rl::{Policy, PolicySpec, Tep, TepConfig};
 use terl_sim::{VecEnv, ACT_DIM, OBS_DIM};
 
 /// Alternating rounds of the guidance measurement.
 pub const ROUNDS: usize = 10;
 
-/// The guidance part of one actor: planner, goal states, per-env rule state.
-struct Guide {
-    /// Evaluate `AN` only on the rows the rule guides (else on all rows, before deciding).
-    lazy: bool,
-    /// Rows of the lazy `AN` call: observations, goals, indices.
-    lazy_obs: Vec<f32>,
-    lazy_goals: Vec<f32>,
-    lazy_rows: Vec<usize>,
-    planner: Planner,
-    targets: Vec<GoalTarget>,
-    goals: Vec<f32>,
-    reach: Vec<f32>,
-    planned: Vec<f32>,
-    rules: Vec<Guidance>,
-    guided: u64,
-    decided: u64,
-}
+/// Episodes the decayed variant has finished (σ^N = 0.98^100 ≈ 0.13).
+pub const DECAYED_EPISODES: u64 = 100;
 
 /// One actor's per-step work, optionally guided.
 struct ActorLoop {
@@ -51,7 +32,7 @@ struct ActorLoop {
     obs: Vec<f32>,
     actions: Vec<f32>,
     rng: ChaCha8Rng,
-    guide: Option<Guide>,
+    guide: Option<BatchGuidance>,
 }
 
 impl ActorLoop {
@@ -60,7 +41,7 @@ impl ActorLoop {
         num_envs: usize,
         policy_hidden: &[usize],
         planner: Option<&TepConfig>,
-        lazy: bool,
+        episodes: u64,
     ) -> Result<Self> {
         let env = VecEnv::round_robin(all_tasks, num_envs, 3)?;
         let tasks: Vec<usize> = env
@@ -81,23 +62,20 @@ impl ActorLoop {
             hidden: policy_hidden.to_vec(),
         };
         let sigma = GuidanceConfig::default().sigma;
-        let guide = planner.map(|cfg| Guide {
-            lazy,
-            lazy_obs: Vec::with_capacity(num_envs * OBS_DIM),
-            lazy_goals: Vec::with_capacity(num_envs * OBS_DIM),
-            lazy_rows: Vec::with_capacity(num_envs),
-            planner: Planner::new(cfg, num_envs),
-            targets: tasks
-                .iter()
-                .map(|&t| GoalTarget::for_task(all_tasks[t]))
-                .collect(),
-            goals: vec![0.0; num_envs * OBS_DIM],
-            reach: vec![0.0; num_envs],
-            planned: vec![0.0; num_envs * ACT_DIM],
-            rules: (0..num_envs).map(|_| Guidance::new(sigma)).collect(),
-            guided: 0,
-            decided: 0,
-        });
+        let guide = match planner {
+            Some(cfg) => {
+                let targets = tasks
+                    .iter()
+                    .map(|&t| GoalTarget::for_task(all_tasks[t]))
+                    .collect();
+                let mut g = BatchGuidance::new(cfg, sigma, targets).with_episodes(episodes);
+                // Real (random) weights with a version, so guidance is active.
+                let (f, an) = Tep::<f32>::new(cfg.clone())?.planner_params_f32();
+                g.planner_mut().set_params(&f, &an, 1)?;
+                Some(g)
+            }
+            None => None,
+        };
         Ok(Self {
             obs: env.obs().to_vec(),
             actions: vec![0.0; num_envs * ACT_DIM],
@@ -118,55 +96,12 @@ impl ActorLoop {
             &mut self.actions,
         )?;
         if let Some(g) = &mut self.guide {
-            let rows = self.obs.chunks_exact(OBS_DIM);
-            for ((obs, goal), &target) in
-                rows.zip(g.goals.chunks_exact_mut(OBS_DIM)).zip(&g.targets)
-            {
-                goal_state_into(obs, target, goal);
-            }
-            g.planner
-                .reach(&self.obs, &g.goals, &self.actions, &mut g.reach);
-            if g.lazy {
-                g.lazy_rows.clear();
-                for (i, rule) in g.rules.iter_mut().enumerate() {
-                    if rule.decide(f64::from(g.reach[i]), &mut self.rng) {
-                        g.lazy_rows.push(i);
-                    }
-                }
-                g.decided += g.rules.len() as u64;
-                if !g.lazy_rows.is_empty() {
-                    g.lazy_obs.clear();
-                    g.lazy_goals.clear();
-                    for &i in &g.lazy_rows {
-                        let row = i * OBS_DIM..(i + 1) * OBS_DIM;
-                        g.lazy_obs.extend_from_slice(&self.obs[row.clone()]);
-                        g.lazy_goals.extend_from_slice(&g.goals[row]);
-                    }
-                    let n = g.lazy_rows.len();
-                    let planned = &mut g.planned[..n * ACT_DIM];
-                    g.planner.actions(&g.lazy_obs, &g.lazy_goals, planned);
-                    for (k, &i) in g.lazy_rows.iter().enumerate() {
-                        self.actions[i * ACT_DIM..(i + 1) * ACT_DIM]
-                            .copy_from_slice(&planned[k * ACT_DIM..(k + 1) * ACT_DIM]);
-                    }
-                    g.guided += n as u64;
-                }
-            } else {
-                g.planner.actions(&self.obs, &g.goals, &mut g.planned);
-                for (i, rule) in g.rules.iter_mut().enumerate() {
-                    if rule.decide(f64::from(g.reach[i]), &mut self.rng) {
-                        let row = i * ACT_DIM..(i + 1) * ACT_DIM;
-                        self.actions[row.clone()].copy_from_slice(&g.planned[row]);
-                        g.guided += 1;
-                    }
-                    g.decided += 1;
-                }
-            }
+            g.apply(&self.obs, &mut self.actions, &mut self.rng);
         }
         self.env.step(&self.actions)?;
         if let Some(g) = &mut self.guide {
             for end in self.env.finished() {
-                g.rules[end.env].end_episode();
+                g.end_episode(end.env);
             }
         }
         self.obs.copy_from_slice(self.env.obs());
@@ -201,11 +136,17 @@ pub fn guidance_overhead(
         planner.obs_dim == OBS_DIM && planner.act_dim == ACT_DIM,
         "guidance needs the Meta-World planner dimensions {OBS_DIM}/{ACT_DIM}"
     );
-    // Without guidance, with it, with it and lazy AN.
+    // Without guidance, with it at N = 0, with it after DECAYED_EPISODES episodes.
     let mut actors = [
-        ActorLoop::new(tasks, num_envs, policy_hidden, None, false)?,
-        ActorLoop::new(tasks, num_envs, policy_hidden, Some(planner), false)?,
-        ActorLoop::new(tasks, num_envs, policy_hidden, Some(planner), true)?,
+        ActorLoop::new(tasks, num_envs, policy_hidden, None, 0)?,
+        ActorLoop::new(tasks, num_envs, policy_hidden, Some(planner), 0)?,
+        ActorLoop::new(
+            tasks,
+            num_envs,
+            policy_hidden,
+            Some(planner),
+            DECAYED_EPISODES,
+        )?,
     ];
     // Warm-up: first steps touch cold caches and code.
     for actor in &mut actors {
@@ -213,7 +154,7 @@ pub fn guidance_overhead(
     }
     let slice = Duration::from_secs_f64(seconds / ROUNDS as f64);
     let mut times: [Vec<f64>; 3] = Default::default();
-    let (mut ratios, mut lazy_ratios) = (Vec::new(), Vec::new());
+    let (mut ratios, mut decayed_ratios) = (Vec::new(), Vec::new());
     for round in 0..ROUNDS {
         // Rotate the order so no variant always follows the same one.
         let mut t = [0.0; 3];
@@ -225,13 +166,14 @@ pub fn guidance_overhead(
             times.push(t);
         }
         ratios.push((t[1] - t[0]) / t[0]);
-        lazy_ratios.push((t[2] - t[0]) / t[0]);
+        decayed_ratios.push((t[2] - t[0]) / t[0]);
     }
     let fraction = |a: &ActorLoop| {
         let g = a.guide.as_ref().expect("a guided loop has a guide");
-        g.guided as f64 / g.decided.max(1) as f64
+        let (decided, _, guided) = g.counts();
+        guided as f64 / decided.max(1) as f64
     };
-    let [t_without, t_with, t_lazy] = times;
+    let [t_without, t_with, t_decayed] = times;
     Ok(GuidanceOverhead {
         num_envs,
         tasks: tasks.iter().map(|t| t.to_string()).collect(),
@@ -241,9 +183,14 @@ pub fn guidance_overhead(
         step_us_with: median(t_with),
         guidance_overhead_ratio: median(ratios),
         guided_fraction: fraction(&actors[1]),
-        step_us_with_lazy_an: median(t_lazy),
-        guidance_overhead_ratio_lazy_an: median(lazy_ratios),
-        guided_fraction_lazy_an: fraction(&actors[2]),
+        decayed_episodes: DECAYED_EPISODES,
+        decayed_probability: guidance_probability(
+            GuidanceConfig::default().sigma,
+            DECAYED_EPISODES,
+        ),
+        step_us_with_decayed: median(t_decayed),
+        guidance_overhead_ratio_decayed: median(decayed_ratios),
+        guided_fraction_decayed: fraction(&actors[2]),
     })
 }
 
@@ -267,8 +214,9 @@ mod tests {
         assert!((0.0..=1.0).contains(&r.guided_fraction));
         // The first step of an episode is never guided, later ones may be.
         assert!(r.guided_fraction < 1.0);
-        assert!(r.step_us_with_lazy_an > 0.0 && r.guidance_overhead_ratio_lazy_an > -1.0);
-        assert!((0.0..1.0).contains(&r.guided_fraction_lazy_an));
+        assert!(r.step_us_with_decayed > 0.0 && r.guidance_overhead_ratio_decayed > -1.0);
+        assert!(r.guided_fraction_decayed < r.guided_fraction.max(1e-9));
+        assert!((r.decayed_probability - 0.98f64.powi(100)).abs() < 1e-12);
     }
 
     #[test]
