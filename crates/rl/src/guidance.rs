@@ -200,11 +200,16 @@ impl Guidance {
 /// Eq. 15 for an actor's `E` environments with one planner, computing only what a decision can
 /// use:
 ///
-/// - The uniform draw `u_t` of each environment is taken one step ahead. A step needs
-///   `f_t = F(s_t, g, π(s_t))` only if `u_t < σ^N` (this step may be guided: compare with
-///   `f_{t−1}`) or `u_{t+1} < σ^N` (the next step may be: it compares with `f_t`); otherwise F
-///   is skipped for that environment ([`Guidance::skip`]). Decisions are exactly those of
-///   evaluating F everywhere with the same draws, and the cost decays with `σ^N`.
+/// - One uniform draw `u_t` per actor step, shared by its environments, taken one step ahead.
+///   Each environment still compares a uniform draw with its own `σ^N`, so each is guided with
+///   the rule's probability; sharing the draw only correlates the environments of one actor,
+///   and makes F skippable for the whole batch at once (a small-batch F costs about the same
+///   for 1 row as for 8: it is bound by reading the weights).
+/// - An environment needs `f_t = F(s_t, g, π(s_t))` only if `u_t < σ^N` (this step may be
+///   guided: compare with `f_{t−1}`) or `u_{t+1} < σ^N` (the next step may be: it compares with
+///   `f_t`); otherwise F is skipped for it ([`Guidance::skip`]). Decisions are exactly those of
+///   evaluating F everywhere with the same draws, and the cost decays with `σ^N`: about `2σ^N`
+///   of the steps evaluate F at all.
 /// - `AN(s_t, g)` runs only on the rows that are guided.
 ///
 /// F and AN run on the needed rows gathered into one small batch each.
@@ -213,7 +218,7 @@ pub struct BatchGuidance {
     planner: Planner,
     per_env: Vec<Guidance>,
     targets: Vec<GoalTarget>,
-    next_draw: Vec<Option<f64>>,
+    next_draw: Option<f64>,
     guided: Vec<bool>,
     obs_dim: usize,
     act_dim: usize,
@@ -238,7 +243,7 @@ impl BatchGuidance {
         Self {
             planner: Planner::new(config, n.max(1)),
             per_env: (0..n).map(|_| Guidance::new(sigma)).collect(),
-            next_draw: vec![None; n],
+            next_draw: None,
             guided: vec![false; n],
             obs_dim: od,
             act_dim: ad,
@@ -301,10 +306,10 @@ impl BatchGuidance {
             return 0;
         }
         self.rows.clear();
+        let u_t = self.next_draw.take().unwrap_or_else(|| rng.gen());
+        let u_next: f64 = rng.gen();
+        self.next_draw = Some(u_next);
         for i in 0..n {
-            let u_t = self.next_draw[i].take().unwrap_or_else(|| rng.gen());
-            let u_next: f64 = rng.gen();
-            self.next_draw[i] = Some(u_next);
             let p = self.per_env[i].probability();
             if u_t < p || u_next < p {
                 self.draws[self.rows.len()] = u_t;
@@ -369,6 +374,5 @@ impl BatchGuidance {
         if self.active() {
             self.per_env[env].end_episode();
         }
-        self.next_draw[env] = None;
     }
 }
