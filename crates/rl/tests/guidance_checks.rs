@@ -161,9 +161,9 @@ fn batch_guidance_matches_the_plain_rule_and_skips_unneeded_evaluations() {
         }
         // Episodes of 10 steps: N grows, σ^N decays (0.9^40 ≈ 0.015 at the end).
         if step % 10 == 9 {
-            for i in 0..e {
+            for (i, rule) in plain.iter_mut().enumerate() {
                 batch.end_episode(i);
-                plain[i].end_episode();
+                rule.end_episode();
             }
         }
     }
