@@ -71,7 +71,16 @@ stop() {
     echo "[cluster] stopping ${#pids[@]} processes" >&2
     for p in "${pids[@]}"; do kill -TERM "$p" 2>/dev/null || true; done
     stop_code=0
-    for p in "${pids[@]}"; do wait "$p" || stop_code=$?; done
+    for p in "${pids[@]}"; do
+        code=0
+        wait "$p" || code=$?
+        # A signal reaching this script interrupts `wait` (status > 128) before the child exits.
+        while [ "$code" -gt 128 ] && kill -0 "$p" 2>/dev/null; do
+            code=0
+            wait "$p" || code=$?
+        done
+        [ "$code" -gt "$stop_code" ] && stop_code=$code
+    done
     rm -f runs/.cluster.pid
     echo "[cluster] stopped (worst exit code ${stop_code}; run folder $out)" >&2
 }

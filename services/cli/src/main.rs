@@ -4,6 +4,7 @@ mod bench;
 mod bench_tep;
 mod cluster;
 mod env;
+mod report;
 mod status;
 mod train;
 
@@ -36,6 +37,9 @@ enum Command {
     /// The local cluster: up (deploy/local-cluster.sh) and down.
     #[command(subcommand)]
     Cluster(cluster::ClusterCommand),
+    /// Evaluation report of a cluster run: success-rate table and learning curves from its
+    /// MCAP logs (report.md, learning-curves.svg).
+    Report(report::ReportArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -63,5 +67,6 @@ fn run(cli: Cli) -> Result<std::process::ExitCode> {
         Command::Train(a) => train::run(a),
         Command::Status(a) => status::run(a),
         Command::Cluster(c) => cluster::run(c),
+        Command::Report(a) => report::run(a),
     }
 }

@@ -357,6 +357,25 @@ fn cluster_trains_and_shuts_down_cleanly() {
         .iter()
         .all(|e| e.length == 500 && e.guided_steps == 0));
 
+    // The run's report: one table row per task with the logged episode counts, and a chart.
+    let out = Command::new(env!("CARGO_BIN_EXE_terl"))
+        .args(["report", run_dir.to_str().unwrap(), "--window", "10"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let md = std::fs::read_to_string(run_dir.join("report.md")).unwrap();
+    for task in ["reach-v3", "push-v3"] {
+        let n = episodes.records.iter().filter(|e| e.task == task).count();
+        assert!(md.contains(&format!("| {task} | {n} | ")), "{task}: {md}");
+    }
+    assert!(md.contains("losses/qf_loss"), "{md}");
+    let chart = std::fs::read_to_string(run_dir.join("learning-curves.svg")).unwrap();
+    assert_eq!(chart.matches("<polyline").count(), 2);
+
     let leftover: Vec<String> = shm_files().difference(&shm_before).cloned().collect();
     assert!(
         leftover.is_empty(),

@@ -1,0 +1,320 @@
+//! `terl report RUN_DIR`: the evaluation report of a cluster run from its MCAP logs.
+//!
+//! - `report.md`: per task, the training success rate over the last `--window` episodes and
+//!   over all episodes, mean return and length, guided-step share (from the selector's
+//!   `episodes.mcap`), plus the run's final learner metrics (from `metrics.mcap`);
+//! - `learning-curves.svg`: per task, the success rate over a rolling window of episodes against
+//!   the episodes finished, and the mean over tasks.
+//!
+//! Restarted services write `episodes.2.mcap`, `metrics.2.mcap`, …: all files of a kind are
+//! read, in order. Files whose writer was killed are read up to their last flush.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::{Context, Result};
+use clap::Args;
+use terl_wire::{EpisodeSummary, Metric};
+
+#[derive(Debug, Args)]
+pub struct ReportArgs {
+    /// Run folder (`runs/<id>`) with `episodes.mcap` and `metrics.mcap`.
+    pub run_dir: PathBuf,
+    /// Where to write `report.md` and `learning-curves.svg` (default: the run folder).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Episodes per task in the rolling success window.
+    #[arg(long, default_value_t = 50)]
+    pub window: usize,
+}
+
+/// `<stem>.mcap`, `<stem>.2.mcap`, … that exist, in order.
+fn log_files(run_dir: &Path, stem: &str) -> Vec<PathBuf> {
+    let first = run_dir.join(format!("{stem}.mcap"));
+    std::iter::once(first)
+        .chain((2u64..).map(|k| run_dir.join(format!("{stem}.{k}.mcap"))))
+        .take_while(|p| p.exists())
+        .collect()
+}
+
+/// Per-task statistics of the episode log.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct TaskRow {
+    pub task: String,
+    pub episodes: usize,
+    /// Success rate over the last `window` episodes.
+    pub recent_success: f64,
+    pub overall_success: f64,
+    pub mean_return: f64,
+    pub mean_length: f64,
+    /// Guided steps / steps.
+    pub guided_share: f64,
+    /// `(episodes finished, rolling success rate)` after each episode.
+    pub curve: Vec<(usize, f64)>,
+}
+
+/// Groups episodes by task (in first-seen order) and computes the table and curves.
+pub fn task_rows(episodes: &[EpisodeSummary], window: usize) -> Vec<TaskRow> {
+    let window = window.max(1);
+    let mut by_task: BTreeMap<&str, Vec<&EpisodeSummary>> = BTreeMap::new();
+    let mut order: Vec<&str> = Vec::new();
+    for e in episodes {
+        by_task
+            .entry(e.task.as_str())
+            .or_insert_with(|| {
+                order.push(e.task.as_str());
+                Vec::new()
+            })
+            .push(e);
+    }
+    order
+        .into_iter()
+        .map(|task| {
+            let eps = &by_task[task];
+            let n = eps.len();
+            let ok: Vec<f64> = eps.iter().map(|e| f64::from(u8::from(e.success))).collect();
+            let curve = (0..n)
+                .map(|i| {
+                    let lo = (i + 1).saturating_sub(window);
+                    let w = &ok[lo..=i];
+                    (i + 1, w.iter().sum::<f64>() / w.len() as f64)
+                })
+                .collect::<Vec<_>>();
+            let steps: u64 = eps.iter().map(|e| u64::from(e.length)).sum();
+            let guided: u64 = eps.iter().map(|e| u64::from(e.guided_steps)).sum();
+            TaskRow {
+                task: task.to_string(),
+                episodes: n,
+                recent_success: curve.last().map_or(0.0, |c| c.1),
+                overall_success: ok.iter().sum::<f64>() / n as f64,
+                mean_return: eps.iter().map(|e| e.episode_return).sum::<f64>() / n as f64,
+                mean_length: steps as f64 / n as f64,
+                guided_share: if steps > 0 {
+                    guided as f64 / steps as f64
+                } else {
+                    0.0
+                },
+                curve,
+            }
+        })
+        .collect()
+}
+
+/// The last value of every metric (by log order).
+fn final_metrics(metrics: &[Metric]) -> BTreeMap<String, (f64, u64)> {
+    let mut out = BTreeMap::new();
+    for m in metrics {
+        out.insert(m.name.clone(), (m.value, m.step));
+    }
+    out
+}
+
+fn markdown(run_dir: &Path, rows: &[TaskRow], window: usize, metrics: &[Metric]) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "# Run report: {}\n", run_dir.display());
+    let _ = writeln!(
+        s,
+        "Training episodes from `episodes.mcap`; success over the last {window} episodes of each task.\n"
+    );
+    let _ = writeln!(
+        s,
+        "| task | episodes | success (last {window}) | success (all) | mean return | mean length | guided steps |"
+    );
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|");
+    for r in rows {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {:.1} % | {:.1} % | {:.1} | {:.0} | {:.1} % |",
+            r.task,
+            r.episodes,
+            100.0 * r.recent_success,
+            100.0 * r.overall_success,
+            r.mean_return,
+            r.mean_length,
+            100.0 * r.guided_share
+        );
+    }
+    if !rows.is_empty() {
+        let mean = rows.iter().map(|r| r.recent_success).sum::<f64>() / rows.len() as f64;
+        let _ = writeln!(
+            s,
+            "| **mean over tasks** | {} | **{:.1} %** | | | | |",
+            rows.iter().map(|r| r.episodes).sum::<usize>(),
+            100.0 * mean
+        );
+    }
+    let last = final_metrics(metrics);
+    if !last.is_empty() {
+        let _ = writeln!(s, "\n## Final learner metrics (`metrics.mcap`)\n");
+        let _ = writeln!(s, "| metric | value | at update |");
+        let _ = writeln!(s, "|---|---|---|");
+        for (name, (value, step)) in &last {
+            let _ = writeln!(s, "| {name} | {value:.4} | {step} |");
+        }
+    }
+    let _ = writeln!(s, "\nLearning curves: `learning-curves.svg`.");
+    s
+}
+
+/// A plain SVG line chart: rolling success rate per task against episodes of that task.
+pub fn svg(rows: &[TaskRow], window: usize) -> String {
+    const W: f64 = 760.0;
+    const H: f64 = 420.0;
+    const L: f64 = 60.0;
+    const R: f64 = 200.0;
+    const T: f64 = 40.0;
+    const B: f64 = 50.0;
+    let colors = [
+        "#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f",
+        "#bcbd22", "#17becf",
+    ];
+    let max_x = rows.iter().map(|r| r.episodes).max().unwrap_or(1).max(1) as f64;
+    let x = |e: f64| L + (W - L - R) * e / max_x;
+    let y = |v: f64| T + (H - T - B) * (1.0 - v);
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{H}" viewBox="0 0 {W} {H}" font-family="sans-serif" font-size="12">"#
+    );
+    let _ = writeln!(s, r#"<rect width="{W}" height="{H}" fill="white"/>"#);
+    let _ = writeln!(
+        s,
+        r#"<text x="{L}" y="22" font-size="14">Training success rate (rolling {window} episodes per task)</text>"#
+    );
+    for k in 0..=4 {
+        let v = f64::from(k) / 4.0;
+        let _ = writeln!(
+            s,
+            r##"<line x1="{L}" y1="{y:.1}" x2="{x2:.1}" y2="{y:.1}" stroke="#ddd"/><text x="{tx:.1}" y="{ty:.1}" text-anchor="end">{p:.0} %</text>"##,
+            y = y(v),
+            x2 = W - R,
+            tx = L - 6.0,
+            ty = y(v) + 4.0,
+            p = 100.0 * v
+        );
+    }
+    let _ = writeln!(
+        s,
+        r#"<text x="{cx:.1}" y="{by:.1}" text-anchor="middle">episodes of the task (max {max_x:.0})</text>"#,
+        cx = (L + W - R) / 2.0,
+        by = H - 15.0
+    );
+    for (i, r) in rows.iter().enumerate() {
+        let color = colors[i % colors.len()];
+        let points: Vec<String> = r
+            .curve
+            .iter()
+            .map(|&(e, v)| format!("{:.1},{:.1}", x(e as f64), y(v)))
+            .collect();
+        let _ = writeln!(
+            s,
+            r#"<polyline fill="none" stroke="{color}" stroke-width="1.5" points="{}"><title>{}</title></polyline>"#,
+            points.join(" "),
+            r.task
+        );
+        let ly = T + 16.0 * i as f64;
+        let _ = writeln!(
+            s,
+            r#"<rect x="{lx:.1}" y="{ry:.1}" width="12" height="3" fill="{color}"/><text x="{tx:.1}" y="{ty:.1}">{} ({:.0} %)</text>"#,
+            r.task,
+            100.0 * r.recent_success,
+            lx = W - R + 12.0,
+            ry = ly - 4.0,
+            tx = W - R + 30.0,
+            ty = ly
+        );
+    }
+    s.push_str("</svg>\n");
+    s
+}
+
+pub fn run(args: ReportArgs) -> Result<ExitCode> {
+    anyhow::ensure!(args.window > 0, "--window must be at least 1");
+    let episode_files = log_files(&args.run_dir, "episodes");
+    anyhow::ensure!(
+        !episode_files.is_empty(),
+        "no episodes.mcap in {} (is it a cluster run folder?)",
+        args.run_dir.display()
+    );
+    let mut episodes = Vec::new();
+    for f in &episode_files {
+        let log = terl_telemetry::read_log::<EpisodeSummary>(f)
+            .with_context(|| format!("reading {}", f.display()))?;
+        if log.truncated {
+            eprintln!(
+                "note: {} ends early (its writer was stopped); using what was flushed",
+                f.display()
+            );
+        }
+        episodes.extend(log.records);
+    }
+    let mut metrics = Vec::new();
+    for f in log_files(&args.run_dir, "metrics") {
+        let log = terl_telemetry::read_log::<Metric>(&f)
+            .with_context(|| format!("reading {}", f.display()))?;
+        metrics.extend(log.records);
+    }
+    let rows = task_rows(&episodes, args.window);
+    let out = args.out.unwrap_or_else(|| args.run_dir.clone());
+    std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
+    let md = markdown(&args.run_dir, &rows, args.window, &metrics);
+    let md_path = out.join("report.md");
+    std::fs::write(&md_path, &md).with_context(|| format!("writing {}", md_path.display()))?;
+    let svg_path = out.join("learning-curves.svg");
+    std::fs::write(&svg_path, svg(&rows, args.window))
+        .with_context(|| format!("writing {}", svg_path.display()))?;
+    print!("{md}");
+    eprintln!("wrote {} and {}", md_path.display(), svg_path.display());
+    Ok(ExitCode::SUCCESS)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ep(task: &str, success: bool, ret: f64, guided: u32) -> EpisodeSummary {
+        EpisodeSummary {
+            task: task.into(),
+            actor_id: 0,
+            episode_index: 0,
+            episode_return: ret,
+            success,
+            length: 500,
+            policy_version: 1,
+            guided_steps: guided,
+        }
+    }
+
+    #[test]
+    fn table_and_curves_by_hand() {
+        let eps = vec![
+            ep("b", false, 1.0, 0),
+            ep("a", true, 2.0, 50),
+            ep("b", true, 3.0, 0),
+            ep("b", true, 5.0, 100),
+            ep("a", false, 4.0, 0),
+        ];
+        let rows = task_rows(&eps, 2);
+        assert_eq!(rows.len(), 2);
+        let b = &rows[0];
+        assert_eq!((b.task.as_str(), b.episodes), ("b", 3));
+        assert_eq!(b.curve, vec![(1, 0.0), (2, 0.5), (3, 1.0)]);
+        assert_eq!(b.recent_success, 1.0);
+        assert!((b.overall_success - 2.0 / 3.0).abs() < 1e-12);
+        assert!((b.mean_return - 3.0).abs() < 1e-12);
+        assert!((b.guided_share - 100.0 / 1500.0).abs() < 1e-12);
+        let a = &rows[1];
+        assert_eq!(a.curve, vec![(1, 1.0), (2, 0.5)]);
+        let chart = svg(&rows, 2);
+        assert_eq!(chart.matches("<polyline").count(), 2);
+        assert!(chart.starts_with("<svg") && chart.trim_end().ends_with("</svg>"));
+        let md = markdown(Path::new("runs/x"), &rows, 2, &[]);
+        assert!(
+            md.contains("| b | 3 | 100.0 % | 66.7 % | 3.0 | 500 | 6.7 % |"),
+            "{md}"
+        );
+        assert!(md.contains("**75.0 %**"), "{md}");
+    }
+}
