@@ -114,33 +114,16 @@ pub fn sac_bench(config: &SacBenchConfig) -> Result<SacBenchReport, SacError> {
     }
     pool.install(|| plan.run());
 
-    // Updates and the bare GEMMs alternate in short slices so both see the same background
-    // load on a shared machine; their ratio is what `gemm_efficiency` reports.
-    let slice = (config.seconds / 10.0).clamp(0.05, 0.5);
-    let (mut update_s, mut updates, mut gemm_s, mut gemm_runs) = (0.0f64, 0u64, 0.0f64, 0u64);
-    while update_s < config.seconds || updates < 3 {
-        let start = Instant::now();
-        loop {
-            sac.update(&batch)?;
-            updates += 1;
-            if start.elapsed().as_secs_f64() >= slice {
-                break;
-            }
-        }
-        update_s += start.elapsed().as_secs_f64();
-        let start = Instant::now();
-        pool.install(|| loop {
-            plan.run();
-            gemm_runs += 1;
-            if start.elapsed().as_secs_f64() >= slice / 2.0 {
-                break;
-            }
-        });
-        gemm_s += start.elapsed().as_secs_f64();
-    }
-    let updates_per_s = updates as f64 / update_s;
+    // Their ratio is what `gemm_efficiency` reports.
+    let rates = alternate(
+        config.seconds,
+        &pool,
+        || sac.update(&batch).map(drop),
+        || plan.run(),
+    )?;
+    let (updates, updates_per_s) = (rates.updates, rates.updates_per_s);
     let achieved_gflops = flops as f64 * updates_per_s / 1e9;
-    let gemm_gflops = flops as f64 * gemm_runs as f64 / gemm_s / 1e9;
+    let gemm_gflops = flops as f64 * rates.gemm_runs_per_s / 1e9;
     let gemm_square_gflops = pool.install(|| {
         square_gemm_gflops(
             1024,
@@ -163,6 +146,52 @@ pub fn sac_bench(config: &SacBenchConfig) -> Result<SacBenchReport, SacError> {
         gemm_efficiency: achieved_gflops / gemm_gflops,
         gemm_square_gflops,
         inference_batch8_us,
+    })
+}
+
+/// Updates and their bare GEMMs, timed alternately (see [`alternate`]).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Alternated {
+    pub updates: u64,
+    pub updates_per_s: f64,
+    pub gemm_runs_per_s: f64,
+}
+
+/// Runs `update` and `gemms` (on `pool`) alternately in short slices until `seconds` of
+/// updates (and at least 3) are done, so both see the same background load on a shared
+/// machine; the GEMM slices are half as long.
+pub(crate) fn alternate(
+    seconds: f64,
+    pool: &rayon::ThreadPool,
+    mut update: impl FnMut() -> Result<(), SacError>,
+    mut gemms: impl FnMut() + Send,
+) -> Result<Alternated, SacError> {
+    let slice = (seconds / 10.0).clamp(0.05, 0.5);
+    let (mut update_s, mut updates, mut gemm_s, mut gemm_runs) = (0.0f64, 0u64, 0.0f64, 0u64);
+    while update_s < seconds || updates < 3 {
+        let start = Instant::now();
+        loop {
+            update()?;
+            updates += 1;
+            if start.elapsed().as_secs_f64() >= slice {
+                break;
+            }
+        }
+        update_s += start.elapsed().as_secs_f64();
+        let start = Instant::now();
+        pool.install(|| loop {
+            gemms();
+            gemm_runs += 1;
+            if start.elapsed().as_secs_f64() >= slice / 2.0 {
+                break;
+            }
+        });
+        gemm_s += start.elapsed().as_secs_f64();
+    }
+    Ok(Alternated {
+        updates,
+        updates_per_s: updates as f64 / update_s,
+        gemm_runs_per_s: gemm_runs as f64 / gemm_s,
     })
 }
 

@@ -10,7 +10,7 @@
 //! The actor-side cost of guidance needs real environments and lives in the CLI (`terl bench
 //! tep`), which fills [`TepBenchReport::guidance`] with a [`GuidanceOverhead`].
 
-use crate::bench::{square_gemm_gflops, GemmKind, GemmOp};
+use crate::bench::{alternate, square_gemm_gflops, GemmKind, GemmOp};
 use crate::error::SacError;
 use crate::tep::{Planner, Tep, TepConfig};
 use crate::tep_buffer::TepBatch;
@@ -210,33 +210,15 @@ pub fn tep_bench(config: &TepBenchConfig) -> Result<TepBenchReport, SacError> {
     }
     pool.install(&mut run_gemms);
 
-    // Updates and the bare GEMMs alternate in short slices so both see the same background
-    // load on a shared machine.
-    let slice = (config.seconds / 10.0).clamp(0.05, 0.5);
-    let (mut update_s, mut updates, mut gemm_s, mut gemm_runs) = (0.0f64, 0u64, 0.0f64, 0u64);
-    while update_s < config.seconds || updates < 3 {
-        let start = Instant::now();
-        loop {
-            tep.update(&batch)?;
-            updates += 1;
-            if start.elapsed().as_secs_f64() >= slice {
-                break;
-            }
-        }
-        update_s += start.elapsed().as_secs_f64();
-        let start = Instant::now();
-        pool.install(|| loop {
-            run_gemms();
-            gemm_runs += 1;
-            if start.elapsed().as_secs_f64() >= slice / 2.0 {
-                break;
-            }
-        });
-        gemm_s += start.elapsed().as_secs_f64();
-    }
-    let updates_per_s = updates as f64 / update_s;
+    let rates = alternate(
+        config.seconds,
+        &pool,
+        || tep.update(&batch).map(drop),
+        run_gemms,
+    )?;
+    let (updates, updates_per_s) = (rates.updates, rates.updates_per_s);
     let achieved_gflops = flops as f64 * updates_per_s / 1e9;
-    let gemm_gflops = flops as f64 * gemm_runs as f64 / gemm_s / 1e9;
+    let gemm_gflops = flops as f64 * rates.gemm_runs_per_s / 1e9;
     let short = (config.seconds / 10.0).clamp(0.2, 1.0);
     let gemm_square_gflops = pool.install(|| square_gemm_gflops(1024, config.threads, short));
     let mut planner = tep.planner(8);
