@@ -1,0 +1,49 @@
+//! Every shipped run file loads, and the MTSAC/TERL pairs differ only in the algorithm (and,
+//! for the smoke pair, in the TERL sections), so their runs are comparable at equal budget.
+
+use std::path::{Path, PathBuf};
+
+use terl_runtime::{Algorithm, RunConfig};
+
+fn configs_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../deploy/configs")
+}
+
+fn load(name: &str) -> RunConfig {
+    RunConfig::load(&configs_dir().join(name)).unwrap_or_else(|e| panic!("{name}: {e:#}"))
+}
+
+#[test]
+fn every_shipped_config_loads_and_names_known_tasks() {
+    let mut n = 0;
+    for entry in std::fs::read_dir(configs_dir()).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "toml") {
+            let cfg =
+                RunConfig::load(&path).unwrap_or_else(|e| panic!("{}: {e:#}", path.display()));
+            terl_runtime::resolve_tasks(&cfg.tasks)
+                .unwrap_or_else(|e| panic!("{}: {e:#}", path.display()));
+            n += 1;
+        }
+    }
+    assert!(n >= 6, "found only {n} configs");
+}
+
+#[test]
+fn mt10_terl_is_mt10_with_the_algorithm_switched() {
+    let (a, b) = (load("mt10.toml"), load("mt10-terl.toml"));
+    assert_eq!(
+        (a.algorithm, b.algorithm),
+        (Algorithm::Mtsac, Algorithm::Terl)
+    );
+    let strip = |c: &RunConfig| {
+        let mut c = c.clone();
+        c.algorithm = Algorithm::Mtsac;
+        toml::to_string(&c).unwrap()
+    };
+    assert_eq!(strip(&a), strip(&b));
+    // The paper's TERL settings are the defaults.
+    assert_eq!(b.ptr.success_threshold, 0.85);
+    assert_eq!((b.tep.batch_size, b.tep.buffer_capacity), (1024, 6_000_000));
+    assert_eq!(b.guidance.sigma, 0.98);
+}
