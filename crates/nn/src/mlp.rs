@@ -316,8 +316,9 @@ impl<T: Float> Mlp<T> {
         self.export_values(prefix, &self.params, out);
     }
 
-    /// Like [`Mlp::export`] for another vector in the parameter layout (gradients, Adam moments).
-    pub fn export_values(&self, prefix: &str, values: &[T], out: &mut Vec<Tensor>) {
+    /// Like [`Mlp::export`] for another vector in the parameter layout (gradients, Adam moments),
+    /// of any float type (e.g. `f32` copies of `f64` weights for the wire).
+    pub fn export_values<U: Float>(&self, prefix: &str, values: &[U], out: &mut Vec<Tensor>) {
         assert_eq!(values.len(), self.params.len());
         for l in 0..self.num_layers() {
             let shape_w = vec![self.sizes[l + 1], self.sizes[l]];

@@ -592,10 +592,8 @@ impl<T: Float> Sac<T> {
     /// Policy weights as named `f32` tensors `policy.{layer}.weight|bias`.
     pub fn policy_tensors(&self) -> Vec<Tensor> {
         let mut out = Vec::new();
-        let as_f32: Vec<f32> = self.policy_params_f32();
-        let spec = self.policy_spec();
-        let shell = spec.build_mlp();
-        shell.export_values("policy", &as_f32, &mut out);
+        self.policy
+            .export_values("policy", &self.policy_params_f32(), &mut out);
         out
     }
 
@@ -605,28 +603,9 @@ impl<T: Float> Sac<T> {
     pub fn critic_tensors(&self) -> Vec<Tensor> {
         let mut out = Vec::new();
         for (k, c) in self.critics.iter().enumerate() {
-            let net = &c.net;
-            let sizes = net.sizes();
-            for l in 0..net.num_layers() {
-                let w: Vec<f32> = net.params[net.weight_range(l)]
-                    .iter()
-                    .map(|v| v.f32())
-                    .collect();
-                let b: Vec<f32> = net.params[net.bias_range(l)]
-                    .iter()
-                    .map(|v| v.f32())
-                    .collect();
-                out.push(Tensor::from_values(
-                    format!("qf{}.{l}.weight", k + 1),
-                    vec![sizes[l + 1], sizes[l]],
-                    &w,
-                ));
-                out.push(Tensor::from_values(
-                    format!("qf{}.{l}.bias", k + 1),
-                    vec![sizes[l + 1]],
-                    &b,
-                ));
-            }
+            let as_f32: Vec<f32> = c.net.params.iter().map(|v| v.f32()).collect();
+            c.net
+                .export_values(&format!("qf{}", k + 1), &as_f32, &mut out);
         }
         out
     }

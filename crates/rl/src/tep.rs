@@ -516,11 +516,8 @@ impl<T: Float> Tep<T> {
     pub fn planner_tensors(&self) -> Vec<Tensor> {
         let (f, an) = self.planner_params_f32();
         let mut out = Vec::new();
-        let shell_f: Mlp<f32> = Mlp::new(&self.config.f_spec(), &mut ChaCha8Rng::seed_from_u64(0));
-        shell_f.export_values("tep_f", &f, &mut out);
-        let shell_an: Mlp<f32> =
-            Mlp::new(&self.config.an_spec(), &mut ChaCha8Rng::seed_from_u64(0));
-        shell_an.export_values("tep_an", &an, &mut out);
+        self.f.export_values("tep_f", &f, &mut out);
+        self.an.export_values("tep_an", &an, &mut out);
         out
     }
 
