@@ -52,18 +52,39 @@ pub fn dataset_path(run_dir: &Path) -> PathBuf {
     run_dir.join(TEP_DATASET_FILE)
 }
 
+/// The `k`-th file of a log: `run_dir/<stem>.mcap` for k = 1, `run_dir/<stem>.<k>.mcap` after.
+fn numbered_path(run_dir: &Path, stem: &str, k: u64) -> PathBuf {
+    if k == 1 {
+        run_dir.join(format!("{stem}.mcap"))
+    } else {
+        run_dir.join(format!("{stem}.{k}.mcap"))
+    }
+}
+
 /// `run_dir/<stem>.mcap`, or `run_dir/<stem>.<k>.mcap` (k = 2, 3, …) for the first that does not
 /// exist yet: a service restarted into the same run folder starts a new file next to the
 /// earlier ones instead of failing or overwriting them.
 pub fn fresh_path(run_dir: &Path, stem: &str) -> PathBuf {
-    let first = run_dir.join(format!("{stem}.mcap"));
-    if !first.exists() {
-        return first;
-    }
-    (2u64..)
-        .map(|k| run_dir.join(format!("{stem}.{k}.mcap")))
+    (1u64..)
+        .map(|k| numbered_path(run_dir, stem, k))
         .find(|p| !p.exists())
         .expect("some index is free")
+}
+
+/// The files of a log that [`fresh_path`] handed out, in order (empty if there is none).
+pub fn existing_paths(run_dir: &Path, stem: &str) -> Vec<PathBuf> {
+    (1u64..)
+        .map(|k| numbered_path(run_dir, stem, k))
+        .take_while(|p| p.exists())
+        .collect()
+}
+
+/// Now as nanoseconds since the Unix epoch: the log time of every record we write (0 if the
+/// clock is before 1970).
+pub fn unix_nanos() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
 }
 
 /// What can go wrong writing or reading a telemetry file.
@@ -110,3 +131,27 @@ pub enum TelemetryError {
 
 /// Result of this crate's operations.
 pub type Result<T, E = TelemetryError> = std::result::Result<T, E>;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fresh_paths_number_restarts_and_existing_paths_lists_them_in_order() {
+        let dir = std::env::temp_dir().join(format!("terl-paths-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        assert!(existing_paths(&dir, "episodes").is_empty());
+        for want in ["episodes.mcap", "episodes.2.mcap", "episodes.3.mcap"] {
+            let p = fresh_path(&dir, "episodes");
+            assert_eq!(p, dir.join(want));
+            std::fs::write(&p, b"").unwrap();
+        }
+        assert_eq!(
+            existing_paths(&dir, "episodes"),
+            ["episodes.mcap", "episodes.2.mcap", "episodes.3.mcap"].map(|n| dir.join(n))
+        );
+        assert!(existing_paths(&dir, "metrics").is_empty());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

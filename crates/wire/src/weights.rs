@@ -257,6 +257,15 @@ impl Weights {
         self.tensors
     }
 
+    /// All values, tensor after tensor: the flat parameter vector the networks load
+    /// (`Policy::set_params`, `ValueEstimator::set_critics`).
+    pub fn into_flat(self) -> Vec<f32> {
+        self.tensors
+            .into_iter()
+            .flat_map(|t| t.into_parts().2)
+            .collect()
+    }
+
     /// Total number of `f32` parameters.
     pub fn parameter_count(&self) -> usize {
         self.tensors.iter().map(|t| t.values.len()).sum()

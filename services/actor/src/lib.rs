@@ -83,11 +83,7 @@ fn post(mailbox: &Mailbox, weights: Weights) {
             }
         }
         _ => {
-            let flat: Vec<f32> = weights
-                .into_tensors()
-                .into_iter()
-                .flat_map(|t| t.into_parts().2)
-                .collect();
+            let flat: Vec<f32> = weights.into_flat();
             mailbox.received.store(version, Ordering::Relaxed);
             if let Ok(mut slot) = mailbox.slot.lock() {
                 *slot = Some((version, flat));

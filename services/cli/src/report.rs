@@ -30,15 +30,6 @@ pub struct ReportArgs {
     pub window: usize,
 }
 
-/// `<stem>.mcap`, `<stem>.2.mcap`, … that exist, in order.
-fn log_files(run_dir: &Path, stem: &str) -> Vec<PathBuf> {
-    let first = run_dir.join(format!("{stem}.mcap"));
-    std::iter::once(first)
-        .chain((2u64..).map(|k| run_dir.join(format!("{stem}.{k}.mcap"))))
-        .take_while(|p| p.exists())
-        .collect()
-}
-
 /// Per-task statistics of the episode log.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct TaskRow {
@@ -232,7 +223,7 @@ pub fn svg(rows: &[TaskRow], window: usize) -> String {
 
 pub fn run(args: ReportArgs) -> Result<ExitCode> {
     anyhow::ensure!(args.window > 0, "--window must be at least 1");
-    let episode_files = log_files(&args.run_dir, "episodes");
+    let episode_files = terl_telemetry::existing_paths(&args.run_dir, "episodes");
     anyhow::ensure!(
         !episode_files.is_empty(),
         "no episodes.mcap in {} (is it a cluster run folder?)",
@@ -251,7 +242,7 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
         episodes.extend(log.records);
     }
     let mut metrics = Vec::new();
-    for f in log_files(&args.run_dir, "metrics") {
+    for f in terl_telemetry::existing_paths(&args.run_dir, "metrics") {
         let log = terl_telemetry::read_log::<Metric>(&f)
             .with_context(|| format!("reading {}", f.display()))?;
         metrics.extend(log.records);

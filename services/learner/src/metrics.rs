@@ -4,7 +4,6 @@
 //! `success_rate/<task>`, `guidance/rate/<task>`.
 
 use std::path::Path;
-use std::time::{SystemTime, UNIX_EPOCH};
 
 use anyhow::Context;
 use terl_rl::UpdateStats;
@@ -45,9 +44,7 @@ impl MetricsLog {
 
     /// Writes one sample of every metric in `status` (at learner step `status.updates`).
     pub(crate) fn write_window(&mut self, status: &LearnerStatus) -> anyhow::Result<()> {
-        let now = SystemTime::now()
-            .duration_since(UNIX_EPOCH)
-            .map_or(0, |d| d.as_nanos() as u64);
+        let now = terl_telemetry::unix_nanos();
         let step = status.updates;
         let mut out: Vec<(String, f64)> = vec![
             (

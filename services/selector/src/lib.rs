@@ -164,8 +164,6 @@ struct Selecting {
     batch: Box<SelectedBatch>,
     sequence: u64,
     dataset: terl_telemetry::TepDatasetWriter,
-    tasks: Vec<String>,
-    started: Instant,
 }
 
 impl Selecting {
@@ -190,17 +188,19 @@ impl Selecting {
 
     /// Sends the selection of one or more ranked batches (grouped by trajectory, steps
     /// ascending, so the learner can store them as segments) and appends it to the dataset.
-    fn deliver(&mut self, mut selected: Vec<(f64, SelectedSample)>) -> anyhow::Result<()> {
+    /// `tasks` are the run's task names (samples carry indices into it).
+    fn deliver(
+        &mut self,
+        mut selected: Vec<(f64, SelectedSample)>,
+        tasks: &[&str],
+    ) -> anyhow::Result<()> {
         if selected.is_empty() {
             return Ok(());
         }
-        let nanos = |t: Instant| t.duration_since(self.started).as_nanos() as u64;
-        let log_time = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(nanos(Instant::now()), |d| d.as_nanos() as u64);
+        let log_time = terl_telemetry::unix_nanos();
         for (p, s) in &selected {
             let sample = terl_wire::TepSample {
-                task: self.tasks[usize::from(s.task)].clone(),
+                task: tasks[usize::from(s.task)].to_string(),
                 trajectory_id: s.trajectory_id,
                 step: u32::from(s.step_index),
                 priority: *p,
@@ -241,11 +241,8 @@ fn receive_loop(config: &SelectorConfig, shared: &Shared) -> anyhow::Result<()> 
     };
     let transport = ShmTransport::open(transport_config, "selector")?;
     let mut episodes = transport.shm_source::<EpisodeSummary>()?;
+    let tasks: Vec<&str> = terl_runtime::resolve_tasks(&run.tasks)?;
     let mut selecting = if run.algorithm == Algorithm::Terl {
-        let tasks: Vec<String> = terl_runtime::resolve_tasks(&run.tasks)?
-            .into_iter()
-            .map(str::to_owned)
-            .collect();
         let mut sac = run.sac.clone();
         sac.obs_dim = OBS_DIM;
         sac.act_dim = ACTION_DIM;
@@ -260,13 +257,10 @@ fn receive_loop(config: &SelectorConfig, shared: &Shared) -> anyhow::Result<()> 
             batch: Box::new(SelectedBatch::EMPTY),
             sequence: 0,
             dataset,
-            tasks,
-            started: Instant::now(),
         })
     } else {
         None
     };
-    let tasks: Vec<&str> = terl_runtime::resolve_tasks(&run.tasks)?;
     let episode_path = terl_telemetry::fresh_path(&config.run_dir, "episodes");
     let mut episode_log = terl_telemetry::EpisodeLogWriter::create(&episode_path)
         .with_context(|| format!("cannot create the episode log {}", episode_path.display()))?;
@@ -290,9 +284,7 @@ fn receive_loop(config: &SelectorConfig, shared: &Shared) -> anyhow::Result<()> 
             }
         }
         let got = received.len();
-        let now_ns = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_nanos() as u64);
+        let now_ns = terl_telemetry::unix_nanos();
         for e in &received {
             let Some(task) = tasks.get(usize::from(e.task)) else {
                 continue;
@@ -328,11 +320,11 @@ fn receive_loop(config: &SelectorConfig, shared: &Shared) -> anyhow::Result<()> 
         if let Some(sel) = selecting.as_mut() {
             let mut chosen = Vec::new();
             for e in &received {
-                if usize::from(e.task) < sel.tasks.len() {
+                if usize::from(e.task) < tasks.len() {
                     chosen.extend(sel.scorer.on_episode(e));
                 }
             }
-            sel.deliver(chosen)?;
+            sel.deliver(chosen, &tasks)?;
             if let Ok(mut s) = shared.selection.lock() {
                 s.selected = sel.scorer.selected;
                 s.priority = sel.scorer.priority_stats();
@@ -405,11 +397,7 @@ pub async fn run(
                 vec![WeightsKind::Policy, WeightsKind::Critic],
                 move |w| {
                     let (kind, version) = (w.kind(), w.version());
-                    let flat: Vec<f32> = w
-                        .into_tensors()
-                        .into_iter()
-                        .flat_map(|t| t.into_parts().2)
-                        .collect();
+                    let flat: Vec<f32> = w.into_flat();
                     if let Ok(mut slots) = shared.weights.lock() {
                         match kind {
                             WeightsKind::Critic => slots.critic = Some((version, flat)),
