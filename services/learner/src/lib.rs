@@ -78,6 +78,28 @@ impl LearnerBackend for Backend {
     }
 }
 
+/// Named `f32` tensors of a network as a weight-stream message.
+pub(crate) fn to_weights(
+    kind: terl_wire::WeightsKind,
+    version: u64,
+    learner_update: u64,
+    tensors: Vec<terl_nn::tensors::Tensor>,
+) -> anyhow::Result<terl_wire::Weights> {
+    let tensors = tensors
+        .into_iter()
+        .map(|t| {
+            let values = t.values::<f32>()?;
+            Ok(terl_wire::Tensor::new(t.name, t.shape, values)?)
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    Ok(terl_wire::Weights::new(
+        kind,
+        version,
+        learner_update,
+        tensors,
+    )?)
+}
+
 /// Runs the learner until `shutdown` completes or the trainer fails.
 pub async fn run(
     config: LearnerConfig,

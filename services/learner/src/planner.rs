@@ -9,7 +9,7 @@ use rand_chacha::ChaCha8Rng;
 use terl_nn::tensors::save_file;
 use terl_rl::{SacError, Tep, TepBatch, TepBuffer, TepConfig};
 use terl_transport::{SelectedBatch, SelectedSample, ACTION_DIM, OBS_DIM};
-use terl_wire::{Tensor, Weights, WeightsKind};
+use terl_wire::{Weights, WeightsKind};
 
 /// TEP updates per trainer round at most (one update at the paper's size takes a while on a
 /// CPU; transitions and status must not wait for a long catch-up).
@@ -186,25 +186,14 @@ impl PlannerTrainer {
         if version == 0 || version == self.published_version {
             return Ok(None);
         }
-        let tensors = self
-            .tep
-            .planner_tensors()
-            .into_iter()
-            .map(|t| {
-                Ok(Tensor::new(
-                    t.name.clone(),
-                    t.shape.clone(),
-                    t.values::<f32>()?,
-                )?)
-            })
-            .collect::<anyhow::Result<Vec<_>>>()?;
-        self.published_version = version;
-        Ok(Some(Weights::new(
+        let weights = crate::to_weights(
             WeightsKind::Planner,
             version,
             version,
-            tensors,
-        )?))
+            self.tep.planner_tensors(),
+        )?;
+        self.published_version = version;
+        Ok(Some(weights))
     }
 
     pub(crate) fn published_version(&self) -> u64 {

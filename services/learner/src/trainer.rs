@@ -24,8 +24,8 @@ use terl_transport::{
     Staleness, TransitionBatch, TransportConfig, ACTION_DIM, OBS_DIM, TRANSITIONS_PER_BATCH,
 };
 use terl_wire::{
-    ActorStats, CheckpointRequest, CheckpointSaved, LearnerStatus, TaskSuccess, Tensor, WeightHub,
-    Weights, WeightsKind,
+    ActorStats, CheckpointRequest, CheckpointSaved, LearnerStatus, TaskSuccess, WeightHub, Weights,
+    WeightsKind,
 };
 
 use crate::metrics::MetricsLog;
@@ -204,14 +204,7 @@ fn sac_weights(sac: &Sac<f32>, kind: WeightsKind, version: u64) -> anyhow::Resul
         WeightsKind::Critic => sac.critic_tensors(),
         _ => sac.policy_tensors(),
     };
-    let tensors = tensors
-        .into_iter()
-        .map(|t| {
-            let values = t.values::<f32>()?;
-            Ok(Tensor::new(t.name.clone(), t.shape.clone(), values)?)
-        })
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    Ok(Weights::new(kind, version, sac.updates(), tensors)?)
+    crate::to_weights(kind, version, sac.updates(), tensors)
 }
 
 struct Checkpointer {
