@@ -18,39 +18,9 @@ use serde_json::Value;
 
 const TIMEOUT: Duration = Duration::from_secs(60);
 
-fn workspace() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
+mod common;
 
-/// The service binaries live next to `terl`; build them with the same profile (a no-op when
-/// they are fresh), since cargo only builds this package's own binaries for its tests.
-fn service_binaries() -> PathBuf {
-    let bin_dir = Path::new(env!("CARGO_BIN_EXE_terl"))
-        .parent()
-        .expect("target dir")
-        .to_path_buf();
-    let profile = match bin_dir.file_name().and_then(|n| n.to_str()) {
-        Some("debug") => "dev".to_string(),
-        Some(other) => other.to_string(),
-        None => "dev".to_string(),
-    };
-    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    let status = Command::new(cargo)
-        .current_dir(workspace())
-        .args(["build", "-q", "--profile", &profile])
-        .args([
-            "-p",
-            "terl-learner",
-            "-p",
-            "terl-actor",
-            "-p",
-            "terl-selector",
-        ])
-        .status()
-        .expect("cargo runs");
-    assert!(status.success(), "building the services failed");
-    bin_dir
-}
+use common::{service_binaries, workspace};
 
 /// iceoryx2's files in `/dev/shm`, except its per-version global management file
 /// (`iox2_<hash>_node.<version>.global_mgmt`): the first node on a machine creates it and it

@@ -2,35 +2,13 @@
 //! a missing or foreign `--tep-dataset`, a selector without the learner's address, and a run
 //! file with invalid `[ptr]`/`[tep]` sections.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
-fn workspace() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
+mod common;
 
-/// Builds the service binaries with this test's profile (a no-op when fresh).
-fn binaries() -> PathBuf {
-    let bin_dir = Path::new(env!("CARGO_BIN_EXE_terl"))
-        .parent()
-        .expect("target dir")
-        .to_path_buf();
-    let profile = match bin_dir.file_name().and_then(|n| n.to_str()) {
-        Some("debug") | None => "dev".to_string(),
-        Some(other) => other.to_string(),
-    };
-    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    let ok = Command::new(cargo)
-        .current_dir(workspace())
-        .args(["build", "-q", "--profile", &profile])
-        .args(["-p", "terl-learner", "-p", "terl-selector"])
-        .status()
-        .expect("cargo runs")
-        .success();
-    assert!(ok, "building the services failed");
-    bin_dir
-}
+use common::{service_binaries, workspace};
 
 /// Runs a service that must fail on its own within 60 s.
 fn run_failing(bin: &Path, args: &[&str]) -> Output {
@@ -76,7 +54,7 @@ fn args<'a>(config: &'a str, run_id: &'a str, run_dir: &'a str) -> Vec<&'a str> 
 
 #[test]
 fn terl_services_refuse_bad_datasets_configs_and_missing_addresses() {
-    let bins = binaries();
+    let bins = service_binaries();
     let dir = tempfile::tempdir().unwrap();
     let config = workspace().join("deploy/configs/smoke-terl.toml");
     let config = config.to_str().unwrap();

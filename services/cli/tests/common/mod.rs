@@ -1,0 +1,38 @@
+//! What the process-level tests share: the workspace root and the service binaries.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+pub fn workspace() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// The service binaries live next to `terl`; build them with the same profile (a no-op when
+/// they are fresh), since cargo only builds this package's own binaries for its tests.
+pub fn service_binaries() -> PathBuf {
+    let bin_dir = Path::new(env!("CARGO_BIN_EXE_terl"))
+        .parent()
+        .expect("target dir")
+        .to_path_buf();
+    let profile = match bin_dir.file_name().and_then(|n| n.to_str()) {
+        Some("debug") => "dev".to_string(),
+        Some(other) => other.to_string(),
+        None => "dev".to_string(),
+    };
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let status = Command::new(cargo)
+        .current_dir(workspace())
+        .args(["build", "-q", "--profile", &profile])
+        .args([
+            "-p",
+            "terl-learner",
+            "-p",
+            "terl-actor",
+            "-p",
+            "terl-selector",
+        ])
+        .status()
+        .expect("cargo runs");
+    assert!(status.success(), "building the services failed");
+    bin_dir
+}
