@@ -200,7 +200,8 @@ impl PlannerTrainer {
         self.published_version
     }
 
-    /// Writes F, AN and both targets as a safetensors file (temporary name, then rename).
+    /// Writes F, AN and both targets as a safetensors file (the learner's checkpointer makes
+    /// the write atomic).
     pub(crate) fn save(&self, path: &Path) -> anyhow::Result<()> {
         let mut tensors = Vec::new();
         self.tep.f_net().export("tep_f", &mut tensors);
@@ -219,13 +220,7 @@ impl PlannerTrainer {
             "terl.tep_updates".to_string(),
             self.tep.updates().to_string(),
         );
-        let name = path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let tmp = path.with_file_name(format!(".{name}.tmp"));
-        save_file(&tmp, &tensors, &meta)?;
-        std::fs::rename(&tmp, path)?;
+        save_file(path, &tensors, &meta)?;
         Ok(())
     }
 }

@@ -8,7 +8,7 @@
 //! count at publication, so a transition's staleness is "updates behind" directly.
 
 use std::collections::{BTreeMap, VecDeque};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
@@ -214,22 +214,28 @@ struct Checkpointer {
 }
 
 impl Checkpointer {
-    /// Writes to a temporary name and renames, so a reader never sees half a file.
-    fn write(&self, sac: &Sac<f32>, name: &str) -> anyhow::Result<PathBuf> {
+    /// Writes `<name>.safetensors` through `save` into a temporary name and renames it, so a
+    /// reader never sees half a file.
+    fn atomic(
+        &self,
+        name: &str,
+        save: impl FnOnce(&Path) -> anyhow::Result<()>,
+    ) -> anyhow::Result<PathBuf> {
         let path = self.dir.join(format!("{name}.safetensors"));
         let tmp = self.dir.join(format!(".{name}.safetensors.tmp"));
-        sac.save_checkpoint(&tmp)
-            .with_context(|| format!("writing {}", tmp.display()))?;
+        save(&tmp).with_context(|| format!("writing {}", tmp.display()))?;
         std::fs::rename(&tmp, &path).with_context(|| format!("renaming to {}", path.display()))?;
         Ok(path)
+    }
+
+    fn write(&self, sac: &Sac<f32>, name: &str) -> anyhow::Result<PathBuf> {
+        self.atomic(name, |tmp| Ok(sac.save_checkpoint(tmp)?))
     }
 
     /// The planner's checkpoint (one file, replaced each time).
     fn planner(&self, planner: Option<&PlannerTrainer>) -> anyhow::Result<()> {
         if let Some(p) = planner {
-            let path = self.dir.join("planner.safetensors");
-            p.save(&path)
-                .with_context(|| format!("writing {}", path.display()))?;
+            self.atomic("planner", |tmp| p.save(tmp))?;
         }
         Ok(())
     }
