@@ -25,6 +25,30 @@ impl AdamConfig {
     }
 }
 
+/// Global-norm gradient clipping (`optax.clip_by_global_norm`, PyTorch's
+/// `clip_grad_norm_`): with `n = sqrt(Σ_k Σ_i g_ki²)` over all `groups`, every gradient is
+/// scaled by `max_norm / n` when `n > max_norm` and left alone otherwise. Returns `n` (the norm
+/// before clipping, accumulated in f64). A non-finite norm leaves the gradients untouched (the
+/// caller's finiteness check rejects them). `max_norm` must be positive.
+pub fn clip_global_norm<T: Float>(groups: &mut [&mut [T]], max_norm: f64) -> f64 {
+    let norm = groups
+        .iter()
+        .flat_map(|g| g.iter())
+        .map(|v| {
+            let v = v.f64();
+            v * v
+        })
+        .sum::<f64>()
+        .sqrt();
+    if norm.is_finite() && norm > max_norm {
+        let scale = T::of(max_norm / norm);
+        for g in groups.iter_mut() {
+            g.iter_mut().for_each(|v| *v *= scale);
+        }
+    }
+    norm
+}
+
 /// Adam state (first and second moments, step count) for one flat parameter vector.
 #[derive(Clone, Debug)]
 pub struct Adam<T> {

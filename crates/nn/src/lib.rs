@@ -23,9 +23,9 @@ pub mod mlp;
 pub mod scalar;
 pub mod tensors;
 
-pub use adam::{Adam, AdamConfig};
+pub use adam::{clip_global_norm, Adam, AdamConfig};
 pub use error::NnError;
-pub use mlp::{Activation, InputGrad, Mlp, MlpCache, MlpSpec};
+pub use mlp::{Activation, Init, InputGrad, Mlp, MlpCache, MlpSpec};
 pub use scalar::Float;
 pub use tensors::{Dtype, Tensor, TensorFile};
 

@@ -43,6 +43,36 @@ pub enum InputGrad {
     Cols(Range<usize>),
 }
 
+/// How [`Mlp::new_with`] draws the initial parameters. Every draw is uniform in `±bound`
+/// (a bound of 0 gives exact zeros), with `fan_in` the layer's input width.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Init {
+    /// PyTorch's `nn.Linear` default: weights and biases in `±1/sqrt(fan_in)`.
+    TorchDefault,
+    /// He-uniform hidden layers (weights in `±sqrt(6/fan_in)`, JAX's `he_uniform`, biases
+    /// zero) and a small output layer (weights and biases in `±head_bound`), as the Meta-World
+    /// reference implementation (`metaworld_algorithms/rl/networks.py`: policy head
+    /// `uniform(1e-3)`, Q head `uniform(3e-3)`).
+    HeUniform {
+        /// Bound of the output layer's weights and biases.
+        head_bound: f64,
+    },
+}
+
+impl Init {
+    /// `(weight bound, bias bound)` of a layer with `fan_in` inputs.
+    fn bounds(self, fan_in: usize, output_layer: bool) -> (f64, f64) {
+        match self {
+            Self::TorchDefault => {
+                let b = 1.0 / (fan_in as f64).sqrt();
+                (b, b)
+            }
+            Self::HeUniform { head_bound } if output_layer => (head_bound, head_bound),
+            Self::HeUniform { .. } => ((6.0 / fan_in as f64).sqrt(), 0.0),
+        }
+    }
+}
+
 /// A dense MLP; parameters in one flat vector (see the module docs for the layout).
 #[derive(Clone, Debug)]
 pub struct Mlp<T> {
@@ -66,8 +96,15 @@ pub struct MlpCache<T> {
 
 impl<T: Float> Mlp<T> {
     /// A network initialised like PyTorch's `nn.Linear`: weights and biases uniform in
-    /// `±1/sqrt(fan_in)` (what `kaiming_uniform_(a=sqrt(5))` reduces to).
+    /// `±1/sqrt(fan_in)` (what `kaiming_uniform_(a=sqrt(5))` reduces to). Same as
+    /// [`Mlp::new_with`]`(spec, Init::TorchDefault, rng)`.
     pub fn new(spec: &MlpSpec, rng: &mut impl Rng) -> Self {
+        Self::new_with(spec, Init::TorchDefault, rng)
+    }
+
+    /// A network initialised by `init` (see [`Init`]); parameters are drawn layer by layer,
+    /// weights then bias, from `rng`.
+    pub fn new_with(spec: &MlpSpec, init: Init, rng: &mut impl Rng) -> Self {
         let mut sizes = vec![spec.input];
         sizes.extend_from_slice(&spec.hidden);
         sizes.push(spec.output);
@@ -86,9 +123,19 @@ impl<T: Float> Mlp<T> {
         }
         let mut params = Vec::with_capacity(total);
         for l in 0..layers {
-            let bound = 1.0 / (sizes[l] as f64).sqrt();
-            for _ in 0..(sizes[l + 1] * sizes[l] + sizes[l + 1]) {
-                params.push(T::of(rng.gen_range(-bound..bound)));
+            let (weight_bound, bias_bound) = init.bounds(sizes[l], l + 1 == layers);
+            for k in 0..(sizes[l + 1] * sizes[l] + sizes[l + 1]) {
+                let bound = if k < sizes[l + 1] * sizes[l] {
+                    weight_bound
+                } else {
+                    bias_bound
+                };
+                let value = if bound > 0.0 {
+                    rng.gen_range(-bound..bound)
+                } else {
+                    0.0
+                };
+                params.push(T::of(value));
             }
         }
         Self {

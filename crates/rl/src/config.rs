@@ -3,8 +3,14 @@
 use crate::error::SacError;
 use serde::{Deserialize, Serialize};
 
-/// Every hyper-parameter of multi-task SAC. Defaults follow the paper and Meta-World's reference
-/// MTSAC (3 hidden layers of 400, τ = 0.005, γ = 0.99, lr 3e-4); a TOML file may set any subset.
+/// Every hyper-parameter of multi-task SAC; a TOML file may set any subset.
+///
+/// Defaults follow the paper (τ = 0.005, γ = 0.99, lr 3e-4) and the Meta-World v3 reference
+/// MTSAC (`rainx0r/metaworld-algorithms`, `examples/multi_task/mtsac_mt10.py` and its
+/// `config/` files): 3 hidden layers of 400, He-uniform initialisation with zero biases and
+/// small output heads (`config/nn.py`, `rl/networks.py`), Adam with ε = 1e-5
+/// (`config/optim.py`), gradients clipped to a global norm of 1.0 on actor and critics. Each
+/// field says which reference its default follows.
 ///
 /// ```toml
 /// obs_dim = 39
@@ -47,6 +53,35 @@ pub struct SacConfig {
     pub threads: usize,
     /// Seed of network initialisation and of the update's sampling noise.
     pub seed: u64,
+    /// Adam's ε for actor, critics and temperatures. Default 1e-5, the reference's
+    /// (`config/optim.py`; PyTorch's own default is 1e-8).
+    pub adam_eps: f64,
+    /// Global-norm gradient clipping, applied separately to the policy's gradient and to the
+    /// two critics' gradients together (one norm over both, as the reference's critic
+    /// ensemble); the temperatures are not clipped. 0 turns clipping off. Default 1.0, the
+    /// reference MT10 setting.
+    pub max_grad_norm: f64,
+    /// Initialisation of policy and critics. Default `"he_uniform"` (the reference:
+    /// He-uniform hidden weights, zero hidden biases, heads in `±policy_head_init` and
+    /// `±critic_head_init`); `"torch_default"` is PyTorch's `nn.Linear` (`±1/sqrt(fan_in)`).
+    pub init: NetInit,
+    /// Bound of the policy output layer's weights and biases under `init = "he_uniform"`.
+    /// Default 1e-3 (reference: `uniform(1e-3)` policy head).
+    pub policy_head_init: f64,
+    /// Bound of each critic's output layer under `init = "he_uniform"`. Default 3e-3
+    /// (reference: `uniform(3e-3)` Q head).
+    pub critic_head_init: f64,
+}
+
+/// How [`SacConfig::init`] initialises the networks.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum NetInit {
+    /// He-uniform hidden layers, zero biases, small uniform heads (the reference MTSAC).
+    #[default]
+    HeUniform,
+    /// PyTorch's `nn.Linear` default for every layer.
+    TorchDefault,
 }
 
 impl Default for SacConfig {
@@ -67,6 +102,11 @@ impl Default for SacConfig {
             batch_size: 1280,
             threads: 1,
             seed: 0,
+            adam_eps: 1e-5,
+            max_grad_norm: 1.0,
+            init: NetInit::HeUniform,
+            policy_head_init: 1e-3,
+            critic_head_init: 3e-3,
         }
     }
 }
@@ -99,6 +139,28 @@ impl SacConfig {
         self.target_entropy.unwrap_or(-(self.act_dim as f64))
     }
 
+    /// The initialisation scheme of the policy (`critic = false`) or of a critic.
+    pub fn init_for(&self, critic: bool) -> terl_nn::Init {
+        match self.init {
+            NetInit::TorchDefault => terl_nn::Init::TorchDefault,
+            NetInit::HeUniform => terl_nn::Init::HeUniform {
+                head_bound: if critic {
+                    self.critic_head_init
+                } else {
+                    self.policy_head_init
+                },
+            },
+        }
+    }
+
+    /// Adam settings for a learning rate `lr` with this config's ε.
+    pub fn adam(&self, lr: f64) -> terl_nn::AdamConfig {
+        terl_nn::AdamConfig {
+            eps: self.adam_eps,
+            ..terl_nn::AdamConfig::with_lr(lr)
+        }
+    }
+
     /// Checks sizes and ranges.
     pub fn validate(&self) -> Result<(), SacError> {
         let bad = |m: String| Err(SacError::Config(m));
@@ -119,6 +181,23 @@ impl SacConfig {
         }
         if self.threads == 0 {
             return bad("threads must be at least 1".into());
+        }
+        if !(self.adam_eps.is_finite() && self.adam_eps > 0.0) {
+            return bad(format!("adam_eps {} must be > 0", self.adam_eps));
+        }
+        if !(self.max_grad_norm.is_finite() && self.max_grad_norm >= 0.0) {
+            return bad(format!(
+                "max_grad_norm {} must be ≥ 0 (0: no clipping)",
+                self.max_grad_norm
+            ));
+        }
+        for (name, v) in [
+            ("policy_head_init", self.policy_head_init),
+            ("critic_head_init", self.critic_head_init),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return bad(format!("{name} {v} must be ≥ 0"));
+            }
         }
         Ok(())
     }

@@ -19,6 +19,9 @@ pub struct StepBuffers {
     pub truncated: Vec<bool>,
     /// The task's success criterion holds after this step (Meta-World's `info["success"]`).
     pub success: Vec<bool>,
+    /// The step is not a transition of the task's dynamics (the physics blew up and the
+    /// episode was cut short, `truncated` is set too): the trainer does not store it.
+    pub unstable: Vec<bool>,
 }
 
 impl StepBuffers {
@@ -31,6 +34,7 @@ impl StepBuffers {
             terminated: vec![false; num_envs],
             truncated: vec![false; num_envs],
             success: vec![false; num_envs],
+            unstable: vec![false; num_envs],
         }
     }
 }

@@ -37,7 +37,7 @@ pub mod train;
 pub mod value;
 
 pub use batch::Batch;
-pub use config::SacConfig;
+pub use config::{NetInit, SacConfig};
 pub use error::SacError;
 pub use policy::{Policy, PolicySpec};
 pub use sac::{Sac, UpdateStats};

@@ -27,7 +27,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use terl_nn::tensors::{save_file, Tensor, TensorFile};
 use terl_nn::{
-    gaussian, par_for_threads, Activation, Adam, AdamConfig, Float, InputGrad, Mlp, MlpCache,
+    clip_global_norm, gaussian, par_for_threads, Activation, Adam, Float, InputGrad, Mlp, MlpCache,
     MlpSpec,
 };
 
@@ -44,6 +44,12 @@ pub struct UpdateStats {
     pub log_prob_mean: f64,
     /// Mean temperature over the batch's rows.
     pub alpha_mean: f64,
+    /// Global norm of the policy gradient before clipping.
+    #[serde(default)]
+    pub actor_grad_norm: f64,
+    /// Global norm of both critics' gradients together, before clipping.
+    #[serde(default)]
+    pub critic_grad_norm: f64,
 }
 
 /// One critic with its target, optimiser, gradient and activation buffers.
@@ -129,11 +135,11 @@ fn write_input<T: Float>(
 
 impl<T: Float> Critic<T> {
     fn new(cfg: &SacConfig, rng: &mut ChaCha8Rng) -> Self {
-        let net = Mlp::new(&critic_spec(cfg), rng);
+        let net = Mlp::new_with(&critic_spec(cfg), cfg.init_for(true), rng);
         let b = cfg.batch_size;
         Self {
             target: net.clone(),
-            adam: Adam::new(net.num_params(), AdamConfig::with_lr(cfg.critic_lr)),
+            adam: Adam::new(net.num_params(), cfg.adam(cfg.critic_lr)),
             grads: vec![T::of(0.0); net.num_params()],
             cache: MlpCache::new(&net, 2 * b),
             target_cache: MlpCache::new(&net, b),
@@ -219,7 +225,7 @@ impl<T: Float> Sac<T> {
     pub fn new(config: SacConfig) -> Result<Self, SacError> {
         config.validate()?;
         let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
-        let policy = Mlp::new(&policy_spec(&config), &mut rng);
+        let policy = Mlp::new_with(&policy_spec(&config), config.init_for(false), &mut rng);
         let critics = [
             Critic::new(&config, &mut rng),
             Critic::new(&config, &mut rng),
@@ -242,13 +248,13 @@ impl<T: Float> Sac<T> {
         let (b, a, nt) = (config.batch_size, config.act_dim, config.num_tasks);
         let zeros = |n: usize| vec![T::of(0.0); n];
         Ok(Self {
-            policy_adam: Adam::new(policy.num_params(), AdamConfig::with_lr(config.actor_lr)),
+            policy_adam: Adam::new(policy.num_params(), config.adam(config.actor_lr)),
             policy_grads: zeros(policy.num_params()),
             policy_cache: MlpCache::new(&policy, 2 * b),
             policy,
             critics,
             log_alpha: vec![T::of(config.initial_log_alpha); nt],
-            alpha_adam: Adam::new(nt, AdamConfig::with_lr(config.alpha_lr)),
+            alpha_adam: Adam::new(nt, config.adam(config.alpha_lr)),
             alpha_grads: zeros(nt),
             rng,
             pool,
@@ -345,9 +351,21 @@ impl<T: Float> Sac<T> {
     }
 
     fn compute_and_apply(&mut self, batch: &Batch) -> Result<UpdateStats, SacError> {
-        let stats = self.compute_gradients_inner(batch)?;
+        let mut stats = self.compute_gradients_inner(batch)?;
+        (stats.actor_grad_norm, stats.critic_grad_norm) = self.clip_gradients();
         self.apply_gradients();
         Ok(stats)
+    }
+
+    /// Clips the policy gradient and the critics' joint gradient to `max_grad_norm` (global
+    /// norm; nothing when it is 0) and returns both norms before clipping.
+    fn clip_gradients(&mut self) -> (f64, f64) {
+        let max = self.config.max_grad_norm;
+        let bound = if max > 0.0 { max } else { f64::INFINITY };
+        let actor = clip_global_norm(&mut [&mut self.policy_grads[..]], bound);
+        let [c1, c2] = &mut self.critics;
+        let critic = clip_global_norm(&mut [&mut c1.grads[..], &mut c2.grads[..]], bound);
+        (actor, critic)
     }
 
     fn check_batch(&self, batch: &Batch) -> Result<(), SacError> {

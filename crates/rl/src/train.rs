@@ -80,6 +80,9 @@ pub struct TrainProgress {
     pub eval: Option<EvalReport>,
     pub rejected_batches: u64,
     pub failed_updates: u64,
+    /// Steps where the physics went unstable; they are not stored in replay.
+    #[serde(default)]
+    pub unstable_transitions: u64,
 }
 
 /// Summary of a finished run.
@@ -216,14 +219,19 @@ pub fn train<E: VecEnvironment, V: VecEnvironment>(
             .map_err(|e| SacError::Env(Box::new(e)))?;
         for i in 0..n {
             let t = task_ids[i];
-            replay.push(
-                t,
-                &obs[i * od..(i + 1) * od],
-                &actions[i * ad..(i + 1) * ad],
-                out.reward[i],
-                &out.final_obs[i * od..(i + 1) * od],
-                out.terminated[i],
-            );
+            if out.unstable[i] {
+                // Not a transition of the task (see `StepBuffers::unstable`): dropped, counted.
+                progress.unstable_transitions += 1;
+            } else {
+                replay.push(
+                    t,
+                    &obs[i * od..(i + 1) * od],
+                    &actions[i * ad..(i + 1) * ad],
+                    out.reward[i],
+                    &out.final_obs[i * od..(i + 1) * od],
+                    out.terminated[i],
+                );
+            }
             ep_success[i] |= out.success[i];
             if out.terminated[i] || out.truncated[i] {
                 progress.episodes += 1;

@@ -189,18 +189,28 @@ impl RunConfig {
             .unwrap_or(self.samples_per_insert().max(1.0) * 2.0 * batch as f64)
     }
 
-    /// The task indices (into the run's task list) actor `actor_id` of `num_actors` steps:
-    /// task `t` goes to actor `t % num_actors`; an actor left without a task (more actors
-    /// than tasks) takes task `actor_id % num_tasks`.
-    pub fn actor_tasks(num_tasks: usize, actor_id: usize, num_actors: usize) -> Vec<usize> {
-        let mine: Vec<usize> = (0..num_tasks)
-            .filter(|t| t % num_actors.max(1) == actor_id)
-            .collect();
-        if mine.is_empty() && num_tasks > 0 {
-            vec![actor_id % num_tasks]
-        } else {
-            mine
-        }
+    /// The task (index into the run's task list) of each environment of actor `actor_id` of
+    /// `num_actors`, each asking for `envs_per_actor` environments.
+    ///
+    /// Every task gets the same number of environments over the whole cluster, for any actor
+    /// count: replay samples tasks in equal shares, so unequal environment counts would replay
+    /// some tasks' data more often than others'. The cluster's total, `num_actors ×
+    /// envs_per_actor`, is rounded up to a multiple of the task count (`k` environments per
+    /// task); environment slot `g` of the cluster steps task `g / k` (so an actor holds few
+    /// distinct tasks), and actor `a` takes slots `⌊a·M/N⌋ .. ⌊(a+1)·M/N⌋` of the `M` slots, so
+    /// actors differ by at most one environment and each has at least one.
+    pub fn actor_env_tasks(
+        num_tasks: usize,
+        actor_id: usize,
+        num_actors: usize,
+        envs_per_actor: usize,
+    ) -> Vec<usize> {
+        let (t, n) = (num_tasks.max(1), num_actors.max(1));
+        let requested = n * envs_per_actor.max(1);
+        let per_task = requested.div_ceil(t);
+        let slots = per_task * t;
+        let (start, end) = (actor_id * slots / n, (actor_id + 1) * slots / n);
+        (start..end.min(slots)).map(|g| g / per_task).collect()
     }
 }
 
@@ -209,12 +219,45 @@ mod tests {
     use super::*;
 
     #[test]
-    fn tasks_spread_evenly_and_every_actor_gets_one() {
-        assert_eq!(RunConfig::actor_tasks(10, 0, 3), vec![0, 3, 6, 9]);
-        assert_eq!(RunConfig::actor_tasks(10, 2, 3), vec![2, 5, 8]);
-        assert_eq!(RunConfig::actor_tasks(2, 0, 2), vec![0]);
-        assert_eq!(RunConfig::actor_tasks(2, 1, 2), vec![1]);
-        assert_eq!(RunConfig::actor_tasks(2, 3, 4), vec![1]);
+    fn every_task_gets_the_same_number_of_environments_for_any_actor_count() {
+        for num_tasks in [1, 2, 10, 20] {
+            for envs_per_actor in [1, 3, 10] {
+                for num_actors in 1..=16 {
+                    let mut per_task = vec![0usize; num_tasks];
+                    let mut total = 0;
+                    for a in 0..num_actors {
+                        let mine =
+                            RunConfig::actor_env_tasks(num_tasks, a, num_actors, envs_per_actor);
+                        assert!(!mine.is_empty(), "actor {a} of {num_actors} has no env");
+                        assert!(mine.len() <= envs_per_actor + num_tasks.div_ceil(num_actors));
+                        for t in mine {
+                            per_task[t] += 1;
+                            total += 1;
+                        }
+                    }
+                    let k = per_task[0];
+                    assert!(
+                        per_task.iter().all(|&c| c == k),
+                        "{num_tasks} tasks, {num_actors} actors × {envs_per_actor}: {per_task:?}"
+                    );
+                    let requested = num_actors * envs_per_actor;
+                    assert!(total >= requested && total < requested + num_tasks);
+                }
+            }
+        }
+        // The old rule gave tasks 0–4 twice the environments of tasks 5–9 here.
+        let counts = (0..15).fold(vec![0; 10], |mut c, a| {
+            for t in RunConfig::actor_env_tasks(10, a, 15, 10) {
+                c[t] += 1;
+            }
+            c
+        });
+        assert_eq!(counts, vec![15; 10]);
+        // One actor keeps the single-process layout: one environment per task.
+        assert_eq!(
+            RunConfig::actor_env_tasks(10, 0, 1, 10),
+            (0..10).collect::<Vec<_>>()
+        );
     }
 
     #[test]

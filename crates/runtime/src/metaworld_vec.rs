@@ -81,6 +81,7 @@ impl VecEnvironment for MetaWorldVec {
         out.truncated.copy_from_slice(v.truncated());
         out.terminated.fill(false);
         out.success.copy_from_slice(v.success());
+        out.unstable.copy_from_slice(v.unstable());
         Ok(())
     }
 }

@@ -47,3 +47,27 @@ fn mt10_terl_is_mt10_with_the_algorithm_switched() {
     assert_eq!((b.tep.batch_size, b.tep.buffer_capacity), (1024, 6_000_000));
     assert_eq!(b.guidance.sigma, 0.98);
 }
+
+#[test]
+fn mt10_uses_the_reference_mtsac_settings() {
+    for name in ["mt10.toml", "mt10-terl.toml"] {
+        let c = load(name);
+        let tasks = terl_runtime::resolve_tasks(&c.tasks).unwrap();
+        // The reference replay: 1M transitions in total, split evenly over the ten tasks.
+        assert_eq!(
+            c.train.replay_capacity_per_task * tasks.len(),
+            1_000_000,
+            "{name}"
+        );
+        let s = &c.sac;
+        assert_eq!(s.policy_hidden, vec![400, 400, 400], "{name}");
+        assert_eq!(s.critic_hidden, vec![400, 400, 400], "{name}");
+        assert_eq!((s.adam_eps, s.max_grad_norm), (1e-5, 1.0), "{name}");
+        assert_eq!(s.init, terl_rl::NetInit::HeUniform, "{name}");
+        assert_eq!(
+            (s.policy_head_init, s.critic_head_init),
+            (1e-3, 3e-3),
+            "{name}"
+        );
+    }
+}

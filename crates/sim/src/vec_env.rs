@@ -41,6 +41,7 @@ pub struct VecEnv {
     rewards: Vec<f32>,
     success: Vec<bool>,
     truncated: Vec<bool>,
+    unstable: Vec<bool>,
     returns: Vec<f64>,
     ever_success: Vec<bool>,
     finished: Vec<EpisodeEnd>,
@@ -90,6 +91,7 @@ impl VecEnv {
             rewards: vec![0.0; n],
             success: vec![false; n],
             truncated: vec![false; n],
+            unstable: vec![false; n],
             returns: vec![0.0; n],
             ever_success: vec![false; n],
             finished: Vec::with_capacity(n),
@@ -168,6 +170,7 @@ impl VecEnv {
             self.rewards[i] = step.reward as f32;
             self.success[i] = step.success;
             self.truncated[i] = step.truncated;
+            self.unstable[i] = step.unstable;
             self.returns[i] += step.reward;
             self.ever_success[i] |= step.success;
             if step.truncated {
@@ -224,9 +227,17 @@ impl VecEnv {
     pub fn success(&self) -> &[bool] {
         &self.success
     }
-    /// Time-limit truncation (Meta-World never terminates an episode early).
+    /// Time-limit truncation (Meta-World never terminates an episode early); also set when
+    /// the physics went unstable (see [`Self::unstable`]).
     pub fn truncated(&self) -> &[bool] {
         &self.truncated
+    }
+    /// The last step's physics went unstable (MuJoCo reported a bad qpos/qvel/qacc or the
+    /// observation was non-finite): the episode was cut short, its last observation has its
+    /// non-finite values zeroed and its reward is 0. That step is not a transition of the task's
+    /// dynamics, so learners must not store it (the trainer and the actor drop it and count it).
+    pub fn unstable(&self) -> &[bool] {
+        &self.unstable
     }
     /// Episodes that ended in the last step.
     pub fn finished(&self) -> &[EpisodeEnd] {

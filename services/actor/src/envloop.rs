@@ -61,14 +61,69 @@ fn row<const N: usize>(flat: &[f32], i: usize) -> [f32; N] {
         .expect("row of the right width")
 }
 
+/// The transition environment `i` made in the last `env.step(actions)` from `obs` (the
+/// observations acted on): `next_obs` is the observation the action reached — at the time limit
+/// the episode's true last observation ([`VecEnv::final_obs`]), not the reset observation the
+/// environment continues from. `None` when the step is not a transition of the task: the
+/// physics went unstable ([`VecEnv::unstable`]), so the step is dropped (and counted by the
+/// caller) rather than learned as an ordinary, bootstrapping transition with reward 0.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn transition_of(
+    env: &VecEnv,
+    i: usize,
+    obs: &[f32],
+    actions: &[f32],
+    policy_version: u64,
+    actor_id: u16,
+    task: u16,
+    guided: bool,
+) -> Option<Transition> {
+    if env.unstable()[i] {
+        return None;
+    }
+    let truncated = env.truncated()[i];
+    let next_obs = if truncated {
+        env.final_obs()
+    } else {
+        env.obs()
+    };
+    let mut f = 0;
+    if truncated {
+        f |= flags::TRUNCATED;
+    }
+    if env.success()[i] {
+        f |= flags::SUCCESS;
+    }
+    if guided {
+        f |= flags::GUIDED;
+    }
+    Some(Transition {
+        policy_version,
+        obs: row(obs, i),
+        next_obs: row(next_obs, i),
+        action: row(actions, i),
+        reward: env.rewards()[i],
+        actor_id,
+        env_index: i as u16,
+        task,
+        flags: f,
+        reserved: [0; 5],
+    })
+}
+
 pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()> {
     let run = &config.run;
     let actor_id = u16::try_from(config.actor_id).context("actor id above 65535")?;
     let tasks = terl_runtime::resolve_tasks(&run.tasks)?;
-    let mine = RunConfig::actor_tasks(tasks.len(), config.actor_id, config.num_actors);
+    let mine = RunConfig::actor_env_tasks(
+        tasks.len(),
+        config.actor_id,
+        config.num_actors,
+        run.envs_per_actor(),
+    );
     let my_names: Vec<&str> = mine.iter().map(|&t| tasks[t]).collect();
-    let num_envs = run.envs_per_actor();
-    let mut env = VecEnv::round_robin(&my_names, num_envs, run.variation_seed)?;
+    let num_envs = my_names.len();
+    let mut env = VecEnv::new(&my_names, run.variation_seed)?;
     let seed = run
         .train
         .seed
@@ -142,6 +197,7 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
     let mut actions = vec![0.0f32; num_envs * ACTION_DIM];
     let (mut steps, mut episodes_done, mut successes) = (0u64, 0u64, 0u64);
     let mut guided_steps = 0u64;
+    let mut unstable_steps = 0u64;
     let start = Instant::now();
     let (mut log_at, mut log_steps) = (start, 0u64);
 
@@ -174,35 +230,23 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
         }
         env.step(&actions)?;
         for i in 0..num_envs {
-            let truncated = env.truncated()[i];
-            let next_obs = if truncated {
-                env.final_obs()
-            } else {
-                env.obs()
-            };
-            let mut f = 0;
-            if truncated {
-                f |= flags::TRUNCATED;
-            }
-            if env.success()[i] {
-                f |= flags::SUCCESS;
-            }
-            if guide.as_ref().is_some_and(|g| g.guided()[i]) {
-                f |= flags::GUIDED;
+            let guided = guide.as_ref().is_some_and(|g| g.guided()[i]);
+            if guided {
                 guided_steps += 1;
                 trajectories[i].guided_steps = trajectories[i].guided_steps.saturating_add(1);
             }
-            let transition = Transition {
-                policy_version: policy.version,
-                obs: row(&obs, i),
-                next_obs: row(next_obs, i),
-                action: row(&actions, i),
-                reward: env.rewards()[i],
+            let Some(transition) = transition_of(
+                &env,
+                i,
+                &obs,
+                &actions,
+                policy.version,
                 actor_id,
-                env_index: i as u16,
-                task: global_task[i],
-                flags: f,
-                reserved: [0; 5],
+                global_task[i],
+                guided,
+            ) else {
+                unstable_steps += 1;
+                continue;
             };
             let _ = trajectories[i].push_step(TrajectoryStep {
                 obs: transition.obs,
@@ -259,6 +303,7 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
                 episodes = episodes_done,
                 successes,
                 guided_steps,
+                unstable_steps_dropped = unstable_steps,
                 planner_version = guide.as_ref().map_or(0, |g| g.planner().version()),
                 transitions = ?transitions.stats(),
                 "progress"
@@ -274,4 +319,67 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
         "actor stopped"
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use terl_sim::metaworld::Env;
+
+    fn action(step: usize) -> [f32; ACTION_DIM] {
+        let t = step as f32 * 0.05;
+        [t.sin(), t.cos(), (0.5 * t).sin(), 0.3]
+    }
+
+    #[test]
+    fn the_time_limit_transition_carries_the_true_last_observation() {
+        let mut env = VecEnv::new(&["push-v3", "reach-v3"], 3).unwrap();
+        env.reset_all_seeded(5).unwrap();
+        // Second path: the same episode replayed on a plain `Env` from the same variation.
+        let mut single = Env::new("push-v3").unwrap();
+        single.reset(env.env(0).rand_vec()).unwrap();
+        let mut obs = env.obs().to_vec();
+        for step in 0..500 {
+            let a = action(step);
+            let actions: Vec<f32> = a.iter().chain(&a).copied().collect();
+            env.step(&actions).unwrap();
+            let expected = single.step(&a).unwrap();
+            let t = transition_of(&env, 0, &obs, &actions, 7, 1, 0, false).unwrap();
+            let truncated = step == 499;
+            assert_eq!(env.truncated()[0], truncated);
+            assert_eq!(t.flags & flags::TRUNCATED != 0, truncated);
+            for (k, (&got, &want)) in t.next_obs.iter().zip(&expected.obs).enumerate() {
+                assert!(
+                    (f64::from(got) - want).abs() < 1e-5,
+                    "step {step} obs[{k}]: transition {got}, replayed env {want}"
+                );
+            }
+            if truncated {
+                // The environment already continues from a reset observation; the transition
+                // does not carry it.
+                assert_ne!(&t.next_obs[..], &env.obs()[..39]);
+                assert_eq!(&t.next_obs[..], &env.final_obs()[..39]);
+            }
+            obs.copy_from_slice(env.obs());
+        }
+    }
+
+    #[test]
+    fn a_physics_blow_up_is_dropped_not_sent_as_a_transition() {
+        let mut env = VecEnv::new(&["reach-v3", "push-v3"], 0).unwrap();
+        env.reset_all_seeded(1).unwrap();
+        let a = action(0);
+        let actions: Vec<f32> = a.iter().chain(&a).copied().collect();
+        env.step(&actions).unwrap();
+        let obs = env.obs().to_vec();
+        env.env_mut(1).inject_nan_velocity();
+        env.step(&actions).unwrap();
+        assert!(env.unstable()[1] && !env.unstable()[0]);
+        assert!(transition_of(&env, 1, &obs, &actions, 1, 0, 1, false).is_none());
+        assert!(transition_of(&env, 0, &obs, &actions, 1, 0, 0, false).is_some());
+        // The environment was reset and steps normally again.
+        env.step(&actions).unwrap();
+        assert!(!env.unstable()[1]);
+        assert!(transition_of(&env, 1, &obs, &actions, 1, 0, 1, false).is_some());
+    }
 }
