@@ -45,6 +45,14 @@ pub struct RunConfig {
     /// Seed of the goal variations (50 per task).
     #[serde(default)]
     pub variation_seed: u64,
+    /// Experiment name that `terl report` groups runs by (with the algorithm), e.g. `mt1-ind`
+    /// for runs that each train one of the MT1-Ind tasks; unset: the `tasks` value.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub experiment: Option<String>,
+    /// Name of this arm of a comparison within one experiment and algorithm (e.g. `before` and
+    /// `after` of a change); `terl report` draws one line per algorithm and variant.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub variant: Option<String>,
     /// `"mtsac"` (default) or `"terl"` (cluster only: PTR selection, TEP, guidance).
     #[serde(default)]
     pub algorithm: Algorithm,

@@ -5,6 +5,7 @@ mod bench_tep;
 mod cluster;
 mod env;
 mod report;
+mod results;
 mod status;
 mod train;
 
@@ -37,8 +38,9 @@ enum Command {
     /// The local cluster: up (deploy/local-cluster.sh) and down.
     #[command(subcommand)]
     Cluster(cluster::ClusterCommand),
-    /// Evaluation report of a cluster run: success-rate table and learning curves from its
-    /// MCAP logs (report.md, learning-curves.svg).
+    /// Reports of runs: final evaluation success over seeds next to the paper's Table I,
+    /// per-task breakdown and learning curves (results.md, PNG/SVG), and each cluster run's
+    /// training-episode table (report.md, learning-curves.svg).
     Report(report::ReportArgs),
 }
 

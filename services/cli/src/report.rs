@@ -1,5 +1,11 @@
-//! `terl report RUN_DIR`: the evaluation report of a cluster run from its MCAP logs.
+//! `terl report RUN_DIR...`: reports of one or more runs.
 //!
+//! Across runs ([`crate::results`]): `results.md` (a Table-I-style table of final deterministic
+//! evaluation success, mean ± std over seeds, next to the paper's numbers, and a per-task
+//! breakdown), `results.json`, and per experiment the evaluation success and return curves
+//! (PNG and SVG).
+//!
+//! Per cluster run, from its MCAP logs (training episodes, not evaluations):
 //! - `report.md`: per task, the training success rate over the last `--window` episodes and
 //!   over all episodes, mean return and length, guided-step share (from the selector's
 //!   `episodes.mcap`), plus the run's final learner metrics (from `metrics.mcap`);
@@ -20,9 +26,13 @@ use terl_wire::{EpisodeSummary, Metric};
 
 #[derive(Debug, Args)]
 pub struct ReportArgs {
-    /// Run folder (`runs/<id>`) with `episodes.mcap` and `metrics.mcap`.
-    pub run_dir: PathBuf,
-    /// Where to write `report.md` and `learning-curves.svg` (default: the run folder).
+    /// Run folders (`runs/<id>`): cluster runs (`episodes.mcap`, `metrics.mcap`, in-run
+    /// evaluations) and `terl train` runs (`progress.jsonl`).
+    #[arg(required = true, num_args = 1..)]
+    pub run_dirs: Vec<PathBuf>,
+    /// Where to write the cross-run results (`results.md`, `results.json`, charts) and, for a
+    /// single run, its training report (default: the run folder for one run, `./report` for
+    /// several).
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Episodes per task in the rolling success window.
@@ -223,12 +233,49 @@ pub fn svg(rows: &[TaskRow], window: usize) -> String {
 
 pub fn run(args: ReportArgs) -> Result<ExitCode> {
     anyhow::ensure!(args.window > 0, "--window must be at least 1");
-    let episode_files = terl_telemetry::existing_paths(&args.run_dir, "episodes");
+    let out = match (&args.out, args.run_dirs.as_slice()) {
+        (Some(o), _) => o.clone(),
+        (None, [one]) => one.clone(),
+        (None, _) => PathBuf::from("report"),
+    };
+    std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
+    let mut evaluated = Vec::new();
+    let mut anything = false;
+    for dir in &args.run_dirs {
+        anyhow::ensure!(dir.is_dir(), "{} is not a folder", dir.display());
+        if !terl_telemetry::existing_paths(dir, "episodes").is_empty() {
+            let run_out = if args.run_dirs.len() == 1 {
+                out.clone()
+            } else {
+                dir.clone()
+            };
+            training_report(dir, &run_out, args.window)?;
+            anything = true;
+        }
+        match crate::results::load_run(dir) {
+            Ok(r) => evaluated.push(r),
+            Err(e) => eprintln!("note: no evaluations used from {}: {e:#}", dir.display()),
+        }
+    }
+    if !evaluated.is_empty() {
+        let (md, files) = crate::results::write_results(&evaluated, &out)?;
+        print!("{md}");
+        for f in files {
+            eprintln!("wrote {}", f.display());
+        }
+        anything = true;
+    }
     anyhow::ensure!(
-        !episode_files.is_empty(),
-        "no episodes.mcap in {} (is it a cluster run folder?)",
-        args.run_dir.display()
+        anything,
+        "nothing to report: no episodes.mcap and no evaluations in {:?}",
+        args.run_dirs
     );
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `report.md` and `learning-curves.svg` of one cluster run's training episodes.
+fn training_report(run_dir: &Path, out: &Path, window: usize) -> Result<()> {
+    let episode_files = terl_telemetry::existing_paths(run_dir, "episodes");
     let mut episodes = Vec::new();
     for f in &episode_files {
         let log = terl_telemetry::read_log::<EpisodeSummary>(f)
@@ -242,23 +289,22 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
         episodes.extend(log.records);
     }
     let mut metrics = Vec::new();
-    for f in terl_telemetry::existing_paths(&args.run_dir, "metrics") {
+    for f in terl_telemetry::existing_paths(run_dir, "metrics") {
         let log = terl_telemetry::read_log::<Metric>(&f)
             .with_context(|| format!("reading {}", f.display()))?;
         metrics.extend(log.records);
     }
-    let rows = task_rows(&episodes, args.window);
-    let out = args.out.unwrap_or_else(|| args.run_dir.clone());
-    std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
-    let md = markdown(&args.run_dir, &rows, args.window, &metrics);
+    let rows = task_rows(&episodes, window);
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let md = markdown(run_dir, &rows, window, &metrics);
     let md_path = out.join("report.md");
     std::fs::write(&md_path, &md).with_context(|| format!("writing {}", md_path.display()))?;
     let svg_path = out.join("learning-curves.svg");
-    std::fs::write(&svg_path, svg(&rows, args.window))
+    std::fs::write(&svg_path, svg(&rows, window))
         .with_context(|| format!("writing {}", svg_path.display()))?;
     print!("{md}");
     eprintln!("wrote {} and {}", md_path.display(), svg_path.display());
-    Ok(ExitCode::SUCCESS)
+    Ok(())
 }
 
 #[cfg(test)]

@@ -1,0 +1,740 @@
+//! Evaluation results across runs: the Table-I-style summary and the learning curves of
+//! `terl report`.
+//!
+//! A run folder contributes its **deterministic evaluations** (the policy's mean action on
+//! each task's goal variations), never its training episodes:
+//! - `progress.jsonl` of `terl train` (one line per evaluation, with the env steps);
+//! - the in-run evaluations of a cluster run, when its evaluator logged any.
+//!
+//! Runs are grouped by experiment (the run file's `experiment`, else its `tasks`) and
+//! algorithm; each group reports the **final** evaluation's success rate as mean ± standard
+//! deviation over seeds (sample std, n − 1; 0 for one seed), with the number of seeds,
+//! evaluation episodes per task and env steps stated, next to the paper's Table I. Curves put
+//! one line per algorithm (mean over seeds) with the seeds' spread (± one std) shaded; they are
+//! drawn by `plotters` as PNG (for documents) and SVG.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use plotters::prelude::*;
+use serde::Serialize;
+use terl_runtime::RunConfig;
+
+/// One deterministic evaluation of a run.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct EvalPoint {
+    /// Environment steps collected when the evaluated policy was current.
+    pub env_steps: u64,
+    /// Mean over tasks of the per-task success rate (fraction, 0–1).
+    pub mean_success: f64,
+    /// Per task (in the run's task order), fraction of episodes with success at any step.
+    pub per_task_success: Vec<f64>,
+    /// Mean undiscounted episode return over all evaluation episodes.
+    pub mean_return: f64,
+    /// Evaluation episodes per task.
+    pub episodes_per_task: usize,
+}
+
+/// The evaluations of one run folder.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RunEval {
+    pub dir: PathBuf,
+    /// Experiment name (grouping key): the run file's `experiment`, else its `tasks`.
+    pub experiment: String,
+    /// `"mtsac"` or `"terl"`, followed by the run file's `variant` in parentheses if set.
+    pub algorithm: String,
+    /// The run's training seed (`[train] seed`).
+    pub seed: u64,
+    pub tasks: Vec<String>,
+    /// In order of env steps.
+    pub points: Vec<EvalPoint>,
+}
+
+impl RunEval {
+    /// The last evaluation.
+    pub fn last(&self) -> Option<&EvalPoint> {
+        self.points.last()
+    }
+}
+
+/// Reads a run folder's config and evaluations. A folder without any evaluation is an error
+/// naming what was looked for.
+pub fn load_run(dir: &Path) -> Result<RunEval> {
+    let cfg_path = dir.join("config.toml");
+    let cfg = RunConfig::load(&cfg_path)
+        .with_context(|| format!("{} is not a run folder", dir.display()))?;
+    let tasks: Vec<String> = terl_runtime::resolve_tasks(&cfg.tasks)?
+        .into_iter()
+        .map(String::from)
+        .collect();
+    let mut points = Vec::new();
+    let progress = dir.join("progress.jsonl");
+    if progress.exists() {
+        points.extend(progress_points(
+            &progress,
+            cfg.eval_envs_per_task * cfg.train.eval_episodes_per_env,
+        )?);
+    }
+    anyhow::ensure!(
+        !points.is_empty(),
+        "{}: no evaluation found (progress.jsonl of `terl train`, or in-run evaluations of a cluster run)",
+        dir.display()
+    );
+    points.sort_by_key(|p| p.env_steps);
+    Ok(RunEval {
+        dir: dir.to_path_buf(),
+        experiment: cfg.experiment.clone().unwrap_or_else(|| cfg.tasks.clone()),
+        algorithm: match &cfg.variant {
+            Some(v) => format!("{} ({v})", cfg.algorithm.as_str()),
+            None => cfg.algorithm.as_str().to_string(),
+        },
+        seed: cfg.train.seed,
+        tasks,
+        points,
+    })
+}
+
+/// The evaluations in a `terl train` `progress.jsonl`. A damaged last line (a run killed while
+/// writing) is skipped; damage elsewhere is an error with its line number.
+fn progress_points(path: &Path, episodes_per_task: usize) -> Result<Vec<EvalPoint>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let lines: Vec<&str> = text.lines().filter(|l| !l.trim().is_empty()).collect();
+    let mut out = Vec::new();
+    for (i, line) in lines.iter().enumerate() {
+        let p: terl_rl::train::TrainProgress = match serde_json::from_str(line) {
+            Ok(p) => p,
+            Err(_) if i + 1 == lines.len() => {
+                eprintln!("note: {} ends in a partial line; skipped", path.display());
+                break;
+            }
+            Err(e) => anyhow::bail!("{}:{}: {e}", path.display(), i + 1),
+        };
+        if let Some(e) = p.eval {
+            out.push(EvalPoint {
+                env_steps: p.env_steps,
+                mean_success: e.success_rate,
+                per_task_success: e.per_task_success,
+                mean_return: e.mean_return,
+                episodes_per_task: episodes_per_task.max(1),
+            });
+        }
+    }
+    Ok(out)
+}
+
+/// The paper's Table I (success %, 5 seeds, 500 trials) for an experiment and algorithm.
+pub fn paper_success(experiment: &str, algorithm: &str) -> Option<f64> {
+    let v = match (experiment.to_ascii_lowercase().as_str(), algorithm) {
+        ("mt1-ind", "mtsac") => 95.0,
+        ("mt1-ind", "terl") => 95.4,
+        ("mt10", "mtsac") => 68.4,
+        ("mt10", "terl") => 82.8,
+        ("mt-test", "mtsac") => 16.4,
+        ("mt-test", "terl") => 19.4,
+        ("mt20", "mtsac") => 63.4,
+        ("mt20", "terl") => 68.8,
+        _ => return None,
+    };
+    Some(v)
+}
+
+/// Mean and sample standard deviation (n − 1; 0 for fewer than two values).
+pub fn mean_std(values: &[f64]) -> (f64, f64) {
+    let n = values.len();
+    if n == 0 {
+        return (f64::NAN, f64::NAN);
+    }
+    let mean = values.iter().sum::<f64>() / n as f64;
+    if n < 2 {
+        return (mean, 0.0);
+    }
+    let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
+    (mean, var.sqrt())
+}
+
+/// Final results of one (experiment, algorithm) group.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct GroupSummary {
+    pub experiment: String,
+    pub algorithm: String,
+    pub seeds: Vec<u64>,
+    pub runs: Vec<PathBuf>,
+    pub tasks: Vec<String>,
+    /// Final mean success over tasks (%), mean and std over seeds.
+    pub success_mean: f64,
+    pub success_std: f64,
+    /// Per task: final success (%) mean and std over seeds.
+    pub per_task: Vec<(String, f64, f64)>,
+    /// Final mean return, mean over seeds.
+    pub return_mean: f64,
+    /// Smallest and largest env steps at the final evaluation over seeds.
+    pub env_steps: (u64, u64),
+    pub episodes_per_task: usize,
+    pub paper_success: Option<f64>,
+}
+
+/// Groups runs by (experiment, algorithm), in a stable order.
+pub fn group_runs(runs: &[RunEval]) -> BTreeMap<(String, String), Vec<&RunEval>> {
+    let mut groups: BTreeMap<(String, String), Vec<&RunEval>> = BTreeMap::new();
+    for r in runs {
+        groups
+            .entry((r.experiment.clone(), r.algorithm.clone()))
+            .or_default()
+            .push(r);
+    }
+    groups
+}
+
+/// The final-evaluation summary of each group. Runs of one group must train the same tasks.
+pub fn summarize(runs: &[RunEval]) -> Result<Vec<GroupSummary>> {
+    let mut out = Vec::new();
+    for ((experiment, algorithm), members) in group_runs(runs) {
+        let tasks = members[0].tasks.clone();
+        for m in &members {
+            anyhow::ensure!(
+                m.tasks == tasks,
+                "{} and {} are both experiment {experiment} / {algorithm} but train different tasks",
+                members[0].dir.display(),
+                m.dir.display()
+            );
+        }
+        let finals: Vec<&EvalPoint> = members.iter().filter_map(|m| m.last()).collect();
+        let success: Vec<f64> = finals.iter().map(|p| 100.0 * p.mean_success).collect();
+        let (success_mean, success_std) = mean_std(&success);
+        let per_task = tasks
+            .iter()
+            .enumerate()
+            .map(|(k, t)| {
+                let v: Vec<f64> = finals
+                    .iter()
+                    .filter_map(|p| p.per_task_success.get(k))
+                    .map(|s| 100.0 * s)
+                    .collect();
+                let (m, s) = mean_std(&v);
+                (t.clone(), m, s)
+            })
+            .collect();
+        let steps: Vec<u64> = finals.iter().map(|p| p.env_steps).collect();
+        out.push(GroupSummary {
+            paper_success: paper_success(&experiment, &algorithm)
+                .filter(|_| !algorithm.contains('(')),
+            seeds: members.iter().map(|m| m.seed).collect(),
+            runs: members.iter().map(|m| m.dir.clone()).collect(),
+            return_mean: mean_std(&finals.iter().map(|p| p.mean_return).collect::<Vec<_>>()).0,
+            env_steps: (
+                steps.iter().copied().min().unwrap_or(0),
+                steps.iter().copied().max().unwrap_or(0),
+            ),
+            episodes_per_task: finals
+                .iter()
+                .map(|p| p.episodes_per_task)
+                .min()
+                .unwrap_or(0),
+            experiment,
+            algorithm,
+            tasks,
+            success_mean,
+            success_std,
+            per_task,
+        });
+    }
+    Ok(out)
+}
+
+fn steps_label(steps: (u64, u64)) -> String {
+    let fmt = |s: u64| {
+        if s >= 1_000_000 {
+            format!("{:.2}M", s as f64 / 1e6)
+        } else {
+            format!("{:.0}k", s as f64 / 1e3)
+        }
+    };
+    if steps.0 == steps.1 {
+        fmt(steps.0)
+    } else {
+        format!("{}–{}", fmt(steps.0), fmt(steps.1))
+    }
+}
+
+/// `results.md`: the Table-I-style table, then a per-task breakdown per experiment.
+pub fn markdown(summaries: &[GroupSummary]) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "# Evaluation results\n");
+    let _ = writeln!(
+        s,
+        "Final deterministic evaluation (mean action) of each run; success = success at any step \
+         of an episode, averaged over tasks. Mean ± std over seeds. The paper's Table I reports 5 \
+         seeds and 500 trials at its own budget; Meta-World v3 tasks here use v2-style rewards.\n"
+    );
+    let _ = writeln!(
+        s,
+        "| experiment | algorithm | success % (ours) | paper % | seeds | eval episodes / task | env steps / run |"
+    );
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|");
+    for g in summaries {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {:.1} ± {:.1} | {} | {} | {} | {} |",
+            g.experiment,
+            g.algorithm,
+            g.success_mean,
+            g.success_std,
+            g.paper_success
+                .map_or_else(|| "—".to_string(), |p| format!("{p:.1}")),
+            g.seeds.len(),
+            g.episodes_per_task,
+            steps_label(g.env_steps)
+        );
+    }
+    let mut experiments: Vec<&str> = summaries.iter().map(|g| g.experiment.as_str()).collect();
+    experiments.dedup();
+    for exp in experiments {
+        let groups: Vec<&GroupSummary> = summaries.iter().filter(|g| g.experiment == exp).collect();
+        let _ = writeln!(
+            s,
+            "\n## {exp}: per task (final success %, mean ± std over seeds)\n"
+        );
+        let header: Vec<String> = groups
+            .iter()
+            .map(|g| format!("{}, {}", g.algorithm, seeds_label(g.seeds.len())))
+            .collect();
+        let _ = writeln!(s, "| task | {} |", header.join(" | "));
+        let _ = writeln!(s, "|---|{}", "---|".repeat(groups.len()));
+        for (k, task) in groups[0].tasks.iter().enumerate() {
+            let cells: Vec<String> = groups
+                .iter()
+                .map(|g| {
+                    g.per_task
+                        .get(k)
+                        .map_or("—".into(), |(_, m, sd)| format!("{m:.1} ± {sd:.1}"))
+                })
+                .collect();
+            let _ = writeln!(s, "| {task} | {} |", cells.join(" | "));
+        }
+        let _ = writeln!(
+            s,
+            "\nCurves: `{0}-eval-success.png` / `.svg`, `{0}-eval-return.png` / `.svg`.",
+            file_stem(exp)
+        );
+    }
+    s
+}
+
+fn seeds_label(n: usize) -> String {
+    if n == 1 {
+        "1 seed".into()
+    } else {
+        format!("{n} seeds")
+    }
+}
+
+/// A file-name-safe form of an experiment name.
+pub fn file_stem(experiment: &str) -> String {
+    experiment
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect()
+}
+
+/// Which evaluation quantity a curve shows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CurveMetric {
+    /// Mean success over tasks, in %.
+    Success,
+    /// Mean episode return.
+    Return,
+}
+
+impl CurveMetric {
+    fn of(self, p: &EvalPoint) -> f64 {
+        match self {
+            Self::Success => 100.0 * p.mean_success,
+            Self::Return => p.mean_return,
+        }
+    }
+    fn label(self) -> &'static str {
+        match self {
+            Self::Success => "evaluation success (%)",
+            Self::Return => "evaluation episode return",
+        }
+    }
+}
+
+/// One curve of a chart: an algorithm's mean over seeds, with ± one std, on a common grid of
+/// env steps. Each seed's curve is linearly interpolated onto the grid, which runs from the
+/// first to the last env steps that every seed evaluated.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Band {
+    pub label: String,
+    /// `(env steps, mean, std)`.
+    pub points: Vec<(f64, f64, f64)>,
+}
+
+fn interpolate(points: &[(f64, f64)], x: f64) -> f64 {
+    match points.iter().position(|&(px, _)| px >= x) {
+        Some(0) => points[0].1,
+        Some(i) => {
+            let ((x0, y0), (x1, y1)) = (points[i - 1], points[i]);
+            if x1 == x0 {
+                y1
+            } else {
+                y0 + (y1 - y0) * (x - x0) / (x1 - x0)
+            }
+        }
+        None => points.last().map_or(f64::NAN, |p| p.1),
+    }
+}
+
+/// The band of one group of runs.
+pub fn band(label: &str, runs: &[&RunEval], metric: CurveMetric) -> Option<Band> {
+    let curves: Vec<Vec<(f64, f64)>> = runs
+        .iter()
+        .map(|r| {
+            r.points
+                .iter()
+                .map(|p| (p.env_steps as f64, metric.of(p)))
+                .collect::<Vec<_>>()
+        })
+        .filter(|c: &Vec<(f64, f64)>| !c.is_empty())
+        .collect();
+    if curves.is_empty() {
+        return None;
+    }
+    let lo = curves.iter().map(|c| c[0].0).fold(f64::MIN, f64::max);
+    let hi = curves
+        .iter()
+        .map(|c| c[c.len() - 1].0)
+        .fold(f64::MAX, f64::min);
+    let grid: Vec<f64> = if hi > lo {
+        // The union of the seeds' evaluation steps inside [lo, hi]: no invented resolution.
+        let mut xs: Vec<f64> = curves
+            .iter()
+            .flat_map(|c| c.iter().map(|p| p.0))
+            .filter(|&x| x >= lo && x <= hi)
+            .collect();
+        xs.sort_by(f64::total_cmp);
+        xs.dedup();
+        xs
+    } else {
+        vec![lo]
+    };
+    let points = grid
+        .into_iter()
+        .map(|x| {
+            let ys: Vec<f64> = curves.iter().map(|c| interpolate(c, x)).collect();
+            let (m, s) = mean_std(&ys);
+            (x, m, s)
+        })
+        .collect();
+    Some(Band {
+        label: label.to_string(),
+        points,
+    })
+}
+
+const FONT_PATHS: [&str; 3] = [
+    "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
+    "/usr/share/fonts/dejavu/DejaVuSans.ttf",
+    "/usr/share/fonts/TTF/DejaVuSans.ttf",
+];
+
+/// Registers DejaVu Sans (package fonts-dejavu-core, installed by `deploy/setup.sh`) as the
+/// charts' `sans-serif` font; PNG text needs a font file, SVG text does not.
+fn register_font() -> Result<()> {
+    static DONE: std::sync::OnceLock<std::result::Result<(), String>> = std::sync::OnceLock::new();
+    DONE.get_or_init(|| {
+        let path = FONT_PATHS
+            .iter()
+            .find(|p| Path::new(p).exists())
+            .ok_or_else(|| {
+                format!(
+                    "no DejaVuSans.ttf in {FONT_PATHS:?}: install the fonts-dejavu-core package \
+                     (./deploy/setup.sh does)"
+                )
+            })?;
+        let bytes = std::fs::read(path).map_err(|e| format!("reading {path}: {e}"))?;
+        let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
+        plotters::style::register_font("sans-serif", FontStyle::Normal, bytes)
+            .map_err(|_| format!("{path} is not a usable font"))
+    })
+    .clone()
+    .map_err(|e| anyhow::anyhow!(e))
+}
+
+const PALETTE: [RGBColor; 6] = [
+    RGBColor(31, 119, 180),
+    RGBColor(214, 39, 40),
+    RGBColor(44, 160, 44),
+    RGBColor(255, 127, 14),
+    RGBColor(148, 103, 189),
+    RGBColor(140, 86, 75),
+];
+
+fn draw<DB: DrawingBackend>(
+    root: DrawingArea<DB, plotters::coord::Shift>,
+    title: &str,
+    metric: CurveMetric,
+    bands: &[Band],
+) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let x_max = bands
+        .iter()
+        .flat_map(|b| b.points.iter().map(|p| p.0))
+        .fold(1.0f64, f64::max);
+    let (y_min, y_max) = match metric {
+        CurveMetric::Success => (0.0, 100.0),
+        CurveMetric::Return => {
+            let lo = bands
+                .iter()
+                .flat_map(|b| b.points.iter().map(|p| p.1 - p.2))
+                .fold(0.0f64, f64::min);
+            let hi = bands
+                .iter()
+                .flat_map(|b| b.points.iter().map(|p| p.1 + p.2))
+                .fold(1.0f64, f64::max);
+            (lo, hi * 1.05)
+        }
+    };
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 22))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(56)
+        .build_cartesian_2d(0.0..x_max, y_min..y_max)
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    chart
+        .configure_mesh()
+        .x_desc("environment steps")
+        .y_desc(metric.label())
+        .label_style(("sans-serif", 15))
+        .x_label_formatter(&|x| {
+            if x_max >= 1e6 {
+                format!("{:.1}M", x / 1e6)
+            } else {
+                format!("{:.0}k", x / 1e3)
+            }
+        })
+        .draw()
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    for (i, b) in bands.iter().enumerate() {
+        let color = PALETTE[i % PALETTE.len()];
+        let clamp = |v: f64| v.clamp(y_min, y_max);
+        let mut outline: Vec<(f64, f64)> = b
+            .points
+            .iter()
+            .map(|&(x, m, s)| (x, clamp(m + s)))
+            .collect();
+        outline.extend(b.points.iter().rev().map(|&(x, m, s)| (x, clamp(m - s))));
+        chart
+            .draw_series(std::iter::once(Polygon::new(
+                outline,
+                color.mix(0.18).filled(),
+            )))
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        chart
+            .draw_series(LineSeries::new(
+                b.points.iter().map(|&(x, m, _)| (x, m)),
+                color.stroke_width(2),
+            ))
+            .map_err(|e| anyhow::anyhow!("{e}"))?
+            .label(b.label.clone())
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
+            });
+    }
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperLeft)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 16))
+        .draw()
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    root.present().map_err(|e| anyhow::anyhow!("{e}"))?;
+    Ok(())
+}
+
+/// Writes `<stem>.png` and `<stem>.svg` (1000 × 560) of one chart.
+pub fn write_chart(
+    out_dir: &Path,
+    stem: &str,
+    title: &str,
+    metric: CurveMetric,
+    bands: &[Band],
+) -> Result<Vec<PathBuf>> {
+    register_font()?;
+    let png = out_dir.join(format!("{stem}.png"));
+    let svg = out_dir.join(format!("{stem}.svg"));
+    draw(
+        BitMapBackend::new(&png, (1000, 560)).into_drawing_area(),
+        title,
+        metric,
+        bands,
+    )
+    .with_context(|| format!("drawing {}", png.display()))?;
+    draw(
+        SVGBackend::new(&svg, (1000, 560)).into_drawing_area(),
+        title,
+        metric,
+        bands,
+    )
+    .with_context(|| format!("drawing {}", svg.display()))?;
+    Ok(vec![png, svg])
+}
+
+/// Everything `terl report` writes for a set of runs: `results.md`, `results.json` and the
+/// two charts per experiment. Returns the markdown and the files written.
+pub fn write_results(runs: &[RunEval], out_dir: &Path) -> Result<(String, Vec<PathBuf>)> {
+    let summaries = summarize(runs)?;
+    let md = markdown(&summaries);
+    let mut files = Vec::new();
+    let md_path = out_dir.join("results.md");
+    std::fs::write(&md_path, &md).with_context(|| format!("writing {}", md_path.display()))?;
+    files.push(md_path);
+    let json_path = out_dir.join("results.json");
+    let json = serde_json::json!({ "groups": summaries, "runs": runs });
+    std::fs::write(&json_path, serde_json::to_string_pretty(&json)?)
+        .with_context(|| format!("writing {}", json_path.display()))?;
+    files.push(json_path);
+    let groups = group_runs(runs);
+    let mut experiments: Vec<&String> = groups.keys().map(|(e, _)| e).collect();
+    experiments.dedup();
+    for exp in experiments {
+        for metric in [CurveMetric::Success, CurveMetric::Return] {
+            let bands: Vec<Band> = groups
+                .iter()
+                .filter(|((e, _), _)| e == exp)
+                .filter_map(|((_, alg), members)| {
+                    band(
+                        &format!("{alg}, {}", seeds_label(members.len())),
+                        members,
+                        metric,
+                    )
+                })
+                .collect();
+            let (stem, what) = match metric {
+                CurveMetric::Success => ("eval-success", "success"),
+                CurveMetric::Return => ("eval-return", "return"),
+            };
+            files.extend(write_chart(
+                out_dir,
+                &format!("{}-{stem}", file_stem(exp)),
+                &format!("{exp}: deterministic evaluation {what} (mean ± std over seeds)"),
+                metric,
+                &bands,
+            )?);
+        }
+    }
+    Ok((md, files))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn run(alg: &str, seed: u64, curve: &[(u64, f64)]) -> RunEval {
+        RunEval {
+            dir: PathBuf::from(format!("runs/{alg}-{seed}")),
+            experiment: "mt10".into(),
+            algorithm: alg.into(),
+            seed,
+            tasks: vec!["reach-v3".into(), "push-v3".into()],
+            points: curve
+                .iter()
+                .map(|&(steps, s)| EvalPoint {
+                    env_steps: steps,
+                    mean_success: s,
+                    per_task_success: vec![s + 0.1, s - 0.1],
+                    mean_return: 100.0 * s,
+                    episodes_per_task: 50,
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn groups_final_success_over_seeds_by_hand() {
+        let runs = vec![
+            run("mtsac", 1, &[(1000, 0.1), (2000, 0.4)]),
+            run("terl", 1, &[(1000, 0.2), (2000, 0.5)]),
+            run("mtsac", 2, &[(1000, 0.3), (2000, 0.6)]),
+        ];
+        let s = summarize(&runs).unwrap();
+        assert_eq!(s.len(), 2);
+        let m = &s[0];
+        assert_eq!(
+            (m.algorithm.as_str(), m.seeds.clone()),
+            ("mtsac", vec![1, 2])
+        );
+        // Final successes 40 % and 60 %: mean 50, sample std sqrt(200) = 14.14.
+        assert!((m.success_mean - 50.0).abs() < 1e-9);
+        assert!((m.success_std - 200f64.sqrt()).abs() < 1e-9);
+        assert!((m.per_task[0].1 - 60.0).abs() < 1e-9 && (m.per_task[1].1 - 40.0).abs() < 1e-9);
+        assert_eq!(m.paper_success, Some(68.4));
+        assert_eq!(s[1].success_std, 0.0);
+        assert_eq!(s[1].paper_success, Some(82.8));
+        let md = markdown(&s);
+        assert!(
+            md.contains("| mt10 | mtsac | 50.0 ± 14.1 | 68.4 | 2 | 50 | 2k |"),
+            "{md}"
+        );
+        assert!(
+            md.contains("| push-v3 | 40.0 ± 14.1 | 40.0 ± 0.0 |"),
+            "{md}"
+        );
+    }
+
+    #[test]
+    fn bands_interpolate_seeds_onto_their_common_steps() {
+        let a = run("mtsac", 1, &[(0, 0.0), (100, 1.0)]);
+        let b = run("mtsac", 2, &[(0, 0.0), (50, 0.0), (150, 1.0)]);
+        let band = band("mtsac", &[&a, &b], CurveMetric::Success).unwrap();
+        // Common range 0..100; grid = union of steps inside it: 0, 50, 100.
+        let xs: Vec<f64> = band.points.iter().map(|p| p.0).collect();
+        assert_eq!(xs, vec![0.0, 50.0, 100.0]);
+        // At 50: seed 1 interpolates to 50 %, seed 2 is 0 % → mean 25.
+        assert!((band.points[1].1 - 25.0).abs() < 1e-9);
+        // At 100: seed 1 100 %, seed 2 halfway from 0 (at 50) to 100 (at 150) → 50; mean 75.
+        assert!((band.points[2].1 - 75.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn charts_are_written_as_png_and_svg() {
+        let dir = tempfile::tempdir().unwrap();
+        let runs = vec![
+            run("mtsac", 1, &[(0, 0.0), (1000, 0.4), (2000, 0.5)]),
+            run("mtsac", 2, &[(0, 0.0), (1000, 0.2), (2000, 0.7)]),
+            run("terl", 1, &[(0, 0.0), (1000, 0.5), (2000, 0.8)]),
+        ];
+        let (_, files) = write_results(&runs, dir.path()).unwrap();
+        let png = dir.path().join("mt10-eval-success.png");
+        let bytes = std::fs::read(&png).unwrap();
+        assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n");
+        let img_w = u32::from_be_bytes(bytes[16..20].try_into().unwrap());
+        assert_eq!(img_w, 1000);
+        let svg = std::fs::read_to_string(dir.path().join("mt10-eval-return.svg")).unwrap();
+        assert!(
+            svg.contains("<svg")
+                && svg.contains("mtsac (2 seeds)")
+                && svg.contains("terl (1 seeds)")
+        );
+        assert_eq!(files.len(), 2 + 4);
+        let json: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.path().join("results.json")).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(json["groups"].as_array().unwrap().len(), 2);
+    }
+}
