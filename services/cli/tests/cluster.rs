@@ -377,6 +377,10 @@ fn terl_cluster_selects_trains_the_planner_and_guides() {
         assert!(u(l, &["tep_buffer_size"]) <= u(l, &["tep_buffer_capacity"]));
         let loss = l["tep_f_loss"].as_f64().unwrap_or(0.0);
         if loss > 0.0 {
+            // F ≥ 0 by construction: its bootstrapped targets are ≥ 1 step.
+            let target = l["tep_target_mean"].as_f64().unwrap_or(0.0);
+            assert!(target >= 1.0, "mean TEP target {target} below 1: {s}");
+            assert!(l["tep_goal_distance_mean"].as_f64().unwrap_or(-1.0) >= 0.0);
             if first_loss.is_none() {
                 first_loss = Some(loss);
             } else {
@@ -425,6 +429,12 @@ fn terl_cluster_selects_trains_the_planner_and_guides() {
         .expect("metrics log readable");
     let logged = |name: &str| metrics.records.iter().filter(|m| m.name == name).count();
     assert!(logged("tep/f_loss") > 0 && logged("guidance/rate/reach-v3") > 0);
+    assert!(logged("tep/target_mean") > 0 && logged("tep/goal_distance_mean") > 0);
+    assert!(metrics
+        .records
+        .iter()
+        .filter(|m| m.name == "tep/target_mean" && m.value != 0.0)
+        .all(|m| m.value >= 1.0));
     assert!(metrics
         .records
         .iter()
