@@ -20,6 +20,10 @@ pub enum Activation {
     Identity,
     Relu,
     Tanh,
+    /// `ln(1 + e^z)`: a smooth, non-negative output (for quantities that are ≥ 0 by definition,
+    /// like the planner's step count F). Its derivative is written through the output,
+    /// `σ(z) = 1 − e^{−y}`.
+    Softplus,
 }
 
 /// Shape of an MLP: `input → hidden[0] → … → output`.
@@ -497,7 +501,18 @@ fn bias_activation<T: Float>(y: &mut [T], bias: &[T], act: Activation) {
                 .zip(bias)
                 .for_each(|(v, &b)| *v = (*v + b).tanh())
         }),
+        Activation::Softplus => rows.for_each(|r| {
+            r.iter_mut()
+                .zip(bias)
+                .for_each(|(v, &b)| *v = (*v + b).softplus())
+        }),
     }
+}
+
+/// Softplus' derivative `σ(z)` from its output `y = ln(1 + e^z)`: `1 − e^{−y}`.
+#[inline(always)]
+fn softplus_grad<T: Float>(y: T) -> T {
+    T::of(1.0) - (-y).exp()
 }
 
 /// `dz ← dy · act'(y)` in place, with `y` the activation output.
@@ -510,6 +525,10 @@ fn activation_grad<T: Float>(dz: &mut [T], y: &[T], act: Activation) {
             .zip(y)
             .for_each(|(d, &y)| *d = if y > zero { *d } else { zero }),
         Activation::Tanh => dz.iter_mut().zip(y).for_each(|(d, &y)| *d *= one - y * y),
+        Activation::Softplus => dz
+            .iter_mut()
+            .zip(y)
+            .for_each(|(d, &y)| *d *= softplus_grad(y)),
     }
 }
 
@@ -537,6 +556,16 @@ fn activation_grad_with_bias<T: Float>(dz: &mut [T], y: &[T], db: &mut [T], act:
                     .zip(yr)
                     .for_each(|((b, d), &y)| {
                         let g = *d * (one - y * y);
+                        *d = g;
+                        *b += g;
+                    })
+            }
+            Activation::Softplus => {
+                db.iter_mut()
+                    .zip(dr.iter_mut())
+                    .zip(yr)
+                    .for_each(|((b, d), &y)| {
+                        let g = *d * softplus_grad(y);
                         *d = g;
                         *b += g;
                     })

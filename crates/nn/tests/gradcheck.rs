@@ -106,6 +106,12 @@ fn tanh_layers_match_finite_differences() {
 }
 
 #[test]
+fn softplus_output_matches_finite_differences() {
+    check_layer(Activation::Relu, Activation::Softplus);
+    check_layer(Activation::Tanh, Activation::Softplus);
+}
+
+#[test]
 fn backward_over_a_row_range_and_column_subset_matches_full_backward() {
     let mut rng = ChaCha8Rng::seed_from_u64(3);
     let mlp: Mlp<f64> = Mlp::new(&spec(Activation::Relu, Activation::Identity), &mut rng);

@@ -4,7 +4,14 @@
 //!
 //! Rule, per actor step `t` of one environment, with `a = π(s_t)` and goal state `g = g(s_t)`:
 //! `f_t = F(s_t, g, a)`; execute `AN(s_t, g)` iff `f_t ≥ f_{t−1}` **and** `u < σ^N`, `u ~ U[0, 1)`,
-//! σ = 0.98, `N` = episodes this actor (environment) has finished; otherwise execute `a`.
+//! σ = 0.98, `N` = episodes completed; otherwise execute `a`.
+//!
+//! **Which episodes `N` counts** ([`EpisodeCounter`], `[guidance] episode_counter`): by default
+//! every episode the actor has completed, over all its environments — the paper's "the number
+//! of episodes completed", for the agent that acts. The alternative, `"environment"`, counts
+//! each environment's own episodes; with `E` environments per actor its guidance then decays
+//! `E` times slower per episode of experience. Either way `N` counts from the first planner
+//! version (see [`BatchGuidance::end_episode`]).
 //!
 //! Reading of the paper: Eq. 15 writes `F(s_t, s_{t+1}, a_t) > F_{t−1}` with the goal in place of
 //! `s_{t+1}` (the next state is unknown before acting; the text explains `F_{t−1}` as the distance
@@ -18,13 +25,15 @@ use crate::tep::{Planner, TepConfig};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 
-/// Which part of the observation the goal replaces in [`goal_state`].
+/// Which part of the observation the goal replaces in [`goal_state`] (in both frames).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum GoalTarget {
-    /// Object 1's position `obs[4..7]` (tasks that move an object).
+    /// Object 1's position: `obs[4..7]` and its previous-frame copy `obs[22..25]` (tasks that
+    /// move an object).
     Object,
-    /// The hand position `obs[0..3]` (tasks without an object to move, e.g. reach).
+    /// The hand position: `obs[0..3]` and its previous-frame copy `obs[18..21]` (tasks without
+    /// an object to move, e.g. reach).
     Hand,
 }
 
@@ -38,36 +47,55 @@ impl GoalTarget {
         }
     }
 
-    /// The observation range the goal is written into.
+    /// The current-frame observation range the goal is written into.
     pub fn range(self) -> std::ops::Range<usize> {
         match self {
             Self::Object => OBJECT_POS,
             Self::Hand => HAND_POS,
         }
     }
+
+    /// The same quantity's range in the previous-frame copy `obs[18..36]`.
+    pub fn previous_range(self) -> std::ops::Range<usize> {
+        let r = self.range();
+        r.start + FRAME_LEN..r.end + FRAME_LEN
+    }
 }
 
-/// Where guidance takes its goal state from (the ARCHITECTURE.md config switch).
+/// Which finished episodes `N` in `σ^N` counts (see the module docs).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
-pub enum GoalSource {
-    /// [`goal_state`]: the observation with the object (or hand) position set to the goal.
+pub enum EpisodeCounter {
+    /// Episodes completed by the whole actor, all its environments together (the paper's
+    /// "number of episodes completed"; default).
     #[default]
-    ObsGoal,
-    /// The final state of the nearest selected successful trajectory of this task (looked up by
-    /// the actor from the TEP dataset; not computed in this crate).
-    NearestSuccessfulFinal,
+    Actor,
+    /// Episodes completed by each environment on its own (`E` environments per actor decay
+    /// `E` times slower per episode of the actor).
+    Environment,
 }
 
-/// Hand position in a Meta-World observation.
+/// Values of one frame in a Meta-World observation: hand xyz, gripper opening, two objects as
+/// position + quaternion (`crates/sim`'s `current_frame`). The observation is the current frame
+/// `obs[0..18]`, the previous step's frame `obs[18..36]`, the goal `obs[36..39]`.
+pub const FRAME_LEN: usize = 18;
+/// Hand position in a Meta-World observation (current frame; `+ FRAME_LEN` in the previous one).
 pub const HAND_POS: std::ops::Range<usize> = 0..3;
-/// Object 1 position in a Meta-World observation.
+/// Object 1 position in a Meta-World observation (current frame; `+ FRAME_LEN` in the previous
+/// one).
 pub const OBJECT_POS: std::ops::Range<usize> = 4..7;
 /// Goal position in a Meta-World observation (fully observable benchmarks).
 pub const GOAL_POS: std::ops::Range<usize> = 36..39;
 
 /// Goal state `g(s)`: a copy of `obs` whose object-1 position (or hand position) is replaced by
-/// the goal position `obs[36..39]`, written into `out`. `obs` must have at least 39 entries.
+/// the goal position `obs[36..39]` in **both** frames — the current one (`obs[4..7]` or
+/// `obs[0..3]`) and the previous-frame copy (`obs[22..25]` or `obs[18..21]`) — written into
+/// `out`. `obs` must have at least 39 entries.
+///
+/// Both frames, because F is trained on hindsight goals that are real observations, whose two
+/// frames differ by one step's motion; a goal whose previous frame still held the old position
+/// would differ from its current frame by the whole distance to the goal, a state F never saw.
+/// The goal state is one that has settled at the goal (object, or hand, at rest there).
 pub fn goal_state_into(obs: &[f32], target: GoalTarget, out: &mut [f32]) {
     assert!(
         obs.len() >= GOAL_POS.end,
@@ -75,6 +103,7 @@ pub fn goal_state_into(obs: &[f32], target: GoalTarget, out: &mut [f32]) {
     );
     out.copy_from_slice(obs);
     out[target.range()].copy_from_slice(&obs[GOAL_POS]);
+    out[target.previous_range()].copy_from_slice(&obs[GOAL_POS]);
 }
 
 /// [`goal_state_into`] returning a new vector.
@@ -97,21 +126,28 @@ pub fn guidance_probability(sigma: f64, episodes: u64) -> f64 {
     sigma.powf(episodes as f64)
 }
 
-/// Guidance settings.
+/// Guidance settings (`[guidance]`). The goal state is always [`goal_state`] (the observation
+/// with the object or hand position set to the goal in both frames).
+///
+/// ```toml
+/// sigma = 0.98
+/// episode_counter = "actor"   # or "environment"
+/// ```
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct GuidanceConfig {
-    /// Decay σ of the guidance probability per finished episode (paper: 0.98).
+    /// Decay σ of the guidance probability per finished episode, in [0, 1] (paper: 0.98).
     pub sigma: f64,
-    /// Where the goal state comes from.
-    pub goal_source: GoalSource,
+    /// Which episodes `N` of `σ^N` counts: `"actor"` (every episode the actor completed, the
+    /// paper's reading; default) or `"environment"` (each environment's own).
+    pub episode_counter: EpisodeCounter,
 }
 
 impl Default for GuidanceConfig {
     fn default() -> Self {
         Self {
             sigma: 0.98,
-            goal_source: GoalSource::ObsGoal,
+            episode_counter: EpisodeCounter::Actor,
         }
     }
 }
@@ -172,6 +208,12 @@ impl Guidance {
         self.episodes += 1;
     }
 
+    /// Another environment of the same actor completed an episode and `N` counts the actor's
+    /// episodes ([`EpisodeCounter::Actor`]): `N += 1`, this episode's `f_{t−1}` is kept.
+    pub fn count_episode(&mut self) {
+        self.episodes += 1;
+    }
+
     /// Current `σ^N`.
     pub fn probability(&self) -> f64 {
         guidance_probability(self.sigma, self.episodes)
@@ -217,6 +259,7 @@ impl Guidance {
 pub struct BatchGuidance {
     planner: Planner,
     per_env: Vec<Guidance>,
+    counter: EpisodeCounter,
     targets: Vec<GoalTarget>,
     next_draw: Option<f64>,
     guided: Vec<bool>,
@@ -243,6 +286,7 @@ impl BatchGuidance {
         Self {
             planner: Planner::new(config, n.max(1)),
             per_env: (0..n).map(|_| Guidance::new(sigma)).collect(),
+            counter: EpisodeCounter::default(),
             next_draw: None,
             guided: vec![false; n],
             obs_dim: od,
@@ -258,6 +302,22 @@ impl BatchGuidance {
             f_rows: 0,
             an_rows: 0,
         }
+    }
+
+    /// Chooses which episodes `N` counts (default [`EpisodeCounter::Actor`]).
+    pub fn with_counter(mut self, counter: EpisodeCounter) -> Self {
+        self.counter = counter;
+        self
+    }
+
+    /// The episode counter in use.
+    pub fn counter(&self) -> EpisodeCounter {
+        self.counter
+    }
+
+    /// `σ^N` of environment `env` now.
+    pub fn probability(&self, env: usize) -> f64 {
+        self.per_env[env].probability()
     }
 
     /// Starts every environment at `episodes` finished episodes (benchmarks, restarts).
@@ -367,12 +427,22 @@ impl BatchGuidance {
         m
     }
 
-    /// Environment `env` finished an episode. `N` counts episodes since guidance became
-    /// active (the first planner version): counting earlier ones would decay the probability
-    /// to nothing before a planner exists.
+    /// Environment `env` finished an episode: its `f_{t−1}` is forgotten, and `N` grows by one
+    /// for every environment ([`EpisodeCounter::Actor`]) or for `env` only
+    /// ([`EpisodeCounter::Environment`]). `N` counts episodes since guidance became active (the
+    /// first planner version): counting earlier ones would decay the probability to nothing
+    /// before a planner exists.
     pub fn end_episode(&mut self, env: usize) {
-        if self.active() {
-            self.per_env[env].end_episode();
+        if !self.active() {
+            return;
+        }
+        self.per_env[env].end_episode();
+        if self.counter == EpisodeCounter::Actor {
+            for (i, g) in self.per_env.iter_mut().enumerate() {
+                if i != env {
+                    g.count_episode();
+                }
+            }
         }
     }
 }

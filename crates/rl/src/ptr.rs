@@ -1,5 +1,5 @@
-//! PTR sample selection (paper Sec. IV.A): GAE, per-transition priority, ranking in batches, and
-//! the success-rate gate that starts selection for a task. Pure: values, entropies and episodes
+//! PTR sample selection (paper Sec. IV.A): GAE, per-transition priority, ranking across a pool
+//! of trajectories, and the success-rate gate that starts selection for a task. Pure: values, entropies and episodes
 //! come from the caller (the selector service), selected items go back to it.
 //!
 //! # Reading of Sec. IV.A
@@ -12,15 +12,25 @@
 //!   of trajectory `τ_i`.
 //! - Eq. 8: `p_E(i) = −∫ π(a|s) log π(a|s) da` (the paper's `p(s|a)` is read as the policy
 //!   density) is the policy entropy at the sample's state, a **per-transition** quantity supplied
-//!   by the caller (for example [`gaussian_entropy`] of the policy head, or `−log π(a|s)`).
+//!   by the caller. The policy that acts is the tanh-squashed Gaussian `a = tanh(u)`, so the
+//!   entropy is that of the squashed distribution, `E[−log π(a|s)]` including the tanh Jacobian
+//!   ([`squashed_gaussian_entropy`], computed by quadrature rather than from the one action
+//!   taken: no sampling noise, and guided steps, whose action came from the Action Network, get
+//!   the policy's entropy too). [`gaussian_entropy`] (pre-tanh) stays for comparison: it ignores
+//!   that a saturated mean (`|μ| ≫ 1`) makes the executed action nearly deterministic.
 //! - Eq. 9 calls `P(i) = α·p_τ^i + (1 − α)·p_E(i)` with α = 0.6 the *sample* priority, so every
 //!   transition gets `P = 0.6·mean(GAE of its trajectory) + 0.4·entropy(s_t)`. Transitions of one
 //!   trajectory share the first term and are ordered among themselves by entropy. No
 //!   normalisation of the two terms is mentioned, so none is applied.
-//! - "Optimization is performed per batch, with each consisting of 512 samples": transitions of
-//!   gated tasks are collected in arrival order into batches of 512 ([`PtrBatcher`]); each full
-//!   batch is ranked by `P` and its top fraction ([`PtrConfig::top_fraction`], not given in the
-//!   paper) is selected, the rest dropped.
+//! - Ranking is **across trajectories** ([`PtrPool`]): a trajectory's mean GAE is one number, so
+//!   ranking the transitions of a single episode (a 512-transition batch filled in arrival order
+//!   holds about one 500-step Meta-World episode) would leave only the entropy term. Scored
+//!   trajectories of a task collect in a pool of [`PtrConfig::pool_trajectories`]; when it is
+//!   full, all its transitions are ranked by `P` together, the top
+//!   [`PtrConfig::top_fraction`] (not given in the paper) is selected and the pool empties.
+//! - "Optimization is performed per batch, with each consisting of 512 samples": the selection
+//!   leaves the pool in batches of [`PtrConfig::batch_size`] drawn from the ranked pool, highest
+//!   `P` first (the first batch holds the pool's 512 best transitions, the last may be short).
 //! - "We initiate the sample selection process when the training task achieves a success rate
 //!   of 85 %": [`SuccessGate`] opens per task when its rolling success rate reaches the threshold
 //!   and, by default, stays open ("initiate").
@@ -36,6 +46,7 @@ use std::collections::VecDeque;
 /// lambda = 0.95
 /// gae_weight = 0.6
 /// batch_size = 512
+/// pool_trajectories = 10
 /// top_fraction = 0.25
 /// success_threshold = 0.85
 /// success_window = 50
@@ -49,10 +60,15 @@ pub struct PtrConfig {
     pub lambda: f64,
     /// Weight α of the mean-GAE term; the entropy gets `1 − α` (paper: 0.6).
     pub gae_weight: f64,
-    /// Transitions per ranking batch (paper: 512).
+    /// Transitions per selected batch drawn from a ranked pool (paper: 512).
     pub batch_size: usize,
-    /// Fraction of each batch that is selected, in (0, 1] (not in the paper; rounded up, at
-    /// least one transition).
+    /// Trajectories of one task ranked against each other ([`PtrPool`]); not in the paper.
+    /// Memory: each task's pool holds at most `pool_trajectories` episodes (≤ 500 transitions
+    /// each in Meta-World), so about `pool_trajectories · 500 · 350 B` per task (1.75 MB at 10).
+    /// Larger pools compare more trajectories but delay the first selection.
+    pub pool_trajectories: usize,
+    /// Fraction of a ranked pool's transitions that is selected, in (0, 1] (not in the paper;
+    /// rounded up, at least one transition).
     pub top_fraction: f64,
     /// Rolling success rate at which a task's selection starts (paper: 0.85). 0 opens the gate
     /// once `min_episodes` episodes are recorded (for smoke runs).
@@ -73,6 +89,7 @@ impl Default for PtrConfig {
             lambda: 0.95,
             gae_weight: 0.6,
             batch_size: 512,
+            pool_trajectories: 10,
             top_fraction: 0.25,
             success_threshold: 0.85,
             success_window: 50,
@@ -102,8 +119,10 @@ impl PtrConfig {
         if !(0.0..=1.0).contains(&self.gae_weight) {
             return bad(format!("ptr gae_weight {} not in [0, 1]", self.gae_weight));
         }
-        if self.batch_size == 0 || self.success_window == 0 {
-            return bad("ptr batch_size and success_window must be positive".into());
+        if self.batch_size == 0 || self.success_window == 0 || self.pool_trajectories == 0 {
+            return bad(
+                "ptr batch_size, pool_trajectories and success_window must be positive".into(),
+            );
         }
         if !(self.top_fraction > 0.0 && self.top_fraction <= 1.0) {
             return bad(format!(
@@ -120,9 +139,10 @@ impl PtrConfig {
         Ok(())
     }
 
-    /// Number of transitions selected from a full batch: `ceil(top_fraction · batch_size)`.
-    pub fn selected_per_batch(&self) -> usize {
-        ((self.top_fraction * self.batch_size as f64).ceil() as usize).clamp(1, self.batch_size)
+    /// Number of transitions selected from a ranked pool of `n`: `ceil(top_fraction · n)`, at
+    /// least 1 (0 for an empty pool).
+    pub fn selected_of(&self, n: usize) -> usize {
+        ((self.top_fraction * n as f64).ceil() as usize).clamp(n.min(1), n)
     }
 
     /// Priority of one transition (Eq. 9).
@@ -181,12 +201,93 @@ pub fn gae(
 }
 
 /// Differential entropy of the *pre-tanh* diagonal Gaussian with these log standard deviations:
-/// `Σ_j (½·ln(2πe) + log_std_j)`. A cheap per-state entropy input for [`trajectory_priorities`]
-/// (the tanh squashing changes it by `E[Σ ln(1 − tanh²u)]`, which needs samples; `−log π(a|s)`
-/// of the taken action is the sampled alternative).
+/// `Σ_j (½·ln(2πe) + log_std_j)`, in nats. Not what PTR uses (see
+/// [`squashed_gaussian_entropy`]).
 pub fn gaussian_entropy(log_std: &[f64]) -> f64 {
     let c = 0.5 * (2.0 * std::f64::consts::PI * std::f64::consts::E).ln();
     log_std.iter().map(|&l| c + l).sum()
+}
+
+/// Nodes and weights of 32-point Gauss–Hermite quadrature for the standard normal:
+/// `E[f(ε)] ≈ Σ_i w_i f(z_i)`, `ε ~ N(0, 1)` (exact for polynomials up to degree 63).
+/// Computed once (Newton iteration on the normalised Hermite recurrence).
+fn normal_quadrature() -> &'static [(f64, f64)] {
+    static NODES: std::sync::OnceLock<Vec<(f64, f64)>> = std::sync::OnceLock::new();
+    NODES.get_or_init(|| {
+        const N: usize = 32;
+        let pim4 = std::f64::consts::PI.powf(-0.25);
+        let (mut x, mut w) = ([0.0f64; N], [0.0f64; N]);
+        let nf = N as f64;
+        let mut z = 0.0f64;
+        for i in 0..N.div_ceil(2) {
+            z = match i {
+                0 => (2.0 * nf + 1.0).sqrt() - 1.85575 * (2.0 * nf + 1.0).powf(-0.16667),
+                1 => z - 1.14 * nf.powf(0.426) / z,
+                2 => 1.86 * z - 0.86 * x[0],
+                3 => 1.91 * z - 0.91 * x[1],
+                _ => 2.0 * z - x[i - 2],
+            };
+            let mut pp = 1.0;
+            for _ in 0..100 {
+                // Orthonormal Hermite polynomials (weight e^{−x²}) at z.
+                let (mut p1, mut p2) = (pim4, 0.0f64);
+                for j in 0..N {
+                    let p3 = p2;
+                    p2 = p1;
+                    let jf = j as f64;
+                    p1 = z * (2.0 / (jf + 1.0)).sqrt() * p2 - (jf / (jf + 1.0)).sqrt() * p3;
+                }
+                pp = (2.0 * nf).sqrt() * p2;
+                let step = p1 / pp;
+                z -= step;
+                if step.abs() < 1e-15 {
+                    break;
+                }
+            }
+            x[i] = z;
+            x[N - 1 - i] = -z;
+            w[i] = 2.0 / (pp * pp);
+            w[N - 1 - i] = w[i];
+        }
+        // ∫ e^{−x²} f(x) dx → E[f(ε)] with ε = √2·x.
+        let norm = std::f64::consts::PI.sqrt();
+        x.iter()
+            .zip(&w)
+            .map(|(&x, &w)| (std::f64::consts::SQRT_2 * x, w / norm))
+            .collect()
+    })
+}
+
+/// `ln(1 − tanh²x) = 2·(ln 2 − x − softplus(−2x))` without cancellation.
+fn log_one_minus_tanh2(x: f64) -> f64 {
+    use terl_nn::Float;
+    2.0 * (std::f64::consts::LN_2 - x - (-2.0 * x).softplus())
+}
+
+/// Entropy (nats) of the tanh-squashed diagonal Gaussian policy that acts, `a = tanh(u)`,
+/// `u ~ N(mean, exp(log_std)²)`: `H = E[−log π(a|s)]`, with the change of variables
+/// `log π(a|s) = log N(u; μ, σ) − Σ_j ln(1 − tanh² u_j)`, so per dimension
+/// `H_j = ½·ln(2πe) + log σ_j + E_ε[ln(1 − tanh²(μ_j + σ_j·ε))]`. The expectation is a 32-point
+/// Gauss–Hermite quadrature: deterministic (equal states give equal priorities) and within
+/// about 1e-3 of a large Monte-Carlo estimate of `−log π(a|s)` over `log_std ∈ [−20, 2]`.
+/// Always ≤ [`gaussian_entropy`] (the Jacobian term is ≤ 0); it falls as `|μ|` saturates.
+///
+/// # Panics
+/// If `mean` and `log_std` differ in length.
+pub fn squashed_gaussian_entropy(mean: &[f64], log_std: &[f64]) -> f64 {
+    assert_eq!(mean.len(), log_std.len(), "one log-std per mean");
+    let q = normal_quadrature();
+    let jacobian: f64 = mean
+        .iter()
+        .zip(log_std)
+        .map(|(&m, &l)| {
+            let sd = l.exp();
+            q.iter()
+                .map(|&(z, w)| w * log_one_minus_tanh2(m + sd * z))
+                .sum::<f64>()
+        })
+        .sum();
+    gaussian_entropy(log_std) + jacobian
 }
 
 /// Per-transition priorities of one trajectory (Eq. 5–9): `P_t = α·mean(A) + (1 − α)·H_t`.
@@ -225,84 +326,95 @@ pub fn top_k(priorities: &[f64], k: usize) -> Vec<usize> {
     idx
 }
 
-/// Collects scored items (transitions, or handles to them) into batches of
-/// [`PtrConfig::batch_size`]; every full batch is ranked and its top
-/// [`PtrConfig::selected_per_batch`] items are returned, highest priority first.
+/// A pool of scored trajectories ranked against each other (Eq. 9 across trajectories; see the
+/// module docs). Items are transitions (or handles to them) with their priority `P`; one call of
+/// [`PtrPool::push_trajectory`] adds one trajectory's items. When the pool holds
+/// [`PtrConfig::pool_trajectories`] trajectories, all its items are ranked by `P`, the top
+/// [`PtrConfig::selected_of`] of them are returned in batches of [`PtrConfig::batch_size`]
+/// (highest `P` first; NaN last, ties in arrival order), and the pool empties. Memory is bounded
+/// by `pool_trajectories` trajectories.
 #[derive(Clone, Debug)]
-pub struct PtrBatcher<I> {
-    batch_size: usize,
-    keep: usize,
-    pending: Vec<(f64, I)>,
-    batches: u64,
+pub struct PtrPool<I> {
+    cfg: PtrConfig,
+    items: Vec<(f64, I)>,
+    trajectories: usize,
+    rankings: u64,
     seen: u64,
     selected: u64,
 }
 
-impl<I> PtrBatcher<I> {
+impl<I> PtrPool<I> {
     pub fn new(cfg: &PtrConfig) -> Self {
         Self {
-            batch_size: cfg.batch_size,
-            keep: cfg.selected_per_batch(),
-            pending: Vec::with_capacity(cfg.batch_size),
-            batches: 0,
+            cfg: cfg.clone(),
+            items: Vec::new(),
+            trajectories: 0,
+            rankings: 0,
             seen: 0,
             selected: 0,
         }
     }
 
-    /// Adds one item with its priority; when this fills a batch, returns the batch's selection.
-    pub fn push(&mut self, priority: f64, item: I) -> Option<Vec<(f64, I)>> {
-        self.pending.push((priority, item));
-        self.seen += 1;
-        (self.pending.len() == self.batch_size).then(|| self.rank_pending())
-    }
-
-    /// Adds many items; returns the selections of all batches they completed, concatenated.
-    pub fn extend(&mut self, items: impl IntoIterator<Item = (f64, I)>) -> Vec<(f64, I)> {
-        let mut out = Vec::new();
-        for (p, item) in items {
-            if let Some(sel) = self.push(p, item) {
-                out.extend(sel);
-            }
-        }
-        out
-    }
-
-    /// Ranks a partial batch now (end of a run), selecting the same fraction of it.
-    pub fn flush(&mut self) -> Vec<(f64, I)> {
-        if self.pending.is_empty() {
+    /// Adds one trajectory's `(priority, item)` pairs; when this fills the pool, returns its
+    /// selection as batches (see the type docs), otherwise nothing. An empty trajectory is
+    /// not counted.
+    pub fn push_trajectory(
+        &mut self,
+        items: impl IntoIterator<Item = (f64, I)>,
+    ) -> Vec<Vec<(f64, I)>> {
+        let before = self.items.len();
+        self.items.extend(items);
+        let added = self.items.len() - before;
+        if added == 0 {
             return Vec::new();
         }
-        self.rank_pending()
+        self.seen += added as u64;
+        self.trajectories += 1;
+        if self.trajectories >= self.cfg.pool_trajectories {
+            self.rank()
+        } else {
+            Vec::new()
+        }
     }
 
-    fn rank_pending(&mut self) -> Vec<(f64, I)> {
-        let n = self.pending.len();
-        let keep = if n == self.batch_size {
-            self.keep
-        } else {
-            ((self.keep as f64 * n as f64 / self.batch_size as f64).ceil() as usize).clamp(1, n)
-        };
-        let prios: Vec<f64> = self.pending.iter().map(|(p, _)| *p).collect();
+    /// Ranks a partly filled pool now (end of a run), selecting the same fraction of it.
+    pub fn flush(&mut self) -> Vec<Vec<(f64, I)>> {
+        if self.items.is_empty() {
+            return Vec::new();
+        }
+        self.rank()
+    }
+
+    fn rank(&mut self) -> Vec<Vec<(f64, I)>> {
+        let keep = self.cfg.selected_of(self.items.len());
+        let prios: Vec<f64> = self.items.iter().map(|(p, _)| *p).collect();
         let order = top_k(&prios, keep);
-        let mut slots: Vec<Option<(f64, I)>> = self.pending.drain(..).map(Some).collect();
-        let out: Vec<(f64, I)> = order
+        let mut slots: Vec<Option<(f64, I)>> = self.items.drain(..).map(Some).collect();
+        let mut ranked = order
             .into_iter()
-            .map(|i| slots[i].take().expect("top_k indices are distinct"))
-            .collect();
-        self.batches += 1;
-        self.selected += out.len() as u64;
+            .map(|i| slots[i].take().expect("top_k indices are distinct"));
+        let mut out = Vec::with_capacity(keep.div_ceil(self.cfg.batch_size));
+        loop {
+            let batch: Vec<(f64, I)> = ranked.by_ref().take(self.cfg.batch_size).collect();
+            if batch.is_empty() {
+                break;
+            }
+            out.push(batch);
+        }
+        self.trajectories = 0;
+        self.rankings += 1;
+        self.selected += keep as u64;
         out
     }
 
-    /// Items waiting for their batch to fill.
-    pub fn pending(&self) -> usize {
-        self.pending.len()
+    /// Trajectories and transitions waiting for the pool to fill.
+    pub fn pending(&self) -> (usize, usize) {
+        (self.trajectories, self.items.len())
     }
 
-    /// Batches ranked, items seen, items selected so far.
+    /// Pools ranked, items seen, items selected so far.
     pub fn counts(&self) -> (u64, u64, u64) {
-        (self.batches, self.seen, self.selected)
+        (self.rankings, self.seen, self.selected)
     }
 }
 

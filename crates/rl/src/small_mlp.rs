@@ -141,6 +141,11 @@ impl SmallBatchMlp {
                         .zip(bias)
                         .for_each(|(v, &b)| *v = (*v + b).tanh());
                 }),
+                Activation::Softplus => rows_y.for_each(|r| {
+                    r.iter_mut()
+                        .zip(bias)
+                        .for_each(|(v, &b)| *v = terl_nn::Float::softplus(*v + b));
+                }),
             }
         }
         let n_out = self.sizes[layers];
@@ -295,6 +300,7 @@ mod tests {
         for (hidden_activation, output_activation) in [
             (Activation::Relu, Activation::Identity),
             (Activation::Relu, Activation::Tanh),
+            (Activation::Relu, Activation::Softplus),
         ] {
             let spec = MlpSpec {
                 input: 13,

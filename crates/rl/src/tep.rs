@@ -21,7 +21,14 @@
 //! rows `0..3B` with parameter gradients (the F loss) and once over `3B..4B` for the action-input
 //! gradient only (the AN loss). The targets `ÃN → F̃` are a second, `B`-row chain.
 //!
-//! F's output is linear (the paper's `F ∈ ℝ₊` is not enforced; the targets are ≥ 1 anyway).
+//! **F ≥ 0 by construction.** F is a number of steps (Eq. 10: `F ∈ ℝ₊`), so its output layer is
+//! a softplus, `F = ln(1 + e^z) ≥ 0`; hence every bootstrapped target `z = 1 + F̃(..) ≥ 1`,
+//! whatever the target network's weights. Chosen over clamping only the bootstrapped term at 0
+//! because a clamp bounds the targets but not F itself: AN minimises F (Eq. 14), and with a
+//! linear output it can find actions where F extrapolates below zero, off the data — exactly
+//! the values guidance then compares. Softplus keeps both F and the targets in range with a
+//! gradient everywhere (for large `z` it is the identity, so step counts up to an episode's
+//! 500 are represented as before).
 
 use crate::error::SacError;
 use crate::small_mlp::SmallBatchMlp;
@@ -51,7 +58,7 @@ pub struct TepConfig {
     pub obs_dim: usize,
     /// Action size (4 for Meta-World).
     pub act_dim: usize,
-    /// Hidden widths of F (ReLU); input `2·obs_dim + act_dim`, output 1 (linear).
+    /// Hidden widths of F (ReLU); input `2·obs_dim + act_dim`, output 1 (softplus, so F ≥ 0).
     pub f_hidden: Vec<usize>,
     /// Hidden widths of AN (ReLU); input `2·obs_dim`, output `act_dim` (tanh).
     pub an_hidden: Vec<usize>,
@@ -139,7 +146,7 @@ impl TepConfig {
             hidden: self.f_hidden.clone(),
             output: 1,
             hidden_activation: Activation::Relu,
-            output_activation: Activation::Identity,
+            output_activation: Activation::Softplus,
         }
     }
 
@@ -173,10 +180,13 @@ pub struct TepStats {
     pub symmetry_loss: f64,
     /// AN loss: mean `F(s_t, s', AN(s_t, s'))`.
     pub an_loss: f64,
-    /// Mean `F(s_t, s', a_t)` (predicted steps to the hindsight goal).
+    /// Mean `F(s_t, s', a_t)` (predicted steps to the hindsight goal; ≥ 0).
     pub goal_distance_mean: f64,
-    /// Mean bootstrapped target `z`.
+    /// Mean bootstrapped target `z = 1 + F̃(s_{t+1}, s', ÃN(s_{t+1}, s'))` (≥ 1, see the module
+    /// docs).
     pub target_mean: f64,
+    /// Smallest bootstrapped target `z` of the batch (≥ 1).
+    pub target_min: f64,
     /// Mean data distance `gap` of the batch.
     pub gap_mean: f64,
 }
@@ -281,6 +291,11 @@ impl<T: Float> Tep<T> {
 
     pub fn f_target_net(&self) -> &Mlp<T> {
         &self.f_target
+    }
+
+    /// The target F̃, mutable (checkpoint loading, tests).
+    pub fn f_target_net_mut(&mut self) -> &mut Mlp<T> {
+        &mut self.f_target
     }
 
     pub fn an_target_net(&self) -> &Mlp<T> {
@@ -407,7 +422,10 @@ impl<T: Float> Tep<T> {
         self.f.forward(&mut self.f_cache, 4 * b, par);
 
         // Losses and their gradients w.r.t. F's outputs.
-        let mut st = TepStats::default();
+        let mut st = TepStats {
+            target_min: f64::INFINITY,
+            ..TepStats::default()
+        };
         let z: Vec<T> = self
             .f_target_cache
             .output(0..b)
@@ -427,6 +445,7 @@ impl<T: Float> Tep<T> {
             l4 += y4.f64();
             st.goal_distance_mean += y2.f64();
             st.target_mean += z[i].f64();
+            st.target_min = st.target_min.min(z[i].f64());
             dy[i] = two * (e1 + e3) * inv_b;
             dy[b + i] = two * e2 * inv_b;
             dy[2 * b + i] = -two * e3 * inv_b;

@@ -5,15 +5,16 @@
 //!   soft value would add `−α·log π` of sampled actions; PTR only ranks transitions of gated
 //!   tasks against each other, and the deterministic form needs no noise, so equal inputs give
 //!   equal priorities.
-//! - `H(s)`: differential entropy of the policy's pre-tanh Gaussian at `s`
-//!   ([`crate::ptr::gaussian_entropy`] of the clamped log-std head).
+//! - `H(s)`: entropy of the policy actually executed at `s`, the tanh-squashed Gaussian
+//!   ([`crate::ptr::squashed_gaussian_entropy`] of the mean and the clamped log-std head:
+//!   `E[−log π(a|s)]` including the tanh Jacobian).
 //!
 //! Forward passes run in `f32`, `max_rows` rows at a time, on the calling thread.
 
 use crate::config::SacConfig;
 use crate::error::SacError;
 use crate::policy::PolicySpec;
-use crate::ptr::gaussian_entropy;
+use crate::ptr::squashed_gaussian_entropy;
 use faer::Par;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -163,7 +164,8 @@ impl ValueEstimator {
                     .iter()
                     .map(|&l| f64::from(l).clamp(LOG_STD_MIN, LOG_STD_MAX))
                     .collect();
-                entropies[start + r] = gaussian_entropy(&clamped);
+                let mean64: Vec<f64> = mean.iter().map(|&m| f64::from(m)).collect();
+                entropies[start + r] = squashed_gaussian_entropy(&mean64, &clamped);
                 for (a, &m) in self.actions[r * ad..(r + 1) * ad].iter_mut().zip(mean) {
                     *a = m.tanh();
                 }

@@ -72,11 +72,15 @@ fn goal_state_replaces_object_or_hand_position_with_the_goal() {
     let obs: Vec<f32> = (0..39).map(|i| i as f32).collect();
     let g = goal_state(&obs, GoalTarget::Object);
     assert_eq!(&g[4..7], &[36.0, 37.0, 38.0]);
+    assert_eq!(&g[22..25], &[36.0, 37.0, 38.0]);
     assert_eq!(&g[0..4], &obs[0..4]);
-    assert_eq!(&g[7..], &obs[7..]);
+    assert_eq!(&g[7..22], &obs[7..22]);
+    assert_eq!(&g[25..], &obs[25..]);
     let h = goal_state(&obs, GoalTarget::Hand);
     assert_eq!(&h[0..3], &[36.0, 37.0, 38.0]);
-    assert_eq!(&h[3..], &obs[3..]);
+    assert_eq!(&h[18..21], &[36.0, 37.0, 38.0]);
+    assert_eq!(&h[3..18], &obs[3..18]);
+    assert_eq!(&h[21..], &obs[21..]);
     assert_eq!(GoalTarget::for_task("reach-v3"), GoalTarget::Hand);
     assert_eq!(GoalTarget::for_task("pick-place"), GoalTarget::Object);
 }
@@ -108,7 +112,9 @@ fn batch_guidance_matches_the_plain_rule_and_skips_unneeded_evaluations() {
             }
         })
         .collect();
-    let mut batch = BatchGuidance::new(&cfg, sigma, targets.clone());
+    // Each environment's own episodes, as the plain per-environment rule counts them.
+    let mut batch = BatchGuidance::new(&cfg, sigma, targets.clone())
+        .with_counter(terl_rl::guidance::EpisodeCounter::Environment);
     assert_eq!(
         batch.apply(
             &vec![0.0; e * od],
@@ -179,4 +185,94 @@ fn batch_guidance_matches_the_plain_rule_and_skips_unneeded_evaluations() {
     );
     assert_eq!(f_late % e as u64, 0);
     assert!(f_rows < decisions);
+}
+
+/// The goal state looks like a settled observation: for every goal target, the replaced
+/// coordinates agree between the current frame (obs[0..18]) and the previous-frame copy
+/// (obs[18..36]), on a real Meta-World layout where the two frames differ.
+#[test]
+fn goal_state_replaces_both_frames_consistently() {
+    use rand::Rng;
+    use terl_rl::guidance::FRAME_LEN;
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    for target in [GoalTarget::Object, GoalTarget::Hand] {
+        for _ in 0..20 {
+            let obs: Vec<f32> = (0..39).map(|_| rng.gen_range(-1.0f32..1.0)).collect();
+            let g = goal_state(&obs, target);
+            let (cur, prev) = (target.range(), target.previous_range());
+            assert_eq!(prev.start, cur.start + FRAME_LEN);
+            assert_eq!(&g[cur.clone()], &g[prev.clone()], "{target:?}");
+            assert_eq!(&g[cur], &obs[36..39]);
+            // Everything else is the observation as it was.
+            for i in (0..39).filter(|i| !target.range().contains(i) && !prev.contains(i)) {
+                assert_eq!(g[i], obs[i], "{target:?} index {i}");
+            }
+        }
+    }
+    assert_eq!(GoalTarget::Hand.previous_range(), 18..21);
+    assert_eq!(GoalTarget::Object.previous_range(), 22..25);
+}
+
+/// σ^N's N: environment 0 finishes 10 episodes. With the actor's counter (the default, the
+/// paper's "episodes completed") environment 1's guidance probability is σ^10; with each
+/// environment's own counter it stays σ^0 = 1. Episodes before the first planner do not count.
+#[test]
+fn episode_counter_decides_whose_episodes_decay_guidance() {
+    use terl_rl::guidance::{BatchGuidance, EpisodeCounter};
+    use terl_rl::{Tep, TepConfig};
+
+    let cfg = TepConfig {
+        f_hidden: vec![8],
+        an_hidden: vec![8],
+        ..TepConfig::default()
+    };
+    let tep: Tep<f32> = Tep::new(cfg.clone()).unwrap();
+    let (f, an) = tep.planner_params_f32();
+    let sigma = 0.98;
+    assert_eq!(
+        GuidanceConfig::default().episode_counter,
+        EpisodeCounter::Actor
+    );
+    let decayed = |counter: Option<EpisodeCounter>| {
+        let mut g = BatchGuidance::new(&cfg, sigma, vec![GoalTarget::Object; 2]);
+        if let Some(c) = counter {
+            g = g.with_counter(c);
+        }
+        g.end_episode(0); // before the planner: not counted
+        g.planner_mut().set_params(&f, &an, 1).unwrap();
+        for _ in 0..10 {
+            g.end_episode(0);
+        }
+        (g.probability(0), g.probability(1))
+    };
+    let want = sigma.powi(10);
+    for counter in [None, Some(EpisodeCounter::Actor)] {
+        let (p0, p1) = decayed(counter);
+        assert!(
+            (p0 - want).abs() < 1e-12 && (p1 - want).abs() < 1e-12,
+            "{p0} {p1}"
+        );
+    }
+    let (p0, p1) = decayed(Some(EpisodeCounter::Environment));
+    assert!((p0 - want).abs() < 1e-12, "{p0}");
+    assert_eq!(p1, 1.0);
+}
+
+/// `[guidance]` accepts the counter choice and no longer offers a goal source it cannot honour
+/// ("nearest_successful_final" was refused at load; the key is gone).
+#[test]
+fn guidance_config_keys() {
+    use terl_rl::guidance::EpisodeCounter;
+    let c: GuidanceConfig = toml::from_str("episode_counter = \"environment\"").unwrap();
+    assert_eq!(c.episode_counter, EpisodeCounter::Environment);
+    assert_eq!(c.sigma, 0.98);
+    for old in [
+        "goal_source = \"obs_goal\"",
+        "goal_source = \"nearest_successful_final\"",
+    ] {
+        let e = toml::from_str::<GuidanceConfig>(old)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("unknown field"), "{e}");
+    }
 }

@@ -1,8 +1,9 @@
-//! PTR selection: GAE against the explicit sum, priority ordering, batch ranking, the 85 % gate.
+//! PTR selection: GAE against the explicit sum, priority ordering, ranking across a pool of
+//! trajectories, the squashed-policy entropy, the 85 % gate.
 
 use terl_rl::ptr::{
-    gae, gaussian_entropy, top_k, trajectory_priorities, PtrBatcher, PtrConfig, SuccessGate,
-    TrajectoryEnd,
+    gae, gaussian_entropy, squashed_gaussian_entropy, top_k, trajectory_priorities, PtrConfig,
+    PtrPool, SuccessGate, TrajectoryEnd,
 };
 
 /// `A_j = Σ_{l=0}^{T−j−1} (γλ)^l δ_{j+l}` written out as the explicit sum of Eq. 6, with
@@ -77,37 +78,129 @@ fn priority_is_weighted_mean_gae_plus_entropy_and_ranks_highest_first() {
     assert!((gaussian_entropy(&[0.0, 0.0]) - 2.0 * 1.418_938_533_204_672_7).abs() < 1e-12);
 }
 
+/// Eq. 9 ranks trajectories against each other: with the same states (values, entropies) the
+/// trajectory with the higher advantage is selected first, whole, whatever the arrival order —
+/// even though each trajectory alone would fill a 512-transition batch.
 #[test]
-fn batcher_selects_the_top_fraction_of_each_512_batch() {
+fn the_pool_selects_the_higher_advantage_trajectory_first() {
     let cfg = PtrConfig {
-        top_fraction: 0.1,
+        pool_trajectories: 3,
         ..Default::default()
     };
-    assert_eq!(cfg.batch_size, 512);
-    assert_eq!(cfg.selected_per_batch(), 52);
-    let mut b = PtrBatcher::new(&cfg);
-    // 1100 items with priority = a permutation-ish function of the index.
-    let items: Vec<(f64, usize)> = (0..1100).map(|i| (((i * 37) % 1100) as f64, i)).collect();
-    let sel = b.extend(items.iter().copied());
-    assert_eq!(sel.len(), 2 * 52);
-    assert_eq!(b.pending(), 1100 - 1024);
-    for (k, chunk) in sel.chunks(52).enumerate() {
-        let batch = &items[k * 512..(k + 1) * 512];
-        let mut prios: Vec<f64> = batch.iter().map(|x| x.0).collect();
-        prios.sort_by(|a, b| b.total_cmp(a));
-        let got: Vec<f64> = chunk.iter().map(|x| x.0).collect();
-        assert_eq!(
-            got,
-            prios[..52].to_vec(),
-            "batch {k} not the top 52, highest first"
-        );
-        assert!(chunk
-            .iter()
-            .all(|x| (k * 512..(k + 1) * 512).contains(&x.1)));
+    let n = 600;
+    let v = vec![0.5; n];
+    let h: Vec<f64> = (0..n).map(|t| ((t * 7) % 13) as f64 * 0.05).collect();
+    let end = TrajectoryEnd::Truncated { last_value: 0.5 };
+    // Arrival order: low, high, middle advantage (rewards 0, 10, 2 per step).
+    let mut pool = PtrPool::new(&cfg);
+    let mut out = Vec::new();
+    for (id, reward) in [(0usize, 0.0), (1, 10.0), (2, 2.0)] {
+        let (p, _) = trajectory_priorities(&cfg, &vec![reward; n], &v, end, &h);
+        out = pool.push_trajectory(p.into_iter().enumerate().map(|(t, p)| (p, (id, t))));
+        if id < 2 {
+            assert!(out.is_empty(), "the pool ranks only when full");
+        }
     }
-    let rest = b.flush();
-    assert_eq!(rest.len(), 8); // ceil(52 · 76 / 512)
-    assert_eq!(b.counts(), (3, 1100, 112));
+    assert_eq!(pool.pending(), (0, 0), "the pool empties after ranking");
+    let selected = cfg.selected_of(3 * n);
+    assert_eq!(selected, 450); // ceil(0.25 · 1800)
+    assert_eq!(out.iter().map(Vec::len).collect::<Vec<_>>(), vec![450]);
+    let flat: Vec<(f64, (usize, usize))> = out.into_iter().flatten().collect();
+    assert!(flat.windows(2).all(|w| w[0].0 >= w[1].0), "highest P first");
+    assert!(
+        flat.iter().all(|(_, (id, _))| *id == 1),
+        "the top quarter is all from the high-advantage trajectory"
+    );
+    assert_eq!(pool.counts(), (1, 3 * n as u64, 450));
+}
+
+/// Selections leave a ranked pool in batches of `batch_size`, best first, and a partial pool
+/// can be flushed.
+#[test]
+fn ranked_pools_leave_in_batches_of_batch_size() {
+    let cfg = PtrConfig {
+        pool_trajectories: 2,
+        top_fraction: 0.5,
+        ..Default::default()
+    };
+    let mut pool = PtrPool::new(&cfg);
+    let first: Vec<(f64, usize)> = (0..1000).map(|i| (((i * 37) % 1000) as f64, i)).collect();
+    assert!(pool.push_trajectory(first).is_empty());
+    assert!(
+        pool.push_trajectory(Vec::<(f64, usize)>::new()).is_empty(),
+        "empty: not counted"
+    );
+    let second: Vec<(f64, usize)> = (1000..2200).map(|i| (i as f64 * 0.5, i)).collect();
+    let out = pool.push_trajectory(second);
+    assert_eq!(
+        out.iter().map(Vec::len).collect::<Vec<_>>(),
+        vec![512, 512, 76]
+    );
+    let flat: Vec<f64> = out.iter().flatten().map(|x| x.0).collect();
+    let mut all: Vec<f64> = (0..1000)
+        .map(|i| ((i * 37) % 1000) as f64)
+        .chain((1000..2200).map(|i| i as f64 * 0.5))
+        .collect();
+    all.sort_by(|a, b| b.total_cmp(a));
+    assert_eq!(flat, all[..1100].to_vec());
+    assert!(pool.push_trajectory([(1.0, 7usize), (2.0, 8)]).is_empty());
+    let rest = pool.flush();
+    assert_eq!(rest, vec![vec![(2.0, 8)]]);
+    assert!(pool.flush().is_empty());
+    assert!(PtrConfig {
+        pool_trajectories: 0,
+        ..Default::default()
+    }
+    .validate()
+    .is_err());
+}
+
+/// The entropy PTR uses is that of the executed, tanh-squashed policy: `E[−log π(a|s)]` with the
+/// tanh Jacobian, checked against a Monte-Carlo mean of `−log π(a|s)` of sampled actions.
+#[test]
+fn squashed_entropy_matches_a_monte_carlo_estimate_of_minus_log_pi() {
+    use rand::Rng;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    let mut rng = ChaCha8Rng::seed_from_u64(4);
+    let normal = |rng: &mut ChaCha8Rng| {
+        let (u1, u2): (f64, f64) = (rng.gen::<f64>().max(1e-300), rng.gen());
+        (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
+    };
+    for (mean, log_std) in [
+        (vec![0.0, 0.0], vec![0.0, 0.0]),
+        (vec![0.3, -1.2], vec![-1.0, 0.5]),
+        (vec![2.5, 0.0], vec![-3.0, 2.0]),
+        (vec![-0.7], vec![-20.0]),
+    ] {
+        let got = squashed_gaussian_entropy(&mean, &log_std);
+        let draws = 200_000;
+        let (mut sum, mut sq) = (0.0, 0.0);
+        for _ in 0..draws {
+            let mut nlp = 0.0;
+            for (&m, &l) in mean.iter().zip(&log_std) {
+                let e = normal(&mut rng);
+                let u = m + l.exp() * e;
+                // −log N(u; m, σ) + ln(1 − tanh²u), the latter in a stable form.
+                let log_one_minus_t2 =
+                    2.0 * (std::f64::consts::LN_2 - u - (-2.0 * u).exp().ln_1p());
+                nlp += 0.5 * e * e + l + 0.5 * (2.0 * std::f64::consts::PI).ln() + log_one_minus_t2;
+            }
+            sum += nlp;
+            sq += nlp * nlp;
+        }
+        let mc = sum / draws as f64;
+        let se = ((sq / draws as f64 - mc * mc) / draws as f64).sqrt();
+        assert!(
+            (got - mc).abs() < 4.0 * se + 2e-3,
+            "mean {mean:?} log_std {log_std:?}: quadrature {got}, Monte Carlo {mc} ± {se}"
+        );
+        assert!(got <= gaussian_entropy(&log_std) + 1e-12);
+    }
+    // A saturated mean makes the executed action nearly deterministic: lower entropy.
+    assert!(
+        squashed_gaussian_entropy(&[3.0], &[-1.0]) < squashed_gaussian_entropy(&[0.0], &[-1.0])
+    );
 }
 
 #[test]

@@ -246,3 +246,44 @@ fn config_defaults_toml_and_update_ratio() {
     assert!(TepConfig::from_toml("tau = 2.0").is_err());
     assert!(TepConfig::from_toml("nope = 1").is_err());
 }
+
+/// F is a step count (Eq. 10: F ≥ 0), so the bootstrapped targets `1 + F̃(..)` are ≥ 1 even when
+/// the target network is pushed far below zero: here its output layer is zeroed with a bias of
+/// −5 (a linear output would give targets of −4).
+#[test]
+fn targets_stay_at_least_one_when_the_target_net_outputs_minus_five() {
+    let cfg = small_config(6);
+    let batch = random_batch(6, &cfg, 21);
+    let mut tep: Tep<f64> = Tep::new(cfg.clone()).unwrap();
+    let last_hidden = *cfg.f_hidden.last().unwrap();
+    let target = tep.f_target_net_mut();
+    let n = target.params.len();
+    // Layout: … last weight [1, last_hidden], last bias [1].
+    for w in &mut target.params[n - 1 - last_hidden..n - 1] {
+        *w = 0.0;
+    }
+    target.params[n - 1] = -5.0;
+    let stats = tep.compute_gradients(&batch).unwrap();
+    assert!(
+        stats.target_min >= 1.0 && stats.target_mean >= 1.0,
+        "targets {} (min {})",
+        stats.target_mean,
+        stats.target_min
+    );
+    assert!(stats.goal_distance_mean >= 0.0);
+    // F itself is ≥ 0 everywhere, also at an online net pushed as far down.
+    let online = tep.f_net_mut();
+    for w in &mut online.params[n - 1 - last_hidden..n - 1] {
+        *w = 0.0;
+    }
+    online.params[n - 1] = -50.0;
+    let mut planner = tep.planner(1);
+    let mut out = [0.0f32];
+    planner.reach(
+        &batch.obs[..3],
+        &batch.goals[..3],
+        &batch.actions[..2],
+        &mut out,
+    );
+    assert!(out[0] >= 0.0, "F = {}", out[0]);
+}

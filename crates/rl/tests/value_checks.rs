@@ -5,7 +5,7 @@
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use terl_nn::tensors::Tensor;
-use terl_rl::ptr::gaussian_entropy;
+use terl_rl::ptr::squashed_gaussian_entropy;
 use terl_rl::value::ValueEstimator;
 use terl_rl::{Sac, SacConfig};
 
@@ -83,7 +83,8 @@ fn values_and_entropies_match_a_naive_forward_pass() {
         x.extend((0..cfg.num_tasks).map(|t| if t == task { 1.0 } else { 0.0 }));
         let head = naive(&policy, "policy", &x);
         let (mean, log_std) = head.split_at(cfg.act_dim);
-        let want_h = gaussian_entropy(
+        let want_h = squashed_gaussian_entropy(
+            mean,
             &log_std
                 .iter()
                 .map(|l| l.clamp(-20.0, 2.0))

@@ -167,10 +167,6 @@ impl RunConfig {
             cfg.guidance.sigma.is_finite() && (0.0..=1.0).contains(&cfg.guidance.sigma),
             "guidance.sigma must be in [0, 1]"
         );
-        anyhow::ensure!(
-            cfg.guidance.goal_source == terl_rl::guidance::GoalSource::ObsGoal,
-            "guidance.goal_source = \"nearest_successful_final\" is not implemented; use \"obs_goal\""
-        );
         Ok(cfg)
     }
 

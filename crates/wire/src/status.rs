@@ -62,6 +62,12 @@ pub struct LearnerStatus {
     pub selected_samples: u64,
     /// Env steps executed with the Action Network, all actors.
     pub guided_steps: u64,
+    /// Mean bootstrapped TEP target `1 + F̃(..)` over the last window, in env steps (≥ 1; 0
+    /// before the first TEP update).
+    pub tep_target_mean: f64,
+    /// Mean predicted distance `F(s_t, s', a_t)` to the hindsight goal over the last window, in
+    /// env steps (≥ 0).
+    pub tep_goal_distance_mean: f64,
 }
 
 /// Statistics of PTR priorities.
@@ -220,6 +226,11 @@ impl TryFrom<pb::LearnerStatus> for LearnerStatus {
             tep_an_loss: finite("tep_an_loss", m.tep_an_loss)?,
             selected_samples: m.selected_samples,
             guided_steps: m.guided_steps,
+            tep_target_mean: non_negative("tep_target_mean", m.tep_target_mean)?,
+            tep_goal_distance_mean: non_negative(
+                "tep_goal_distance_mean",
+                m.tep_goal_distance_mean,
+            )?,
         })
     }
 }
@@ -249,6 +260,8 @@ impl From<LearnerStatus> for pb::LearnerStatus {
             tep_an_loss: d.tep_an_loss,
             selected_samples: d.selected_samples,
             guided_steps: d.guided_steps,
+            tep_target_mean: d.tep_target_mean,
+            tep_goal_distance_mean: d.tep_goal_distance_mean,
         }
     }
 }

@@ -57,6 +57,8 @@ fn learner_status() -> LearnerStatus {
         tep_an_loss: 12.5,
         selected_samples: 2048,
         guided_steps: 99,
+        tep_target_mean: 14.5,
+        tep_goal_distance_mean: 13.25,
     }
 }
 

@@ -149,7 +149,8 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
     let mut policy = Policy::new(spec, num_envs);
     let policy_tasks: Vec<usize> = global_task.iter().map(|&t| usize::from(t)).collect();
     let env_task_names: Vec<&str> = env.env_tasks().iter().map(|&k| env.tasks()[k]).collect();
-    // TERL guidance (Eq. 15); `N` counts episodes since the first planner version.
+    // TERL guidance (Eq. 15); `N` counts episodes since the first planner version, the actor's
+    // or each environment's (`[guidance] episode_counter`).
     let mut guide = (run.algorithm == Algorithm::Terl).then(|| {
         let mut cfg = run.tep.clone();
         cfg.obs_dim = OBS_DIM;
@@ -159,6 +160,7 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
             .map(|t| GoalTarget::for_task(t))
             .collect();
         BatchGuidance::new(&cfg, run.guidance.sigma, targets)
+            .with_counter(run.guidance.episode_counter)
     });
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
 

@@ -65,9 +65,10 @@ fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyho
             .map(|t| format!("{} {}", t.task, percent(t.guidance_rate)))
             .collect();
         println!(
-            "tep       planner v{}  updates {}  buffer {}/{}  loss F {:.3} AN {:.3}  selected {}  guided steps {}",
+            "tep       planner v{}  updates {}  buffer {}/{}  loss F {:.3} AN {:.3}  target {:.2}  distance {:.2}  selected {}  guided steps {}",
             l.planner_version, l.tep_updates, l.tep_buffer_size, l.tep_buffer_capacity,
-            l.tep_f_loss, l.tep_an_loss, l.selected_samples, l.guided_steps
+            l.tep_f_loss, l.tep_an_loss, l.tep_target_mean, l.tep_goal_distance_mean,
+            l.selected_samples, l.guided_steps
         );
         println!("guidance  {}", guidance.join("  "));
     }

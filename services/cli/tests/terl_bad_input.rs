@@ -115,6 +115,11 @@ fn terl_services_refuse_bad_datasets_configs_and_missing_addresses() {
     for (from, to, needle) in [
         ("top_fraction = 0.25", "top_fraction = 1.5", "top_fraction"),
         (
+            "pool_trajectories = 2",
+            "pool_trajectories = 0",
+            "pool_trajectories",
+        ),
+        (
             "updates_per_sac_update = 0.1",
             "updates_per_sac_update = -1.0",
             "updates_per_sac_update",

@@ -1,7 +1,8 @@
 //! The learner's metrics log, `runs/<id>/metrics.mcap` (`terl.v1.Metric` on `/metrics`): one
 //! sample of every metric per status window, flushed at once so a killed learner keeps its
 //! history. cleanrl-style names: `charts/…`, `losses/…`, `replay/…`, `tep/…`,
-//! `success_rate/<task>`, `guidance/rate/<task>`.
+//! `success_rate/<task>`, `guidance/rate/<task>`. TERL runs add `tep/target_mean` (mean
+//! bootstrapped target `1 + F̃`, ≥ 1) and `tep/goal_distance_mean` (mean `F(s_t, s', a_t)`).
 
 use std::path::Path;
 
@@ -79,6 +80,11 @@ impl MetricsLog {
                 ("tep/buffer_size".into(), status.tep_buffer_size as f64),
                 ("tep/f_loss".into(), status.tep_f_loss),
                 ("tep/an_loss".into(), status.tep_an_loss),
+                ("tep/target_mean".into(), status.tep_target_mean),
+                (
+                    "tep/goal_distance_mean".into(),
+                    status.tep_goal_distance_mean,
+                ),
                 (
                     "tep/selected_samples".into(),
                     status.selected_samples as f64,

@@ -20,6 +20,8 @@ const MAX_TEP_UPDATES_PER_ROUND: u64 = 2;
 struct LossWindow {
     f: f64,
     an: f64,
+    target: f64,
+    distance: f64,
     n: u64,
 }
 
@@ -40,6 +42,10 @@ pub(crate) struct PlannerTrainer {
     /// Mean losses of the last completed window (what status shows).
     pub(crate) shown_f_loss: f64,
     pub(crate) shown_an_loss: f64,
+    /// Mean bootstrapped target `1 + F̃(..)` of the last completed window (≥ 1).
+    pub(crate) shown_target_mean: f64,
+    /// Mean predicted distance `F(s_t, s', a_t)` to the hindsight goal, last window (≥ 0).
+    pub(crate) shown_goal_distance_mean: f64,
     pub(crate) failed_updates: u64,
     published_version: u64,
 }
@@ -68,6 +74,8 @@ impl PlannerTrainer {
             window: LossWindow::default(),
             shown_f_loss: 0.0,
             shown_an_loss: 0.0,
+            shown_target_mean: 0.0,
+            shown_goal_distance_mean: 0.0,
             failed_updates: 0,
             published_version: 0,
         })
@@ -154,6 +162,8 @@ impl PlannerTrainer {
                 Ok(stats) => {
                     self.window.f += stats.f_loss;
                     self.window.an += stats.an_loss;
+                    self.window.target += stats.target_mean;
+                    self.window.distance += stats.goal_distance_mean;
                     self.window.n += 1;
                     ran += 1;
                 }
@@ -176,6 +186,8 @@ impl PlannerTrainer {
         if self.window.n > 0 {
             self.shown_f_loss = self.window.f / self.window.n as f64;
             self.shown_an_loss = self.window.an / self.window.n as f64;
+            self.shown_target_mean = self.window.target / self.window.n as f64;
+            self.shown_goal_distance_mean = self.window.distance / self.window.n as f64;
         }
         self.window = LossWindow::default();
     }
@@ -292,6 +304,8 @@ mod tests {
         assert!(p.weights_to_publish().unwrap().is_none());
         p.roll_window();
         assert!(p.shown_f_loss > 0.0 && p.shown_f_loss.is_finite());
+        assert!(p.shown_target_mean >= 1.0, "{}", p.shown_target_mean);
+        assert!(p.shown_goal_distance_mean >= 0.0);
         let dir = std::env::temp_dir().join(format!("terl-planner-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("planner.safetensors");

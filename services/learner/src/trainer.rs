@@ -467,6 +467,8 @@ pub(crate) fn run(
                 status.tep_buffer_capacity = p.buffer_capacity() as u64;
                 status.tep_f_loss = p.shown_f_loss;
                 status.tep_an_loss = p.shown_an_loss;
+                status.tep_target_mean = p.shown_target_mean;
+                status.tep_goal_distance_mean = p.shown_goal_distance_mean;
             }
             if now - last_log >= Duration::from_secs(10) {
                 last_log = now;
@@ -480,6 +482,8 @@ pub(crate) fn run(
                     tep_updates = status.tep_updates,
                     tep_buffer = status.tep_buffer_size,
                     tep_f_loss = format!("{:.3}", status.tep_f_loss),
+                    tep_target_mean = format!("{:.2}", status.tep_target_mean),
+                    tep_goal_distance_mean = format!("{:.2}", status.tep_goal_distance_mean),
                     guided_steps = status.guided_steps,
                     "progress"
                 );

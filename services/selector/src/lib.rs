@@ -2,10 +2,11 @@
 //! keeps per-task success-rate windows and episode statistics, and serves them in `GetStatus`.
 //!
 //! With `algorithm = "terl"` it also runs PTR selection ([`scoring`]): it follows the learner's
-//! policy and critic weights, scores the episodes of tasks whose success gate is open, sends the
-//! top transitions of every batch of 512 to the learner's TEP buffer over shared memory and
-//! appends them to the run's TEP dataset (`runs/<id>/tep-dataset.mcap`, flushed after every
-//! batch, so a killed selector loses at most the batch it was writing).
+//! policy and critic weights, scores the episodes of tasks whose success gate is open, ranks
+//! them in per-task pools of trajectories, sends each full pool's top transitions (in batches
+//! of 512) to the learner's TEP buffer over shared memory and appends them to the run's TEP
+//! dataset (`runs/<id>/tep-dataset.mcap`, flushed after every delivery, so a killed selector
+//! loses at most the selection it was writing).
 
 use std::collections::VecDeque;
 use std::future::Future;

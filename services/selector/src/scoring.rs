@@ -1,13 +1,18 @@
 //! PTR scoring of finished episodes (`algorithm = "terl"`, paper Sec. IV.A).
 //!
 //! Per episode of a task whose success gate is open (rolling training success ≥ threshold):
-//! `V(s_0..s_T)` and `H(s_0..s_{T−1})` from the newest policy and critics on the weight stream,
-//! GAE with bootstrap from `V(s_T)` (Meta-World episodes end by the time limit), priority
-//! `P_t = α·mean(GAE) + (1 − α)·H(s_t)` per transition; transitions enter batches of 512 in
-//! arrival order and each full batch's top fraction is selected. Episodes of closed gates, or
-//! before both weight kinds arrived, are counted and not scored.
+//! `V(s_0..s_T)` and `H(s_0..s_{T−1})` from the newest policy and critics on the weight stream
+//! (`H` is the entropy of the executed, tanh-squashed policy), GAE with bootstrap from `V(s_T)`
+//! (Meta-World episodes end by the time limit), priority `P_t = α·mean(GAE) + (1 − α)·H(s_t)` per
+//! transition. Scored episodes enter their task's pool ([`PtrPool`], `[ptr] pool_trajectories`);
+//! a full pool is ranked across its trajectories, and its top fraction leaves in batches of 512
+//! drawn from the ranking. Pools are per task: advantages of different tasks come from
+//! different reward scales and value estimates, and one global ranking would fill the TEP
+//! dataset with whichever task has the largest. Episodes of closed gates, or before both weight
+//! kinds arrived, are counted and not scored; a pool that is not full when the selector stops
+//! is not selected.
 
-use terl_rl::ptr::{trajectory_priorities, PtrBatcher, PtrConfig, SuccessGate, TrajectoryEnd};
+use terl_rl::ptr::{trajectory_priorities, PtrConfig, PtrPool, SuccessGate, TrajectoryEnd};
 use terl_rl::value::ValueEstimator;
 use terl_rl::SacConfig;
 #[cfg(test)]
@@ -48,7 +53,8 @@ pub struct Scorer {
     cfg: PtrConfig,
     gate: SuccessGate,
     estimator: ValueEstimator,
-    batcher: PtrBatcher<SelectedSample>,
+    /// One pool of scored trajectories per task.
+    pools: Vec<PtrPool<SelectedSample>>,
     obs: Vec<f32>,
     values: Vec<f64>,
     entropies: Vec<f64>,
@@ -66,7 +72,7 @@ impl Scorer {
         Self {
             gate: SuccessGate::new(&cfg, sac.num_tasks),
             estimator: ValueEstimator::new(sac, 256),
-            batcher: PtrBatcher::new(&cfg),
+            pools: (0..sac.num_tasks).map(|_| PtrPool::new(&cfg)).collect(),
             cfg,
             obs: Vec::new(),
             values: Vec::new(),
@@ -92,8 +98,8 @@ impl Scorer {
     }
 
     /// Records `episode` in the gate and, if its task's gate is open and weights are loaded,
-    /// scores it. Returns the selections of every batch this episode completed (highest
-    /// priority first within a batch).
+    /// scores it and adds it to its task's pool. When that fills the pool, returns the pool's
+    /// selection (highest priority first: the batches of 512 in order), otherwise nothing.
     pub fn on_episode(&mut self, e: &EpisodeSummary) -> Vec<(f64, SelectedSample)> {
         let task = usize::from(e.task);
         if !self.gate.record(task, e.succeeded()) {
@@ -140,9 +146,10 @@ impl Scorer {
             return Vec::new();
         }
         let id = trajectory_id(e.actor_id, e.episode_index);
-        let mut out = Vec::new();
-        for (t, &p) in prios.iter().enumerate() {
+        for &p in &prios {
             self.priorities.record(p);
+        }
+        let samples = prios.iter().enumerate().map(|(t, &p)| {
             let next_obs: [f32; OBS_DIM] = if t + 1 < n {
                 steps[t + 1].obs
             } else {
@@ -159,14 +166,17 @@ impl Scorer {
                 task: e.task,
                 reserved: [0; 4],
             };
-            if let Some(sel) = self.batcher.push(p, sample) {
-                if let Some(&(last, _)) = sel.last() {
-                    self.priorities.threshold = last;
-                }
-                self.selected += sel.len() as u64;
-                out.extend(sel);
-            }
+            (p, sample)
+        });
+        let out: Vec<(f64, SelectedSample)> = self.pools[task]
+            .push_trajectory(samples)
+            .into_iter()
+            .flatten()
+            .collect();
+        if let Some(&(last, _)) = out.last() {
+            self.priorities.threshold = last;
         }
+        self.selected += out.len() as u64;
         out
     }
 
@@ -206,6 +216,22 @@ mod tests {
     }
 
     fn episode(task: u16, index: u64, success: bool, len: usize) -> Box<EpisodeSummary> {
+        episode_with(task, index, success, len, |t| {
+            if t % 7 == 0 {
+                1.0
+            } else {
+                0.0
+            }
+        })
+    }
+
+    fn episode_with(
+        task: u16,
+        index: u64,
+        success: bool,
+        len: usize,
+        reward: impl Fn(usize) -> f32,
+    ) -> Box<EpisodeSummary> {
         let mut e = EpisodeSummary::empty();
         e.task = task;
         e.actor_id = 3;
@@ -214,7 +240,7 @@ mod tests {
         for t in 0..len {
             let mut s = TrajectoryStep::ZERO;
             s.obs[0] = t as f32 * 0.01;
-            s.reward = if t % 7 == 0 { 1.0 } else { 0.0 };
+            s.reward = reward(t);
             assert!(e.push_step(s));
         }
         e.length = len as u32;
@@ -264,31 +290,67 @@ mod tests {
     }
 
     #[test]
-    fn selections_are_the_top_fraction_of_each_batch_and_keep_their_origin() {
+    fn selections_are_the_top_fraction_of_a_pool_and_keep_their_origin() {
         let cfg = PtrConfig {
             success_threshold: 0.0,
             min_episodes: Some(1),
             batch_size: 16,
+            pool_trajectories: 1,
             top_fraction: 0.25,
             ..PtrConfig::default()
         };
         let mut s = loaded(cfg);
         let sel = s.on_episode(&episode(1, 5, true, 20));
-        assert_eq!(sel.len(), 4, "one full batch of 16 → top 4");
+        assert_eq!(sel.len(), 5, "a pool of one 20-step trajectory → top 5");
         assert!(sel.windows(2).all(|w| w[0].0 >= w[1].0));
         for (p, x) in &sel {
             assert_eq!(x.trajectory_id, trajectory_id(3, 5));
             assert_eq!(x.task, 1);
             assert_eq!(x.priority, *p as f32);
             let t = usize::from(x.step_index);
-            assert!(t < 16, "only the first batch is complete");
             assert_eq!(x.obs[0], t as f32 * 0.01);
-            assert_eq!(x.next_obs[0], (t + 1) as f32 * 0.01);
+            let next = if t + 1 < 20 {
+                (t + 1) as f32 * 0.01
+            } else {
+                0.0
+            };
+            assert_eq!(x.next_obs[0], next);
         }
         let stats = s.priority_stats();
         assert_eq!(stats.scored, 20);
         assert!(stats.min <= stats.mean && stats.mean <= stats.max);
         assert_eq!(stats.selection_threshold, sel.last().unwrap().0);
+    }
+
+    /// Trajectories are ranked against each other: of two episodes over the same states, the
+    /// one with the higher advantage (rewards) is selected first, although it arrived second
+    /// and the first alone fills a batch; pools are per task.
+    #[test]
+    fn the_higher_advantage_trajectory_is_selected_first() {
+        let cfg = PtrConfig {
+            success_threshold: 0.0,
+            min_episodes: Some(1),
+            batch_size: 16,
+            pool_trajectories: 2,
+            top_fraction: 0.25,
+            ..PtrConfig::default()
+        };
+        let mut s = loaded(cfg);
+        assert!(s
+            .on_episode(&episode_with(0, 1, true, 40, |_| 0.0))
+            .is_empty());
+        // Another task's episode does not fill task 0's pool.
+        assert!(s
+            .on_episode(&episode_with(1, 2, true, 40, |_| 0.0))
+            .is_empty());
+        let sel = s.on_episode(&episode_with(0, 3, true, 40, |_| 10.0));
+        assert_eq!(sel.len(), 20, "top quarter of 80 pooled transitions");
+        assert!(
+            sel.iter()
+                .all(|(_, x)| x.trajectory_id == trajectory_id(3, 3) && x.task == 0),
+            "all from the high-reward trajectory"
+        );
+        assert!(sel.windows(2).all(|w| w[0].0 >= w[1].0));
     }
 
     #[test]
