@@ -726,9 +726,7 @@ mod tests {
         assert_eq!(img_w, 1000);
         let svg = std::fs::read_to_string(dir.path().join("mt10-eval-return.svg")).unwrap();
         assert!(
-            svg.contains("<svg")
-                && svg.contains("mtsac, 2 seeds")
-                && svg.contains("terl, 1 seed")
+            svg.contains("<svg") && svg.contains("mtsac, 2 seeds") && svg.contains("terl, 1 seed")
         );
         assert_eq!(files.len(), 2 + 4);
         let json: serde_json::Value = serde_json::from_str(
