@@ -590,3 +590,130 @@ pub fn load_policy_checkpoint(path: &std::path::Path) -> Result<PolicyCheckpoint
         run_config,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use terl_rl::PolicySpec;
+
+    fn policy(num_tasks: usize) -> Policy {
+        Policy::new(
+            PolicySpec {
+                obs_dim: OBS_DIM,
+                act_dim: ACT_DIM,
+                num_tasks,
+                hidden: vec![16],
+            },
+            1,
+        )
+    }
+
+    #[test]
+    fn trained_tasks_get_their_one_hot_and_unseen_tasks_the_chosen_vector() {
+        let trained = ["reach-v3", "push-v3"];
+        let plan = plan_tasks(
+            &["push-v3", "door-close-v3"],
+            &trained,
+            UnseenTaskEncoding::Uniform,
+        );
+        assert_eq!(plan[0].encoding, TaskEncoding::OneHot(1));
+        assert_eq!(plan[1].encoding, TaskEncoding::Uniform);
+        let mut v = [9.0f32; 4];
+        TaskEncoding::Uniform.write(&mut v);
+        assert_eq!(v, [0.25; 4]);
+        TaskEncoding::OneHot(2).write(&mut v);
+        assert_eq!(v, [0.0, 0.0, 1.0, 0.0]);
+        TaskEncoding::Zeros.write(&mut v);
+        assert_eq!(v, [0.0; 4]);
+        let plan = plan_tasks(&["door-close-v3"], &trained, UnseenTaskEncoding::Zeros);
+        assert_eq!(plan[0].encoding, TaskEncoding::Zeros);
+        assert_eq!("zeros".parse(), Ok(UnseenTaskEncoding::Zeros));
+        assert!("nearest".parse::<UnseenTaskEncoding>().is_err());
+    }
+
+    #[test]
+    fn eval_results_do_not_depend_on_the_thread_count() {
+        let tasks = plan_tasks(
+            &["reach-v3", "push-v3"],
+            &["reach-v3", "push-v3"],
+            UnseenTaskEncoding::Uniform,
+        );
+        let run = |threads| {
+            let s = EvalSettings {
+                episodes_per_task: 12,
+                variation_seed: 3,
+                threads,
+            };
+            let done = AtomicUsize::new(0);
+            let r = evaluate_policy(
+                &policy(2),
+                &tasks,
+                &s,
+                &|n| {
+                    done.fetch_add(n, Ordering::Relaxed);
+                },
+                None,
+            )
+            .unwrap();
+            assert_eq!(done.into_inner(), 24);
+            r
+        };
+        let (one, three) = (run(1), run(3));
+        assert_eq!(one.tasks, three.tasks);
+        assert_eq!(one.mean_return, three.mean_return);
+        assert_eq!(one.eval_env_steps, 2 * 12 * 500);
+        assert_eq!(three.threads, 3);
+    }
+
+    #[test]
+    fn a_policy_that_does_not_fit_is_a_shape_error_and_cancel_stops() {
+        let task = |encoding| {
+            vec![EvalTask {
+                name: "reach-v3",
+                encoding,
+            }]
+        };
+        let s = EvalSettings {
+            episodes_per_task: 1,
+            variation_seed: 0,
+            threads: 1,
+        };
+        let err = evaluate_policy(
+            &policy(2),
+            &task(TaskEncoding::OneHot(2)),
+            &s,
+            &|_| {},
+            None,
+        )
+        .unwrap_err();
+        assert!(matches!(err, EvalError::Shape(_)), "{err}");
+        let wrong_obs = Policy::new(
+            PolicySpec {
+                obs_dim: 12,
+                act_dim: ACT_DIM,
+                num_tasks: 1,
+                hidden: vec![4],
+            },
+            1,
+        );
+        let err = evaluate_policy(
+            &wrong_obs,
+            &task(TaskEncoding::OneHot(0)),
+            &s,
+            &|_| {},
+            None,
+        )
+        .unwrap_err();
+        assert!(err.to_string().contains("39"), "{err}");
+        let stop = AtomicBool::new(true);
+        let err = evaluate_policy(
+            &policy(1),
+            &task(TaskEncoding::OneHot(0)),
+            &s,
+            &|_| {},
+            Some(&stop),
+        )
+        .unwrap_err();
+        assert!(matches!(err, EvalError::Cancelled));
+    }
+}
