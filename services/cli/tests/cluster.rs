@@ -396,6 +396,10 @@ fn cluster_trains_and_shuts_down_cleanly() {
         assert!(md.contains(&format!("| {task} | {n} | ")), "{task}: {md}");
     }
     assert!(md.contains("losses/qf_loss"), "{md}");
+    assert!(
+        md.contains("## In-run evaluation") && md.contains("| reach-v3 | push-v3 |"),
+        "{md}"
+    );
     let chart = std::fs::read_to_string(run_dir.join("learning-curves.svg")).unwrap();
     assert_eq!(chart.matches("<polyline").count(), 2);
 
