@@ -81,7 +81,9 @@ fn one() -> usize {
 /// `eval_every_env_steps`: every that many env steps received by the learner, the selector's
 /// evaluator runs the latest policy version deterministically on `eval_episodes_per_task` goal
 /// variations of every task (0: no in-run evaluation; `terl eval` evaluates a checkpoint
-/// afterwards). `eval_episodes_per_env` and `stop_at_eval_success` are single-process only.
+/// afterwards; an evaluation that outlasts the interval makes the evaluator skip the thresholds
+/// it missed rather than queue them). `eval_episodes_per_env` and `stop_at_eval_success` are
+/// single-process only.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ClusterConfig {

@@ -348,6 +348,37 @@ fn cluster_trains_and_shuts_down_cleanly() {
         !metrics.records.iter().any(|m| m.name.starts_with("tep/")),
         "an mtsac run logs no TEP metrics"
     );
+    // `terl eval` reads the cluster's checkpoints: the run folder's newest is the final one.
+    let out = Command::new(env!("CARGO_BIN_EXE_terl"))
+        .args(["eval", "--checkpoint", run_dir.to_str().unwrap()])
+        .args([
+            "--trained-tasks",
+            "reach-v3,push-v3",
+            "--episodes-per-task",
+            "1",
+            "--json",
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let ev: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(
+        ev["checkpoint"]
+            .as_str()
+            .unwrap()
+            .ends_with("final.safetensors"),
+        "{ev}"
+    );
+    assert!(
+        u(&ev, &["policy_version"]) >= u(&last["learner"], &["policy_version"]),
+        "{ev}"
+    );
+    assert_eq!(ev["tasks"].as_array().unwrap().len(), 2);
+
     // Every evaluation the status counted is in the selector's evaluation log, in order.
     let evals = terl_telemetry::read_log::<terl_wire::EvalResult>(run_dir.join("eval.mcap"))
         .expect("evaluation log readable");
