@@ -129,6 +129,21 @@ impl Policy {
         Ok(())
     }
 
+    /// A copy of this policy (same weights and version) for batches of up to `max_batch` rows,
+    /// e.g. one per evaluation thread.
+    pub fn with_max_batch(&self, max_batch: usize) -> Self {
+        let mut p = Self::new(self.spec.clone(), max_batch);
+        p.net.params.copy_from_slice(&self.net.params);
+        p.pack_weights();
+        p.version = self.version;
+        p
+    }
+
+    /// Largest batch [`Policy::act`] accepts.
+    pub fn max_batch(&self) -> usize {
+        self.small.max_rows()
+    }
+
     /// Actions for `obs` (rows × obs_dim, row-major) of tasks `task_ids`, written to `actions`
     /// (rows × act_dim). Stochastic actions draw their noise from `rng`; deterministic ones are
     /// `tanh(mean)`.
@@ -140,8 +155,65 @@ impl Policy {
         rng: &mut impl Rng,
         actions: &mut [f32],
     ) -> Result<(), SacError> {
+        let nt = self.spec.num_tasks;
+        if let Some(&t) = task_ids.iter().find(|&&t| t >= nt) {
+            return Err(SacError::Shape(format!(
+                "task id {t} out of range for {nt} tasks"
+            )));
+        }
+        self.act_with(
+            obs,
+            task_ids.len(),
+            |row, onehot| {
+                onehot.fill(0.0);
+                onehot[task_ids[row]] = 1.0;
+            },
+            deterministic,
+            rng,
+            actions,
+        )
+    }
+
+    /// Like [`Policy::act`], with the task part of each input row given as a vector instead of
+    /// a task id: `task_encodings` is rows × num_tasks (row-major). A one-hot row is exactly
+    /// `act`; other rows (e.g. uniform `1/num_tasks`, or zeros) condition the policy on a task
+    /// it was not trained on (zero-shot evaluation).
+    pub fn act_encoded(
+        &mut self,
+        obs: &[f32],
+        task_encodings: &[f32],
+        deterministic: bool,
+        rng: &mut impl Rng,
+        actions: &mut [f32],
+    ) -> Result<(), SacError> {
+        let nt = self.spec.num_tasks;
+        let rows = task_encodings.len() / nt.max(1);
+        if task_encodings.len() != rows * nt {
+            return Err(SacError::Shape(format!(
+                "act_encoded: {} task-encoding values is not a whole number of rows of {nt}",
+                task_encodings.len()
+            )));
+        }
+        self.act_with(
+            obs,
+            rows,
+            |row, enc| enc.copy_from_slice(&task_encodings[row * nt..(row + 1) * nt]),
+            deterministic,
+            rng,
+            actions,
+        )
+    }
+
+    fn act_with(
+        &mut self,
+        obs: &[f32],
+        rows: usize,
+        mut encode: impl FnMut(usize, &mut [f32]),
+        deterministic: bool,
+        rng: &mut impl Rng,
+        actions: &mut [f32],
+    ) -> Result<(), SacError> {
         let (od, a, nt) = (self.spec.obs_dim, self.spec.act_dim, self.spec.num_tasks);
-        let rows = task_ids.len();
         if obs.len() != rows * od || actions.len() != rows * a || rows > self.small.max_rows() {
             return Err(SacError::Shape(format!(
                 "act: {} obs values, {} tasks, {} action slots for obs_dim {od}, act_dim {a}, max batch {}",
@@ -151,22 +223,16 @@ impl Policy {
                 self.small.max_rows()
             )));
         }
-        if let Some(&t) = task_ids.iter().find(|&&t| t >= nt) {
-            return Err(SacError::Shape(format!(
-                "task id {t} out of range for {nt} tasks"
-            )));
-        }
         let w = od + nt;
         let input = &mut self.input[..rows * w];
-        for ((row, o), &task) in input
+        for (r, (row, o)) in input
             .chunks_exact_mut(w)
             .zip(obs.chunks_exact(od))
-            .zip(task_ids)
+            .enumerate()
         {
-            let (x, onehot) = row.split_at_mut(od);
+            let (x, task) = row.split_at_mut(od);
             x.copy_from_slice(o);
-            onehot.fill(0.0);
-            onehot[task] = 1.0;
+            encode(r, task);
         }
         let head = self.small.forward(input, rows);
         if deterministic {

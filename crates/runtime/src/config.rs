@@ -85,8 +85,13 @@ fn one() -> usize {
 /// many transitions, writes its final checkpoint and exits 0; the launcher then stops the
 /// cluster: equal budgets make MTSAC and TERL runs comparable; 0 trains until stopped),
 /// `warmup_env_steps` (transitions before the first update; actors act randomly until the first
-/// policy version arrives anyway), `replay_capacity_per_task`, `success_window` and `seed`; the
-/// evaluation settings are single-process only.
+/// policy version arrives anyway), `replay_capacity_per_task`, `success_window`, `seed` and
+/// `eval_every_env_steps`: every that many env steps received by the learner, the selector's
+/// evaluator runs the latest policy version deterministically on `eval_episodes_per_task` goal
+/// variations of every task (0: no in-run evaluation; `terl eval` evaluates a checkpoint
+/// afterwards; an evaluation that outlasts the interval makes the evaluator skip the thresholds
+/// it missed rather than queue them). `eval_episodes_per_env` and `stop_at_eval_success` are
+/// single-process only.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ClusterConfig {
@@ -113,6 +118,12 @@ pub struct ClusterConfig {
     pub block_timeout_secs: f64,
     /// Transition batches the learner's shared-memory queue holds before actors wait.
     pub buffer_batches: usize,
+    /// In-run evaluation: episodes per task (episode k on goal variation k mod 50). Small by
+    /// default so the evaluation does not starve the actors of a small machine; `terl eval`
+    /// runs the full 50 on a checkpoint.
+    pub eval_episodes_per_task: usize,
+    /// In-run evaluation: worker threads of the evaluator (each steps its own environments).
+    pub eval_threads: usize,
 }
 
 impl Default for ClusterConfig {
@@ -127,6 +138,8 @@ impl Default for ClusterConfig {
             keep_checkpoints: 3,
             block_timeout_secs: 30.0,
             buffer_batches: 8,
+            eval_episodes_per_task: 10,
+            eval_threads: 1,
         }
     }
 }
@@ -157,6 +170,12 @@ impl RunConfig {
             "cluster.block_timeout_secs must be > 0"
         );
         anyhow::ensure!(c.buffer_batches > 0, "cluster.buffer_batches must be ≥ 1");
+        anyhow::ensure!(
+            c.eval_episodes_per_task > 0,
+            "cluster.eval_episodes_per_task must be ≥ 1 (train.eval_every_env_steps = 0 turns \
+             in-run evaluation off)"
+        );
+        anyhow::ensure!(c.eval_threads > 0, "cluster.eval_threads must be ≥ 1");
         cfg.ptr
             .validate()
             .with_context(|| format!("[ptr] in {}", path.display()))?;

@@ -1,11 +1,14 @@
 //! What the single-process trainer, the cluster services (learner, actors, selector) and the
 //! CLI share: the run file ([`RunConfig`], including its `[cluster]` section) and the
-//! Meta-World adapter behind the trainer's environment seam ([`MetaWorldVec`]).
+//! Meta-World adapter behind the trainer's environment seam ([`MetaWorldVec`]), and the
+//! deterministic evaluation over each task's goal variations ([`eval`]) that `terl eval` and the
+//! cluster's in-run evaluator share.
 //!
 //! It exists so the four binaries read one schema and step environments one way, instead of
 //! each carrying a copy.
 
 mod config;
+pub mod eval;
 mod metaworld_vec;
 
 pub use config::{Algorithm, ClusterConfig, RunConfig};

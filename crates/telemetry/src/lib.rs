@@ -1,5 +1,6 @@
 //! The MCAP logs of a run: the TEP dataset (`<run_dir>/tep-dataset.mcap`, written by the
-//! selector), learner metrics (`metrics.mcap`) and finished episodes (`episodes.mcap`, selector),
+//! selector), learner metrics (`metrics.mcap`), finished episodes (`episodes.mcap`, selector)
+//! and in-run evaluations (`eval.mcap`, the selector's evaluator),
 //! each one protobuf channel with the same layout and crash recovery as described here for the
 //! dataset.
 //!
@@ -39,8 +40,8 @@ mod tep;
 use std::path::{Path, PathBuf};
 
 pub use records::{
-    episodes_path, metrics_path, read_log, EpisodeLogWriter, LogRecord, LogWriter, Logged,
-    MetricsWriter,
+    episodes_path, eval_path, metrics_path, read_log, EpisodeLogWriter, EvalLogWriter, LogRecord,
+    LogWriter, Logged, MetricsWriter,
 };
 pub use tep::{read_tep_dataset, TepDataset, TepDatasetWriter, TEP_SCHEMA_NAME, TEP_TOPIC};
 

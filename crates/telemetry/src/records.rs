@@ -1,11 +1,12 @@
-//! The run's other logs: learner metrics (`metrics.mcap`, topic `/metrics`, `terl.v1.Metric`)
-//! and finished episodes (`episodes.mcap`, topic `/episodes`, `terl.v1.EpisodeSummary`). Same
-//! file layout and crash recovery as the TEP dataset (crate docs).
+//! The run's other logs: learner metrics (`metrics.mcap`, topic `/metrics`, `terl.v1.Metric`),
+//! finished episodes (`episodes.mcap`, topic `/episodes`, `terl.v1.EpisodeSummary`) and in-run
+//! evaluations (`eval.mcap`, topic `/eval`, `terl.v1.EvalResult`, written by the selector's
+//! evaluator). Same file layout and crash recovery as the TEP dataset (crate docs).
 
 use std::{fmt, marker::PhantomData, path::Path};
 
 use prost::Message as _;
-use terl_wire::{pb, EpisodeSummary, Metric};
+use terl_wire::{pb, EpisodeSummary, EvalResult, Metric};
 
 use crate::log::{read_channel, Channel, ProtoWriter};
 use crate::Result;
@@ -52,6 +53,21 @@ impl LogRecord for EpisodeSummary {
     }
 }
 
+impl LogRecord for EvalResult {
+    type Proto = pb::EvalResult;
+    const CHANNEL: Channel = Channel {
+        topic: "/eval",
+        schema: "terl.v1.EvalResult",
+        what: "evaluation log",
+    };
+    fn to_proto(&self) -> pb::EvalResult {
+        pb::EvalResult::from(self.clone())
+    }
+    fn from_proto(p: pb::EvalResult) -> std::result::Result<Self, String> {
+        EvalResult::try_from(p).map_err(|s| s.message().to_owned())
+    }
+}
+
 /// Appends records of one type to a new MCAP file; flush to make them survive a kill, finish
 /// (or drop) to write the summary.
 pub struct LogWriter<R: LogRecord> {
@@ -63,6 +79,8 @@ pub struct LogWriter<R: LogRecord> {
 pub type MetricsWriter = LogWriter<Metric>;
 /// `runs/<id>/episodes.mcap`.
 pub type EpisodeLogWriter = LogWriter<EpisodeSummary>;
+/// `runs/<id>/eval.mcap`: one `terl.v1.EvalResult` per in-run evaluation.
+pub type EvalLogWriter = LogWriter<EvalResult>;
 
 impl<R: LogRecord> fmt::Debug for LogWriter<R> {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
@@ -140,6 +158,11 @@ pub fn episodes_path(run_dir: &Path) -> std::path::PathBuf {
     run_dir.join("episodes.mcap")
 }
 
+/// Where a run keeps its in-run evaluations: `run_dir/eval.mcap`.
+pub fn eval_path(run_dir: &Path) -> std::path::PathBuf {
+    run_dir.join("eval.mcap")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -191,6 +214,31 @@ mod tests {
         let err = read_log::<EpisodeSummary>(metrics_path(&dir)).unwrap_err();
         assert!(err.to_string().contains("/episodes"), "{err}");
         assert!(MetricsWriter::create(metrics_path(&dir)).is_err());
+
+        let mut w = EvalLogWriter::create(eval_path(&dir)).unwrap();
+        let ev = EvalResult {
+            policy_version: 300,
+            env_steps: 12_000,
+            episodes_per_task: 10,
+            mean_success_rate: 0.5,
+            mean_return: 42.0,
+            tasks: vec![terl_wire::TaskEval {
+                task: "reach-v3".into(),
+                success_rate: 0.5,
+                mean_return: 42.0,
+                mean_first_success_step: Some(77.5),
+                episodes: 10,
+            }],
+            wall_seconds: 3.0,
+            cpu_seconds: 2.5,
+            unix_time_nanos: 9,
+        };
+        w.write(&ev, 9).unwrap();
+        assert_eq!(w.finish().unwrap(), 1);
+        assert_eq!(
+            read_log::<EvalResult>(eval_path(&dir)).unwrap().records,
+            vec![ev]
+        );
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -38,7 +38,9 @@ pub use server::{
     bind, serve_learner, serve_learner_with, serve_selector, CheckpointRequest, CheckpointSaved,
     LearnerBackend, LearnerService, SelectorBackend, SelectorService, ServeError, ServeOptions,
 };
-pub use status::{ActorStats, LearnerStatus, PriorityStats, SelectorStatus, TaskSuccess};
+pub use status::{
+    ActorStats, EvalResult, LearnerStatus, PriorityStats, SelectorStatus, TaskEval, TaskSuccess,
+};
 pub use weights::{weights_crc32, Tensor, Weights, WeightsError, WeightsKind};
 
 /// Encoded `FileDescriptorSet` of all terl.v1 protos (served by reflection; usable by MCAP

@@ -90,6 +90,139 @@ pub struct SelectorStatus {
     pub selected_samples: u64,
     pub priority: PriorityStats,
     pub critic_version: u64,
+    /// The latest in-run evaluation (None before the first one or with evaluation off).
+    pub last_eval: Option<EvalResult>,
+    /// Evaluations finished since the selector started.
+    pub evaluations: u64,
+}
+
+/// One task's part of an [`EvalResult`].
+#[derive(Debug, Clone, PartialEq, Default, Serialize)]
+pub struct TaskEval {
+    pub task: String,
+    /// Episodes with success at any step / episodes, in [0, 1].
+    pub success_rate: f64,
+    pub mean_return: f64,
+    /// Mean 1-based first-success step over successful episodes (None: none succeeded).
+    pub mean_first_success_step: Option<f64>,
+    pub episodes: u32,
+}
+
+/// One deterministic evaluation of one policy version on every task of a run
+/// (`terl.v1.EvalResult`; the protocol is `terl_runtime::eval`'s): served by the selector and
+/// logged to `runs/<id>/eval.mcap`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize)]
+pub struct EvalResult {
+    /// Policy version (learner update count) evaluated.
+    pub policy_version: u64,
+    /// Env steps the learner had received when the evaluation started.
+    pub env_steps: u64,
+    pub episodes_per_task: u32,
+    /// Unweighted mean of the per-task success rates, in [0, 1].
+    pub mean_success_rate: f64,
+    pub mean_return: f64,
+    pub tasks: Vec<TaskEval>,
+    /// Cost of the evaluation: wall-clock and CPU seconds.
+    pub wall_seconds: f64,
+    pub cpu_seconds: f64,
+    pub unix_time_nanos: u64,
+}
+
+impl EvalResult {
+    /// The evaluation as scalar metrics, cleanrl-style names as in the issue tracker's
+    /// protocol: `eval/mean_success_rate`, `eval/mean_return`, `eval/success_rate/<task>`,
+    /// `eval/return/<task>`, `eval/first_success_step/<task>` (successful tasks only),
+    /// `eval/env_steps`, `eval/wall_seconds`, `eval/cpu_seconds`; each is logged at step =
+    /// [`EvalResult::policy_version`].
+    pub fn metrics(&self) -> Vec<(String, f64)> {
+        let mut out = vec![
+            ("eval/mean_success_rate".to_string(), self.mean_success_rate),
+            ("eval/mean_return".to_string(), self.mean_return),
+            ("eval/env_steps".to_string(), self.env_steps as f64),
+            ("eval/wall_seconds".to_string(), self.wall_seconds),
+            ("eval/cpu_seconds".to_string(), self.cpu_seconds),
+        ];
+        for t in &self.tasks {
+            out.push((format!("eval/success_rate/{}", t.task), t.success_rate));
+            out.push((format!("eval/return/{}", t.task), t.mean_return));
+            if let Some(f) = t.mean_first_success_step {
+                out.push((format!("eval/first_success_step/{}", t.task), f));
+            }
+        }
+        out
+    }
+}
+
+impl TryFrom<pb::TaskEval> for TaskEval {
+    type Error = Status;
+    fn try_from(m: pb::TaskEval) -> Result<Self, Status> {
+        let rate = non_negative("success_rate", m.success_rate)?;
+        if rate > 1.0 {
+            return Err(Status::invalid_argument(format!(
+                "success_rate of {} is {rate}, above 1",
+                m.task
+            )));
+        }
+        let first = non_negative("mean_first_success_step", m.mean_first_success_step)?;
+        Ok(Self {
+            task: m.task,
+            success_rate: rate,
+            mean_return: finite("mean_return", m.mean_return)?,
+            mean_first_success_step: (first > 0.0).then_some(first),
+            episodes: m.episodes,
+        })
+    }
+}
+
+impl From<TaskEval> for pb::TaskEval {
+    fn from(d: TaskEval) -> Self {
+        Self {
+            task: d.task,
+            success_rate: d.success_rate,
+            mean_return: d.mean_return,
+            mean_first_success_step: d.mean_first_success_step.unwrap_or(0.0),
+            episodes: d.episodes,
+        }
+    }
+}
+
+impl TryFrom<pb::EvalResult> for EvalResult {
+    type Error = Status;
+    fn try_from(m: pb::EvalResult) -> Result<Self, Status> {
+        let rate = non_negative("mean_success_rate", m.mean_success_rate)?;
+        if rate > 1.0 {
+            return Err(Status::invalid_argument(format!(
+                "mean_success_rate is {rate}, above 1"
+            )));
+        }
+        Ok(Self {
+            policy_version: m.policy_version,
+            env_steps: m.env_steps,
+            episodes_per_task: m.episodes_per_task,
+            mean_success_rate: rate,
+            mean_return: finite("mean_return", m.mean_return)?,
+            tasks: convert_all(m.tasks)?,
+            wall_seconds: non_negative("wall_seconds", m.wall_seconds)?,
+            cpu_seconds: non_negative("cpu_seconds", m.cpu_seconds)?,
+            unix_time_nanos: m.unix_time_nanos,
+        })
+    }
+}
+
+impl From<EvalResult> for pb::EvalResult {
+    fn from(d: EvalResult) -> Self {
+        Self {
+            policy_version: d.policy_version,
+            env_steps: d.env_steps,
+            episodes_per_task: d.episodes_per_task,
+            mean_success_rate: d.mean_success_rate,
+            mean_return: d.mean_return,
+            tasks: d.tasks.into_iter().map(Into::into).collect(),
+            wall_seconds: d.wall_seconds,
+            cpu_seconds: d.cpu_seconds,
+            unix_time_nanos: d.unix_time_nanos,
+        }
+    }
 }
 
 fn finite(field: &str, value: f64) -> Result<f64, Status> {
@@ -314,6 +447,8 @@ impl TryFrom<pb::SelectorStatus> for SelectorStatus {
                 .transpose()?
                 .unwrap_or_default(),
             critic_version: m.critic_version,
+            last_eval: m.last_eval.map(EvalResult::try_from).transpose()?,
+            evaluations: m.evaluations,
         })
     }
 }
@@ -328,6 +463,8 @@ impl From<SelectorStatus> for pb::SelectorStatus {
             selected_samples: d.selected_samples,
             priority: Some(d.priority.into()),
             critic_version: d.critic_version,
+            last_eval: d.last_eval.map(Into::into),
+            evaluations: d.evaluations,
         }
     }
 }

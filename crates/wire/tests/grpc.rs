@@ -108,6 +108,7 @@ impl SelectorBackend for TestSelector {
                 selection_threshold: 0.7,
             },
             critic_version: 3,
+            ..Default::default()
         })
     }
 }

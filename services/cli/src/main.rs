@@ -4,6 +4,7 @@ mod bench;
 mod bench_tep;
 mod cluster;
 mod env;
+mod eval;
 mod report;
 mod results;
 mod status;
@@ -31,6 +32,9 @@ enum Command {
     /// Benchmarks (JSON output).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// Deterministic evaluation of a checkpoint on each task's 50 goal variations (success
+    /// rate, return, first-success step per task; MT-Test zero-shot tasks too).
+    Eval(eval::EvalArgs),
     /// Single-process training (Meta-World envs + MTSAC in one process).
     Train(train::TrainArgs),
     /// Status of a running cluster (learner and selector).
@@ -67,6 +71,7 @@ fn run(cli: Cli) -> Result<std::process::ExitCode> {
         Command::Env(c) => env::run(c),
         Command::Bench(c) => bench::run(c),
         Command::Train(a) => train::run(a),
+        Command::Eval(a) => eval::run(a),
         Command::Status(a) => status::run(a),
         Command::Cluster(c) => cluster::run(c),
         Command::Report(a) => report::run(a),

@@ -8,7 +8,8 @@
 //! Per cluster run, from its MCAP logs (training episodes, not evaluations):
 //! - `report.md`: per task, the training success rate over the last `--window` episodes and
 //!   over all episodes, mean return and length, guided-step share (from the selector's
-//!   `episodes.mcap`), plus the run's final learner metrics (from `metrics.mcap`);
+//!   `episodes.mcap`), plus the run's final learner metrics (from `metrics.mcap`) and every
+//!   in-run evaluation of the deterministic policy (from the selector's `eval.mcap`);
 //! - `learning-curves.svg`: per task, the success rate over a rolling window of episodes against
 //!   the episodes finished, and the mean over tasks.
 //!
@@ -231,6 +232,41 @@ pub fn svg(rows: &[TaskRow], window: usize) -> String {
     s
 }
 
+/// The in-run evaluations (`eval.mcap`): one row per evaluation, success in percent (empty
+/// when the run logged none).
+fn eval_markdown(evals: &[terl_wire::EvalResult]) -> String {
+    let Some(first) = evals.first() else {
+        return String::new();
+    };
+    let mut s = String::from(
+        "\n## In-run evaluation (`eval.mcap`: deterministic policy on goal variations)\n\n",
+    );
+    let tasks: Vec<&str> = first.tasks.iter().map(|t| t.task.as_str()).collect();
+    let _ = writeln!(
+        s,
+        "| env steps | policy version | episodes/task | mean success | {} |",
+        tasks.join(" | ")
+    );
+    let _ = writeln!(s, "|---|---|---|---|{}", "---|".repeat(tasks.len()));
+    for e in evals {
+        let per: Vec<String> = e
+            .tasks
+            .iter()
+            .map(|t| format!("{:.0}%", 100.0 * t.success_rate))
+            .collect();
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {:.1}% | {} |",
+            e.env_steps,
+            e.policy_version,
+            e.episodes_per_task,
+            100.0 * e.mean_success_rate,
+            per.join(" | ")
+        );
+    }
+    s
+}
+
 pub fn run(args: ReportArgs) -> Result<ExitCode> {
     anyhow::ensure!(args.window > 0, "--window must be at least 1");
     let out = match (&args.out, args.run_dirs.as_slice()) {
@@ -296,7 +332,14 @@ fn training_report(run_dir: &Path, out: &Path, window: usize) -> Result<()> {
     }
     let rows = task_rows(&episodes, window);
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    let md = markdown(run_dir, &rows, window, &metrics);
+    let mut evals = Vec::new();
+    for f in terl_telemetry::existing_paths(run_dir, "eval") {
+        let log = terl_telemetry::read_log::<terl_wire::EvalResult>(&f)
+            .with_context(|| format!("reading {}", f.display()))?;
+        evals.extend(log.records);
+    }
+    let mut md = markdown(run_dir, &rows, window, &metrics);
+    md.push_str(&eval_markdown(&evals));
     let md_path = out.join("report.md");
     std::fs::write(&md_path, &md).with_context(|| format!("writing {}", md_path.display()))?;
     let svg_path = out.join("learning-curves.svg");

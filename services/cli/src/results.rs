@@ -4,7 +4,7 @@
 //! A run folder contributes its **deterministic evaluations** (the policy's mean action on
 //! each task's goal variations), never its training episodes:
 //! - `progress.jsonl` of `terl train` (one line per evaluation, with the env steps);
-//! - the in-run evaluations of a cluster run, when its evaluator logged any.
+//! - the in-run evaluations of a cluster run (`eval.mcap`, written by the selector).
 //!
 //! Runs are grouped by experiment (the run file's `experiment`, else its `tasks`) and
 //! algorithm; each group reports the **final** evaluation's success rate as mean ± standard
@@ -76,6 +76,27 @@ pub fn load_run(dir: &Path) -> Result<RunEval> {
             &progress,
             cfg.eval_envs_per_task * cfg.train.eval_episodes_per_env,
         )?);
+    }
+    for f in terl_telemetry::existing_paths(dir, "eval") {
+        let log = terl_telemetry::read_log::<terl_wire::EvalResult>(&f)
+            .with_context(|| format!("reading {}", f.display()))?;
+        points.extend(log.records.iter().map(|e| {
+            let by_name: BTreeMap<&str, f64> = e
+                .tasks
+                .iter()
+                .map(|t| (t.task.as_str(), t.success_rate))
+                .collect();
+            EvalPoint {
+                env_steps: e.env_steps,
+                mean_success: e.mean_success_rate,
+                per_task_success: tasks
+                    .iter()
+                    .map(|t| by_name.get(t.as_str()).copied().unwrap_or(f64::NAN))
+                    .collect(),
+                mean_return: e.mean_return,
+                episodes_per_task: e.episodes_per_task as usize,
+            }
+        }));
     }
     anyhow::ensure!(
         !points.is_empty(),

@@ -57,7 +57,11 @@ fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyho
         .iter()
         .map(|t| format!("{} {} ({})", t.task, percent(t.success_rate), t.episodes))
         .collect();
-    println!("success   {}", tasks.join("  "));
+    let window = l.task_success.iter().map(|t| t.episodes).max().unwrap_or(0);
+    println!(
+        "train success (stochastic policy, last {window} training episodes/task; episodes in parentheses)  {}",
+        tasks.join("  ")
+    );
     if l.algorithm == "terl" {
         let guidance: Vec<String> = l
             .task_success
@@ -94,6 +98,24 @@ fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyho
             }
         }
         Err(e) => println!("selector  unreachable: {e:#}"),
+    }
+    if let Ok(Some(e)) = selector.map(|s| s.last_eval.as_ref()) {
+        let tasks: Vec<String> = e
+            .tasks
+            .iter()
+            .map(|t| format!("{} {}", t.task, percent(t.success_rate)))
+            .collect();
+        println!(
+            "eval success (deterministic policy, {} episodes/task) at env steps {}, policy v{}: mean {}  [{}]  return {:.1}  ({:.1} s wall, {:.1} s CPU)",
+            e.episodes_per_task,
+            e.env_steps,
+            e.policy_version,
+            percent(e.mean_success_rate),
+            tasks.join("  "),
+            e.mean_return,
+            e.wall_seconds,
+            e.cpu_seconds
+        );
     }
 }
 

@@ -231,8 +231,9 @@ fn cluster_trains_and_shuts_down_cleanly() {
     let mut first: Option<Value> = None;
     let mut versions_seen: BTreeSet<u64> = BTreeSet::new();
     let (mut steps_grew, mut versions_advanced, mut windows_filled) = (false, false, false);
+    let mut evaluated = false;
     let mut last = Value::Null;
-    while !(steps_grew && versions_advanced && windows_filled) {
+    while !(steps_grew && versions_advanced && windows_filled && evaluated) {
         assert!(
             start.elapsed() < TIMEOUT,
             "cluster did not make progress in {TIMEOUT:?}; last status {last}; logs in {}",
@@ -275,6 +276,25 @@ fn cluster_trains_and_shuts_down_cleanly() {
             && l["task_success"]
                 .as_array()
                 .is_some_and(|ts| ts.iter().all(|t| u(t, &["episodes"]) > 0));
+        // The selector's evaluator: the latest policy, deterministic, on both tasks, every
+        // 2000 env steps (cluster-smoke.toml), 2 episodes per task.
+        let e = &sel["last_eval"];
+        if e.is_object() {
+            assert!(u(e, &["env_steps"]) >= 2_000, "{e}");
+            assert!(
+                u(e, &["policy_version"]) <= u(l, &["policy_version"]),
+                "{e}"
+            );
+            assert_eq!(u(e, &["episodes_per_task"]), 2);
+            let names: Vec<&str> = e["tasks"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|t| t["task"].as_str().unwrap())
+                .collect();
+            assert_eq!(names, ["reach-v3", "push-v3"]);
+            evaluated = u(e, &["policy_version"]) > 0;
+        }
         last = s;
     }
     eprintln!("status after {:?}: {last}", start.elapsed());
@@ -296,6 +316,17 @@ fn cluster_trains_and_shuts_down_cleanly() {
     }
 
     let episodes_seen = u(&last["selector"], &["episodes_seen"]);
+    let evaluations = u(&last["selector"], &["evaluations"]);
+    let table = Command::new(env!("CARGO_BIN_EXE_terl"))
+        .args(["status", "--addr", &learner, "--selector-addr", &selector])
+        .output()
+        .unwrap();
+    let table = String::from_utf8_lossy(&table.stdout);
+    assert!(
+        table.contains("train success (stochastic policy, last")
+            && table.contains("eval success (deterministic policy, 2 episodes/task) at env steps"),
+        "{table}"
+    );
     stop_all(&mut cluster, &run_dir);
     assert!(checkpoints.join("final.safetensors").is_file());
 
@@ -317,6 +348,59 @@ fn cluster_trains_and_shuts_down_cleanly() {
         !metrics.records.iter().any(|m| m.name.starts_with("tep/")),
         "an mtsac run logs no TEP metrics"
     );
+    // `terl eval` reads the cluster's checkpoints: the run folder's newest is the final one.
+    let out = Command::new(env!("CARGO_BIN_EXE_terl"))
+        .args(["eval", "--checkpoint", run_dir.to_str().unwrap()])
+        .args([
+            "--trained-tasks",
+            "reach-v3,push-v3",
+            "--episodes-per-task",
+            "1",
+            "--json",
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let ev: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(
+        ev["checkpoint"]
+            .as_str()
+            .unwrap()
+            .ends_with("final.safetensors"),
+        "{ev}"
+    );
+    assert!(
+        u(&ev, &["policy_version"]) >= u(&last["learner"], &["policy_version"]),
+        "{ev}"
+    );
+    assert_eq!(ev["tasks"].as_array().unwrap().len(), 2);
+
+    // Every evaluation the status counted is in the selector's evaluation log, in order.
+    let evals = terl_telemetry::read_log::<terl_wire::EvalResult>(run_dir.join("eval.mcap"))
+        .expect("evaluation log readable");
+    assert!(!evals.truncated && evals.rejected == 0);
+    assert!(evals.records.len() as u64 >= evaluations.max(1));
+    assert!(evals
+        .records
+        .windows(2)
+        .all(|w| w[0].env_steps < w[1].env_steps && w[0].policy_version <= w[1].policy_version));
+    let metric_names: Vec<String> = evals.records[0]
+        .metrics()
+        .into_iter()
+        .map(|m| m.0)
+        .collect();
+    for name in [
+        "eval/mean_success_rate",
+        "eval/success_rate/reach-v3",
+        "eval/return/push-v3",
+        "eval/env_steps",
+    ] {
+        assert!(metric_names.iter().any(|n| n == name), "{metric_names:?}");
+    }
     let episodes =
         terl_telemetry::read_log::<terl_wire::EpisodeSummary>(run_dir.join("episodes.mcap"))
             .expect("episode log readable");
@@ -343,6 +427,10 @@ fn cluster_trains_and_shuts_down_cleanly() {
         assert!(md.contains(&format!("| {task} | {n} | ")), "{task}: {md}");
     }
     assert!(md.contains("losses/qf_loss"), "{md}");
+    assert!(
+        md.contains("## In-run evaluation") && md.contains("| reach-v3 | push-v3 |"),
+        "{md}"
+    );
     let chart = std::fs::read_to_string(run_dir.join("learning-curves.svg")).unwrap();
     assert_eq!(chart.matches("<polyline").count(), 2);
 

@@ -7,6 +7,10 @@
 //! of 512) to the learner's TEP buffer over shared memory and appends them to the run's TEP
 //! dataset (`runs/<id>/tep-dataset.mcap`, flushed after every delivery, so a killed selector
 //! loses at most the selection it was writing).
+//!
+//! With `train.eval_every_env_steps > 0` and the learner's address, its [`evaluator`] thread
+//! evaluates the latest policy version deterministically on every task at that interval
+//! (`runs/<id>/eval.mcap`, and the last result in `GetStatus`).
 
 use std::collections::VecDeque;
 use std::future::Future;
@@ -23,6 +27,7 @@ use terl_transport::{
 use terl_wire::{PriorityStats, SelectorBackend, SelectorStatus, TaskSuccess, WeightsKind};
 use tonic::Status;
 
+mod evaluator;
 pub mod scoring;
 
 use scoring::Scorer;
@@ -128,6 +133,12 @@ struct Shared {
     selection: Mutex<Selection>,
     weights: Mutex<WeightSlots>,
     stop: AtomicBool,
+    /// The newest policy weights, for the evaluator (kept, not taken, unlike `weights`).
+    eval_policy: Mutex<Option<(u64, Vec<f32>)>>,
+    /// The in-run evaluation log (None when evaluation is off or after shutdown).
+    eval_log: Mutex<Option<terl_telemetry::EvalLogWriter>>,
+    /// The latest evaluation and the number of evaluations so far.
+    last_eval: Mutex<(Option<terl_wire::EvalResult>, u64)>,
 }
 
 #[derive(Debug)]
@@ -146,6 +157,12 @@ impl SelectorBackend for Backend {
             .lock()
             .map_err(|_| Status::internal("selection lock poisoned"))?
             .clone();
+        let (last_eval, evaluations) = self
+            .0
+            .last_eval
+            .lock()
+            .map_err(|_| Status::internal("evaluation lock poisoned"))?
+            .clone();
         Ok(SelectorStatus {
             run_id: self.0.run_id.clone(),
             uptime_seconds: self.0.started.elapsed().as_secs_f64(),
@@ -154,6 +171,8 @@ impl SelectorBackend for Backend {
             selected_samples: selection.selected,
             priority: selection.priority,
             critic_version: selection.critic_version,
+            last_eval,
+            evaluations,
         })
     }
 }
@@ -389,16 +408,50 @@ pub async fn run(
         selection: Mutex::new(Selection::default()),
         weights: Mutex::new(WeightSlots::default()),
         stop: AtomicBool::new(false),
+        eval_policy: Mutex::new(None),
+        eval_log: Mutex::new(None),
+        last_eval: Mutex::new((None, 0)),
     });
-    let follower = match (config.run.algorithm, &config.learner_addr) {
-        (Algorithm::Terl, Some(addr)) => {
+    let terl = config.run.algorithm == Algorithm::Terl;
+    let evaluating = config.run.train.eval_every_env_steps > 0 && config.learner_addr.is_some();
+    if config.run.train.eval_every_env_steps > 0 && config.learner_addr.is_none() {
+        tracing::warn!(
+            "no --learner-addr: in-run evaluation (train.eval_every_env_steps) is off, since \
+             the evaluator follows the learner's policy weights"
+        );
+    }
+    if evaluating {
+        let path = terl_telemetry::fresh_path(&config.run_dir, "eval");
+        let log = terl_telemetry::EvalLogWriter::create(&path)
+            .with_context(|| format!("cannot create the evaluation log {}", path.display()))?;
+        tracing::info!(path = %path.display(), "writing in-run evaluations");
+        *shared
+            .eval_log
+            .lock()
+            .map_err(|_| anyhow::anyhow!("evaluation log lock poisoned"))? = Some(log);
+    }
+    let follower = match &config.learner_addr {
+        Some(addr) if terl || evaluating => {
             let shared = Arc::clone(&shared);
+            let kinds = if terl {
+                vec![WeightsKind::Policy, WeightsKind::Critic]
+            } else {
+                vec![WeightsKind::Policy]
+            };
             Some(tokio::spawn(terl_wire::follow_weights(
                 addr.clone(),
-                vec![WeightsKind::Policy, WeightsKind::Critic],
+                kinds,
                 move |w| {
                     let (kind, version) = (w.kind(), w.version());
                     let flat: Vec<f32> = w.into_flat();
+                    if kind == WeightsKind::Policy && evaluating {
+                        if let Ok(mut p) = shared.eval_policy.lock() {
+                            *p = Some((version, flat.clone()));
+                        }
+                    }
+                    if !terl {
+                        return;
+                    }
                     if let Ok(mut slots) = shared.weights.lock() {
                         match kind {
                             WeightsKind::Critic => slots.critic = Some((version, flat)),
@@ -407,6 +460,17 @@ pub async fn run(
                     }
                 },
             )))
+        }
+        _ => None,
+    };
+    let evaluator = match (&config.learner_addr, evaluating) {
+        (Some(addr), true) => {
+            let (shared, addr, config) = (Arc::clone(&shared), addr.clone(), config.clone());
+            Some(
+                std::thread::Builder::new()
+                    .name("evaluator".into())
+                    .spawn(move || evaluator::run(&config, &shared, &addr))?,
+            )
         }
         _ => None,
     };
@@ -436,6 +500,20 @@ pub async fn run(
     let received = tokio::task::spawn_blocking(move || receiver.join())
         .await?
         .map_err(|_| anyhow::anyhow!("episode receiver panicked"))?;
+    if let Some(e) = evaluator {
+        // The evaluator sees `stop` within one environment step or one status poll.
+        if tokio::task::spawn_blocking(move || e.join())
+            .await?
+            .is_err()
+        {
+            tracing::warn!("evaluator panicked");
+        }
+    }
+    let eval_log = shared.eval_log.lock().ok().and_then(|mut l| l.take());
+    if let Some(log) = eval_log {
+        let n = log.finish()?;
+        tracing::info!(evaluations = n, "evaluation log closed");
+    }
     served.context("gRPC server")?;
     received
 }

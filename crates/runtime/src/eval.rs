@@ -1,0 +1,719 @@
+//! Deterministic evaluation of a policy on Meta-World's goal variations: what `terl eval` and
+//! the cluster's in-run evaluator (the selector) both run.
+//!
+//! # Protocol (Meta-World MT benchmarks)
+//!
+//! Each task has 50 goal variations ([`terl_sim::metaworld::goal_variations`]`(task, seed)`,
+//! the same list the run trained on when `seed` is the run's `variation_seed`). Episode `k` of a
+//! task starts from variation `k mod 50` and runs the deterministic policy (`tanh` of the
+//! Gaussian mean) for the full 500 steps (Meta-World never ends an episode early; a physics
+//! instability cuts it short and is counted). An episode succeeds if the task's success
+//! criterion held at *any* step (`info["success"]`, Meta-World's evaluation rule). Per task:
+//! success rate, mean undiscounted return, mean first-success step (1-based, over successful
+//! episodes only); over tasks: the unweighted mean of the per-task numbers.
+//!
+//! With the default 50 episodes per task every variation is used once. Because both the policy
+//! and the simulation are deterministic, episodes beyond 50 repeat earlier ones exactly.
+//!
+//! # Tasks the policy was not trained on (MT-Test zero-shot)
+//!
+//! The policy's input is `obs ⊕ task one-hot`. A task outside the trained list has no one-hot;
+//! [`UnseenTaskEncoding`] chooses what it gets instead. The default, [`UnseenTaskEncoding::Uniform`]
+//! (`1/num_tasks` in every slot), is chosen on purpose: the first layer is linear in the task
+//! vector, so the uniform vector gives exactly the *average* of the trained tasks'
+//! task-conditioning (the mean of their first-layer task columns), stays on the simplex the
+//! network was trained on (every training input's task part sums to 1), and prefers no trained
+//! task. All zeros ([`UnseenTaskEncoding::Zeros`]) drops the task term entirely, an input the
+//! network never saw (sum 0); it is offered for comparison.
+//!
+//! # Parallelism and determinism
+//!
+//! Episodes are spread over `threads` worker threads, each with its own environments and its own
+//! copy of the policy, stepping up to [`BATCH`] episodes of one task in lockstep (one batched
+//! policy call per step). Results are aggregated in episode order, so they do not depend on the
+//! thread count.
+
+use std::collections::HashMap;
+use std::str::FromStr;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::Mutex;
+use std::time::Instant;
+
+use rand::SeedableRng;
+use serde::{Deserialize, Serialize};
+use terl_rl::{Policy, SacError};
+use terl_sim::metaworld::{goal_variations, MAX_PATH_LENGTH, NUM_VARIATIONS};
+use terl_sim::{Env, SimError, ACT_DIM, OBS_DIM};
+
+/// Episodes of one task stepped together in one worker (one policy call per step for all).
+pub const BATCH: usize = 10;
+
+/// Why an evaluation could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    /// The checkpoint's policy does not fit the task set or the environment.
+    #[error("shape mismatch: {0}")]
+    Shape(String),
+    /// The file is not a policy checkpoint, or no checkpoint was found.
+    #[error("checkpoint {path}: {reason}")]
+    Checkpoint { path: String, reason: String },
+    /// Invalid settings (no tasks, zero episodes, ...).
+    #[error("invalid evaluation settings: {0}")]
+    Settings(String),
+    /// The caller's cancel flag was set.
+    #[error("evaluation cancelled")]
+    Cancelled,
+    #[error(transparent)]
+    Sim(#[from] SimError),
+    #[error(transparent)]
+    Policy(#[from] SacError),
+}
+
+/// What a task outside the trained list gets as its task vector (see the module docs).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum UnseenTaskEncoding {
+    /// `1/num_tasks` in every slot: the average of the trained tasks' conditioning (default).
+    #[default]
+    Uniform,
+    /// All zeros: no task term.
+    Zeros,
+}
+
+impl UnseenTaskEncoding {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Uniform => "uniform",
+            Self::Zeros => "zeros",
+        }
+    }
+}
+
+impl FromStr for UnseenTaskEncoding {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "uniform" => Ok(Self::Uniform),
+            "zeros" => Ok(Self::Zeros),
+            other => Err(format!(
+                "unknown task encoding `{other}` (uniform or zeros)"
+            )),
+        }
+    }
+}
+
+/// The task vector (length `num_tasks` of the policy) one evaluated task is conditioned on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TaskEncoding {
+    /// One-hot of this position in the trained task list (a trained task).
+    OneHot(usize),
+    /// `1/num_tasks` everywhere (an unseen task, [`UnseenTaskEncoding::Uniform`]).
+    Uniform,
+    /// All zeros (an unseen task, [`UnseenTaskEncoding::Zeros`]).
+    Zeros,
+}
+
+impl TaskEncoding {
+    /// Writes the vector into `out` (length `num_tasks`).
+    pub fn write(self, out: &mut [f32]) {
+        match self {
+            Self::OneHot(i) => {
+                out.fill(0.0);
+                out[i] = 1.0;
+            }
+            Self::Uniform => out.fill(1.0 / out.len().max(1) as f32),
+            Self::Zeros => out.fill(0.0),
+        }
+    }
+
+    /// `one-hot:<i>`, `uniform` or `zeros`.
+    pub fn label(self) -> String {
+        match self {
+            Self::OneHot(i) => format!("one-hot:{i}"),
+            Self::Uniform => "uniform".into(),
+            Self::Zeros => "zeros".into(),
+        }
+    }
+}
+
+/// One task to evaluate and the task vector the policy sees for it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EvalTask {
+    pub name: &'static str,
+    pub encoding: TaskEncoding,
+}
+
+/// Pairs every task of `eval_tasks` with its encoding: the one-hot of its position in `trained`
+/// (the run's task list, whose length must be the policy's `num_tasks`), or `unseen` for a task
+/// the policy was not trained on.
+pub fn plan_tasks(
+    eval_tasks: &[&'static str],
+    trained: &[&str],
+    unseen: UnseenTaskEncoding,
+) -> Vec<EvalTask> {
+    eval_tasks
+        .iter()
+        .map(|&name| EvalTask {
+            name,
+            encoding: match trained.iter().position(|t| *t == name) {
+                Some(i) => TaskEncoding::OneHot(i),
+                None => match unseen {
+                    UnseenTaskEncoding::Uniform => TaskEncoding::Uniform,
+                    UnseenTaskEncoding::Zeros => TaskEncoding::Zeros,
+                },
+            },
+        })
+        .collect()
+}
+
+/// How much to evaluate and where.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EvalSettings {
+    /// Episodes per task (50 = each goal variation once, the benchmarks' protocol).
+    pub episodes_per_task: usize,
+    /// Seed of the goal variations (the run's `variation_seed` evaluates on its own 50).
+    pub variation_seed: u64,
+    /// Worker threads (each with its own environments and policy copy).
+    pub threads: usize,
+}
+
+impl Default for EvalSettings {
+    fn default() -> Self {
+        Self {
+            episodes_per_task: NUM_VARIATIONS,
+            variation_seed: 0,
+            threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        }
+    }
+}
+
+/// Per-task result of an evaluation.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TaskEvalStats {
+    pub task: String,
+    /// `one-hot:<i>` for a trained task, else the unseen-task encoding used.
+    pub encoding: String,
+    pub trained: bool,
+    pub episodes: usize,
+    pub successes: usize,
+    /// Fraction of episodes with success at any step, in [0, 1].
+    pub success_rate: f64,
+    /// Mean undiscounted episode return.
+    pub mean_return: f64,
+    /// Mean 1-based step of the first success over successful episodes (None: no success).
+    pub mean_first_success_step: Option<f64>,
+    /// Episodes cut short by a physics instability (counted as episodes).
+    pub unstable_episodes: usize,
+}
+
+/// Result of one evaluation.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EvalSummary {
+    /// Unweighted mean over tasks of the success rate.
+    pub mean_success_rate: f64,
+    /// Unweighted mean over tasks of the mean return.
+    pub mean_return: f64,
+    pub tasks: Vec<TaskEvalStats>,
+    pub episodes_per_task: usize,
+    pub variation_seed: u64,
+    /// Policy version (learner updates) of the evaluated weights.
+    pub policy_version: u64,
+    /// Environment steps simulated by the evaluation.
+    pub eval_env_steps: u64,
+    pub threads: usize,
+    pub wall_seconds: f64,
+    /// CPU time of the worker threads (Linux `/proc/thread-self/schedstat`; None elsewhere).
+    pub cpu_seconds: Option<f64>,
+}
+
+#[derive(Debug, Clone, Copy, Default)]
+struct Episode {
+    ret: f64,
+    first_success: Option<u32>,
+    unstable: bool,
+    steps: u32,
+}
+
+/// CPU time of the calling thread, seconds.
+fn thread_cpu_seconds() -> Option<f64> {
+    let text = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
+    let ns: u64 = text.split_whitespace().next()?.parse().ok()?;
+    Some(ns as f64 * 1e-9)
+}
+
+/// Runs the deterministic `policy` on `tasks` (see the module docs for the protocol).
+/// `on_episodes(n)` is called (from worker threads) whenever `n` more episodes finished; once
+/// `cancel` is set, every worker stops at its next step and the result is
+/// [`EvalError::Cancelled`].
+///
+/// Errors: [`EvalError::Shape`] when the policy does not take Meta-World's 39-value observation
+/// and 4-value action or a one-hot index is outside its task count; [`EvalError::Settings`] for
+/// no tasks or zero episodes; simulation and policy errors as they happen.
+pub fn evaluate_policy(
+    policy: &Policy,
+    tasks: &[EvalTask],
+    settings: &EvalSettings,
+    on_episodes: &(dyn Fn(usize) + Sync),
+    cancel: Option<&AtomicBool>,
+) -> Result<EvalSummary, EvalError> {
+    let spec = policy.spec();
+    if spec.obs_dim != OBS_DIM || spec.act_dim != ACT_DIM {
+        return Err(EvalError::Shape(format!(
+            "the policy takes {} observation and {} action values; Meta-World has {OBS_DIM} and {ACT_DIM}",
+            spec.obs_dim, spec.act_dim
+        )));
+    }
+    if let Some(t) = tasks.iter().find(|t| match t.encoding {
+        TaskEncoding::OneHot(i) => i >= spec.num_tasks,
+        _ => false,
+    }) {
+        return Err(EvalError::Shape(format!(
+            "task {} is encoded as {}, but the policy was trained on {} task(s)",
+            t.name,
+            t.encoding.label(),
+            spec.num_tasks
+        )));
+    }
+    if tasks.is_empty() || settings.episodes_per_task == 0 {
+        return Err(EvalError::Settings(
+            "at least one task and one episode per task are needed".into(),
+        ));
+    }
+    let start = Instant::now();
+    let variations: Vec<Vec<Vec<f64>>> = tasks
+        .iter()
+        .map(|t| goal_variations(t.name, settings.variation_seed))
+        .collect::<Result<_, _>>()?;
+    // Jobs: chunks of up to BATCH consecutive episodes of one task.
+    let n = settings.episodes_per_task;
+    let chunks: Vec<(usize, std::ops::Range<usize>)> = (0..tasks.len())
+        .flat_map(|t| {
+            (0..n)
+                .step_by(BATCH)
+                .map(move |k| (t, k..(k + BATCH).min(n)))
+        })
+        .collect();
+    let threads = settings.threads.clamp(1, chunks.len());
+    let next = AtomicUsize::new(0);
+    let results: Mutex<Vec<Vec<Episode>>> = Mutex::new(vec![vec![]; tasks.len()]);
+    let cpu = Mutex::new(Some(0.0f64));
+    let first_error: Mutex<Option<EvalError>> = Mutex::new(None);
+
+    let worker = || {
+        let cpu_start = thread_cpu_seconds();
+        let mut pol = policy.with_max_batch(BATCH);
+        let mut envs: HashMap<&'static str, Vec<Env>> = HashMap::new();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
+        loop {
+            if first_error.lock().map(|e| e.is_some()).unwrap_or(true) {
+                break;
+            }
+            let c = next.fetch_add(1, Ordering::Relaxed);
+            let Some((t, range)) = chunks.get(c).cloned() else {
+                break;
+            };
+            let task = &tasks[t];
+            let pool = envs.entry(task.name).or_default();
+            let got = run_chunk(
+                &mut pol,
+                pool,
+                task,
+                &variations[t],
+                range.clone(),
+                &mut rng,
+                cancel,
+            );
+            match got {
+                Ok(eps) => {
+                    on_episodes(eps.len());
+                    if let Ok(mut r) = results.lock() {
+                        let slot = &mut r[t];
+                        if slot.len() < n {
+                            slot.resize(n, Episode::default());
+                        }
+                        slot[range].copy_from_slice(&eps);
+                    }
+                }
+                Err(e) => {
+                    if let Ok(mut f) = first_error.lock() {
+                        f.get_or_insert(e);
+                    }
+                    break;
+                }
+            }
+        }
+        if let Ok(mut c) = cpu.lock() {
+            *c = match (*c, cpu_start, thread_cpu_seconds()) {
+                (Some(sum), Some(a), Some(b)) => Some(sum + (b - a)),
+                _ => None,
+            };
+        }
+    };
+    std::thread::scope(|s| {
+        for _ in 1..threads {
+            s.spawn(worker);
+        }
+        worker();
+    });
+    if let Some(e) = first_error.into_inner().ok().flatten() {
+        return Err(e);
+    }
+    let results = results.into_inner().unwrap_or_default();
+    let mut stats = Vec::with_capacity(tasks.len());
+    let mut env_steps = 0u64;
+    for (task, eps) in tasks.iter().zip(&results) {
+        let successes = eps.iter().filter(|e| e.first_success.is_some()).count();
+        let firsts: Vec<f64> = eps
+            .iter()
+            .filter_map(|e| e.first_success.map(f64::from))
+            .collect();
+        env_steps += eps.iter().map(|e| u64::from(e.steps)).sum::<u64>();
+        stats.push(TaskEvalStats {
+            task: task.name.to_string(),
+            encoding: task.encoding.label(),
+            trained: matches!(task.encoding, TaskEncoding::OneHot(_)),
+            episodes: eps.len(),
+            successes,
+            success_rate: successes as f64 / eps.len().max(1) as f64,
+            mean_return: eps.iter().map(|e| e.ret).sum::<f64>() / eps.len().max(1) as f64,
+            mean_first_success_step: (!firsts.is_empty())
+                .then(|| firsts.iter().sum::<f64>() / firsts.len() as f64),
+            unstable_episodes: eps.iter().filter(|e| e.unstable).count(),
+        });
+    }
+    let k = stats.len() as f64;
+    Ok(EvalSummary {
+        mean_success_rate: stats.iter().map(|s| s.success_rate).sum::<f64>() / k,
+        mean_return: stats.iter().map(|s| s.mean_return).sum::<f64>() / k,
+        tasks: stats,
+        episodes_per_task: n,
+        variation_seed: settings.variation_seed,
+        policy_version: policy.version,
+        eval_env_steps: env_steps,
+        threads,
+        wall_seconds: start.elapsed().as_secs_f64(),
+        cpu_seconds: cpu.into_inner().ok().flatten(),
+    })
+}
+
+/// Episodes `range` of one task, stepped in lockstep (episode `k` on variation `k mod 50`).
+fn run_chunk(
+    policy: &mut Policy,
+    pool: &mut Vec<Env>,
+    task: &EvalTask,
+    variations: &[Vec<f64>],
+    range: std::ops::Range<usize>,
+    rng: &mut rand_chacha::ChaCha8Rng,
+    cancel: Option<&AtomicBool>,
+) -> Result<Vec<Episode>, EvalError> {
+    let m = range.len();
+    while pool.len() < m {
+        pool.push(Env::new(task.name)?);
+    }
+    let nt = policy.spec().num_tasks;
+    let mut enc_row = vec![0.0f32; nt];
+    task.encoding.write(&mut enc_row);
+    let mut obs = vec![0.0f32; m * OBS_DIM];
+    for (j, k) in range.enumerate() {
+        let o = pool[j].reset(&variations[k % variations.len()])?;
+        for (d, s) in obs[j * OBS_DIM..(j + 1) * OBS_DIM].iter_mut().zip(o) {
+            *d = s as f32;
+        }
+    }
+    let mut eps = vec![Episode::default(); m];
+    let mut active: Vec<usize> = (0..m).collect();
+    let mut rows_obs = Vec::with_capacity(m * OBS_DIM);
+    let mut rows_enc = Vec::with_capacity(m * nt);
+    let mut actions = vec![0.0f32; m * ACT_DIM];
+    for _ in 0..MAX_PATH_LENGTH {
+        if active.is_empty() {
+            break;
+        }
+        if cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
+            return Err(EvalError::Cancelled);
+        }
+        rows_obs.clear();
+        rows_enc.clear();
+        for &j in &active {
+            rows_obs.extend_from_slice(&obs[j * OBS_DIM..(j + 1) * OBS_DIM]);
+            rows_enc.extend_from_slice(&enc_row);
+        }
+        let acts = &mut actions[..active.len() * ACT_DIM];
+        policy.act_encoded(&rows_obs, &rows_enc, true, rng, acts)?;
+        let mut still = Vec::with_capacity(active.len());
+        for (r, &j) in active.iter().enumerate() {
+            let step = pool[j].step(&acts[r * ACT_DIM..(r + 1) * ACT_DIM])?;
+            let e = &mut eps[j];
+            e.steps += 1;
+            e.ret += f64::from(step.reward as f32);
+            if step.success && e.first_success.is_none() {
+                e.first_success = Some(e.steps);
+            }
+            if step.truncated {
+                e.unstable = step.unstable;
+            } else {
+                for (d, s) in obs[j * OBS_DIM..(j + 1) * OBS_DIM].iter_mut().zip(step.obs) {
+                    *d = s as f32;
+                }
+                still.push(j);
+            }
+        }
+        active = still;
+    }
+    Ok(eps)
+}
+
+/// A policy read from a checkpoint of `terl train` or of a cluster learner (both write
+/// [`terl_rl::Sac::save_checkpoint`] safetensors: `policy.{layer}.weight|bias` as `f32`, the
+/// SAC config as TOML in the `terl.sac_config` metadata, the update count in `counters`).
+#[derive(Debug, Clone)]
+pub struct PolicyCheckpoint {
+    pub path: std::path::PathBuf,
+    /// The policy, version = the learner's update count at the checkpoint.
+    pub policy: Policy,
+    pub sac: terl_rl::SacConfig,
+    /// The run's `config.toml` (`<run>/config.toml` next to `<run>/checkpoints/`), if found.
+    pub run_config: Option<(std::path::PathBuf, crate::RunConfig)>,
+}
+
+impl PolicyCheckpoint {
+    /// Task names the policy was trained on, in one-hot order, from the run's config.
+    pub fn trained_tasks(&self) -> Option<Result<Vec<&'static str>, EvalError>> {
+        self.run_config.as_ref().map(|(path, cfg)| {
+            crate::resolve_tasks(&cfg.tasks).map_err(|e| EvalError::Checkpoint {
+                path: path.display().to_string(),
+                reason: format!("{e:#}"),
+            })
+        })
+    }
+
+    /// Checks that `trained` (the run's task list) fits the policy: one one-hot slot per task.
+    pub fn check_trained_tasks(&self, trained: &[&str]) -> Result<(), EvalError> {
+        let nt = self.policy.spec().num_tasks;
+        if trained.len() != nt {
+            return Err(EvalError::Shape(format!(
+                "{} has a policy for {nt} task(s) (input {} = {} observation + {nt} task values), \
+                 but its task list [{}] has {}",
+                self.path.display(),
+                self.sac.policy_input(),
+                self.sac.obs_dim,
+                trained.join(", "),
+                trained.len()
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// The checkpoint a path names: a `.safetensors` file as is; a run directory (or its
+/// `checkpoints/` directory): the newest SAC checkpoint in it by modification time (the
+/// planner's `planner.safetensors` and temporaries are skipped).
+pub fn resolve_checkpoint(path: &std::path::Path) -> Result<std::path::PathBuf, EvalError> {
+    let err = |reason: String| EvalError::Checkpoint {
+        path: path.display().to_string(),
+        reason,
+    };
+    if path.is_file() {
+        return Ok(path.to_path_buf());
+    }
+    if !path.is_dir() {
+        return Err(err("no such file or directory".into()));
+    }
+    let dir = if path.join("checkpoints").is_dir() {
+        path.join("checkpoints")
+    } else {
+        path.to_path_buf()
+    };
+    let newest = std::fs::read_dir(&dir)
+        .map_err(|e| err(e.to_string()))?
+        .filter_map(|e| e.ok())
+        .filter(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            name.ends_with(".safetensors") && !name.starts_with("planner")
+        })
+        .filter_map(|e| Some((e.metadata().ok()?.modified().ok()?, e.path())))
+        .max();
+    newest.map(|(_, p)| p).ok_or_else(|| {
+        err(format!(
+            "no checkpoint (*.safetensors) in {}",
+            dir.display()
+        ))
+    })
+}
+
+/// Reads the policy of a checkpoint file or run directory ([`resolve_checkpoint`]) and, when it
+/// sits in a run folder, that run's `config.toml`.
+///
+/// Errors: [`EvalError::Checkpoint`] for a missing or unreadable file, one without
+/// `terl.sac_config` (e.g. a planner checkpoint) or a bad run config; [`EvalError::Policy`] when
+/// the policy tensors are missing or do not have the shapes the config states.
+pub fn load_policy_checkpoint(path: &std::path::Path) -> Result<PolicyCheckpoint, EvalError> {
+    let path = resolve_checkpoint(path)?;
+    let err = |reason: String| EvalError::Checkpoint {
+        path: path.display().to_string(),
+        reason,
+    };
+    let file = terl_nn::TensorFile::load(&path).map_err(|e| err(e.to_string()))?;
+    let toml = file.metadata.get("terl.sac_config").ok_or_else(|| {
+        err(
+            "no terl.sac_config metadata: not a policy checkpoint of terl train or a learner"
+                .into(),
+        )
+    })?;
+    let sac = terl_rl::SacConfig::from_toml(toml).map_err(|e| err(e.to_string()))?;
+    let updates = file
+        .i64_values("counters", &[2])
+        .map(|c| c[0].max(0) as u64)
+        .unwrap_or(0);
+    let mut policy = Policy::new(terl_rl::PolicySpec::from_config(&sac), 1);
+    policy.load(&file, updates)?;
+    let run_config = path
+        .parent()
+        .and_then(|d| {
+            [d.join("config.toml"), d.parent()?.join("config.toml")]
+                .into_iter()
+                .find(|p| p.is_file())
+        })
+        .map(|p| match crate::RunConfig::load(&p) {
+            Ok(cfg) => Ok((p, cfg)),
+            Err(e) => Err(EvalError::Checkpoint {
+                path: p.display().to_string(),
+                reason: format!("{e:#}"),
+            }),
+        })
+        .transpose()?;
+    Ok(PolicyCheckpoint {
+        path,
+        policy,
+        sac,
+        run_config,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use terl_rl::PolicySpec;
+
+    fn policy(num_tasks: usize) -> Policy {
+        Policy::new(
+            PolicySpec {
+                obs_dim: OBS_DIM,
+                act_dim: ACT_DIM,
+                num_tasks,
+                hidden: vec![16],
+            },
+            1,
+        )
+    }
+
+    #[test]
+    fn trained_tasks_get_their_one_hot_and_unseen_tasks_the_chosen_vector() {
+        let trained = ["reach-v3", "push-v3"];
+        let plan = plan_tasks(
+            &["push-v3", "door-close-v3"],
+            &trained,
+            UnseenTaskEncoding::Uniform,
+        );
+        assert_eq!(plan[0].encoding, TaskEncoding::OneHot(1));
+        assert_eq!(plan[1].encoding, TaskEncoding::Uniform);
+        let mut v = [9.0f32; 4];
+        TaskEncoding::Uniform.write(&mut v);
+        assert_eq!(v, [0.25; 4]);
+        TaskEncoding::OneHot(2).write(&mut v);
+        assert_eq!(v, [0.0, 0.0, 1.0, 0.0]);
+        TaskEncoding::Zeros.write(&mut v);
+        assert_eq!(v, [0.0; 4]);
+        let plan = plan_tasks(&["door-close-v3"], &trained, UnseenTaskEncoding::Zeros);
+        assert_eq!(plan[0].encoding, TaskEncoding::Zeros);
+        assert_eq!("zeros".parse(), Ok(UnseenTaskEncoding::Zeros));
+        assert!("nearest".parse::<UnseenTaskEncoding>().is_err());
+    }
+
+    #[test]
+    fn eval_results_do_not_depend_on_the_thread_count() {
+        let tasks = plan_tasks(
+            &["reach-v3", "push-v3"],
+            &["reach-v3", "push-v3"],
+            UnseenTaskEncoding::Uniform,
+        );
+        let run = |threads| {
+            let s = EvalSettings {
+                episodes_per_task: 12,
+                variation_seed: 3,
+                threads,
+            };
+            let done = AtomicUsize::new(0);
+            let r = evaluate_policy(
+                &policy(2),
+                &tasks,
+                &s,
+                &|n| {
+                    done.fetch_add(n, Ordering::Relaxed);
+                },
+                None,
+            )
+            .unwrap();
+            assert_eq!(done.into_inner(), 24);
+            r
+        };
+        let (one, three) = (run(1), run(3));
+        assert_eq!(one.tasks, three.tasks);
+        assert_eq!(one.mean_return, three.mean_return);
+        assert_eq!(one.eval_env_steps, 2 * 12 * 500);
+        assert_eq!(three.threads, 3);
+    }
+
+    #[test]
+    fn a_policy_that_does_not_fit_is_a_shape_error_and_cancel_stops() {
+        let task = |encoding| {
+            vec![EvalTask {
+                name: "reach-v3",
+                encoding,
+            }]
+        };
+        let s = EvalSettings {
+            episodes_per_task: 1,
+            variation_seed: 0,
+            threads: 1,
+        };
+        let err = evaluate_policy(
+            &policy(2),
+            &task(TaskEncoding::OneHot(2)),
+            &s,
+            &|_| {},
+            None,
+        )
+        .unwrap_err();
+        assert!(matches!(err, EvalError::Shape(_)), "{err}");
+        let wrong_obs = Policy::new(
+            PolicySpec {
+                obs_dim: 12,
+                act_dim: ACT_DIM,
+                num_tasks: 1,
+                hidden: vec![4],
+            },
+            1,
+        );
+        let err = evaluate_policy(
+            &wrong_obs,
+            &task(TaskEncoding::OneHot(0)),
+            &s,
+            &|_| {},
+            None,
+        )
+        .unwrap_err();
+        assert!(err.to_string().contains("39"), "{err}");
+        let stop = AtomicBool::new(true);
+        let err = evaluate_policy(
+            &policy(1),
+            &task(TaskEncoding::OneHot(0)),
+            &s,
+            &|_| {},
+            Some(&stop),
+        )
+        .unwrap_err();
+        assert!(matches!(err, EvalError::Cancelled));
+    }
+}
