@@ -141,6 +141,20 @@ pub struct GuidanceConfig {
     /// Which episodes `N` of `σ^N` counts: `"actor"` (every episode the actor completed, the
     /// paper's reading; default) or `"environment"` (each environment's own).
     pub episode_counter: EpisodeCounter,
+    /// Read-only compatibility with run files written before the goal-source switch was
+    /// removed: they carry `goal_source = "obs_goal"`, which is what guidance does. Any other
+    /// value is refused when the file is read; it is never written.
+    #[serde(default, skip_serializing, rename = "goal_source")]
+    pub legacy_goal_source: Option<LegacyGoalSource>,
+}
+
+/// The one value the removed `goal_source` key accepts (see
+/// [`GuidanceConfig::legacy_goal_source`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LegacyGoalSource {
+    /// [`goal_state`] — the only goal source.
+    ObsGoal,
 }
 
 impl Default for GuidanceConfig {
@@ -148,6 +162,7 @@ impl Default for GuidanceConfig {
         Self {
             sigma: 0.98,
             episode_counter: EpisodeCounter::Actor,
+            legacy_goal_source: None,
         }
     }
 }

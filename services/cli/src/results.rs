@@ -4,7 +4,9 @@
 //! A run folder contributes its **deterministic evaluations** (the policy's mean action on
 //! each task's goal variations), never its training episodes:
 //! - `progress.jsonl` of `terl train` (one line per evaluation, with the env steps);
-//! - the in-run evaluations of a cluster run (`eval.mcap`, written by the selector).
+//! - the in-run evaluations of a cluster run (`eval.mcap`, written by the selector);
+//! - `eval-final.json`, a `terl eval --json` of the final checkpoint (all 50 goal variations
+//!   per task), which is then the run's final point.
 //!
 //! Runs are grouped by experiment (the run file's `experiment`, else its `tasks`) and
 //! algorithm; each group reports the **final** evaluation's success rate as mean ± standard
@@ -98,12 +100,23 @@ pub fn load_run(dir: &Path) -> Result<RunEval> {
             }
         }));
     }
+    points.sort_by_key(|p| p.env_steps);
+    let final_eval = dir.join(FINAL_EVAL);
+    if final_eval.exists() {
+        let at = if cfg.train.total_env_steps > 0 {
+            cfg.train.total_env_steps
+        } else {
+            points.last().map_or(0, |p| p.env_steps)
+        };
+        let p = final_eval_point(&final_eval, &tasks, at)?;
+        points.retain(|q| q.env_steps < p.env_steps);
+        points.push(p);
+    }
     anyhow::ensure!(
         !points.is_empty(),
         "{}: no evaluation found (progress.jsonl of `terl train`, or in-run evaluations of a cluster run)",
         dir.display()
     );
-    points.sort_by_key(|p| p.env_steps);
     Ok(RunEval {
         dir: dir.to_path_buf(),
         experiment: cfg.experiment.clone().unwrap_or_else(|| cfg.tasks.clone()),
@@ -114,6 +127,46 @@ pub fn load_run(dir: &Path) -> Result<RunEval> {
         seed: cfg.train.seed,
         tasks,
         points,
+    })
+}
+
+/// File name of a run's final evaluation: `terl eval --checkpoint RUN/checkpoints/final.safetensors
+/// --json > RUN/eval-final.json` (the experiment scripts write it). It is the run's last point,
+/// at the run's `total_env_steps`, and replaces any in-run evaluation from there on.
+pub const FINAL_EVAL: &str = "eval-final.json";
+
+/// The point of a `terl eval --json` output, per task in `tasks` order (a task the file lacks
+/// is an error).
+fn final_eval_point(path: &Path, tasks: &[String], env_steps: u64) -> Result<EvalPoint> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let v: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("{} is not JSON", path.display()))?;
+    let field = |v: &serde_json::Value, k: &str| {
+        v.get(k)
+            .and_then(serde_json::Value::as_f64)
+            .with_context(|| format!("{}: no number `{k}`", path.display()))
+    };
+    let entries = v
+        .get("tasks")
+        .and_then(serde_json::Value::as_array)
+        .with_context(|| format!("{}: no `tasks` list", path.display()))?;
+    let per_task_success = tasks
+        .iter()
+        .map(|t| {
+            let e = entries
+                .iter()
+                .find(|e| e.get("task").and_then(serde_json::Value::as_str) == Some(t))
+                .with_context(|| format!("{}: no result for {t}", path.display()))?;
+            field(e, "success_rate")
+        })
+        .collect::<Result<Vec<f64>>>()?;
+    Ok(EvalPoint {
+        env_steps,
+        mean_success: field(&v, "mean_success_rate")?,
+        per_task_success,
+        mean_return: field(&v, "mean_return")?,
+        episodes_per_task: field(&v, "episodes_per_task")? as usize,
     })
 }
 
@@ -755,5 +808,69 @@ mod tests {
         )
         .unwrap();
         assert_eq!(json["groups"].as_array().unwrap().len(), 2);
+    }
+
+    #[test]
+    fn a_run_folder_reads_progress_and_its_final_evaluation() {
+        use terl_rl::train::{EvalReport, TrainProgress};
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        std::fs::write(
+            d.join("config.toml"),
+            "experiment = \"x\"\nvariant = \"a\"\ntasks = \"reach-v3,push-v3\"\nnum_envs = 2\n\
+             eval_envs_per_task = 2\n[train]\ntotal_env_steps = 3000\nseed = 7\n",
+        )
+        .unwrap();
+        let line = |steps: u64, s: [f64; 2]| {
+            serde_json::to_string(&TrainProgress {
+                env_steps: steps,
+                eval: Some(EvalReport {
+                    success_rate: (s[0] + s[1]) / 2.0,
+                    per_task_success: s.to_vec(),
+                    mean_return: 10.0,
+                    episodes: 4,
+                }),
+                ..Default::default()
+            })
+            .unwrap()
+        };
+        let progress = format!(
+            "{}\n{}\n{}\n{{\"env_steps\": 9",
+            line(1000, [0.0, 0.5]),
+            serde_json::to_string(&TrainProgress::default()).unwrap(),
+            line(3000, [1.0, 0.5])
+        );
+        std::fs::write(d.join("progress.jsonl"), progress).unwrap();
+        let r = load_run(d).unwrap();
+        assert_eq!(
+            (r.experiment.as_str(), r.algorithm.as_str(), r.seed),
+            ("x", "mtsac (a)", 7)
+        );
+        let steps: Vec<u64> = r.points.iter().map(|p| p.env_steps).collect();
+        assert_eq!(steps, vec![1000, 3000], "the partial last line is skipped");
+        // eval_envs_per_task × the default eval_episodes_per_env (5).
+        assert_eq!(r.points[1].episodes_per_task, 10);
+        // `terl eval --json` of the final checkpoint replaces the last point (tasks by name).
+        std::fs::write(
+            d.join(FINAL_EVAL),
+            r#"{"mean_success_rate": 0.6, "mean_return": 20.0, "episodes_per_task": 50,
+                "tasks": [{"task": "push-v3", "success_rate": 0.2},
+                          {"task": "reach-v3", "success_rate": 1.0}]}"#,
+        )
+        .unwrap();
+        let r = load_run(d).unwrap();
+        let last = r.last().unwrap();
+        assert_eq!((last.env_steps, last.episodes_per_task), (3000, 50));
+        assert_eq!(last.per_task_success, vec![1.0, 0.2]);
+        assert_eq!(r.points.len(), 2);
+        // A final evaluation that lacks a trained task is an error naming it.
+        std::fs::write(
+            d.join(FINAL_EVAL),
+            r#"{"mean_success_rate": 0.6, "mean_return": 1.0, "episodes_per_task": 50,
+                "tasks": [{"task": "reach-v3", "success_rate": 1.0}]}"#,
+        )
+        .unwrap();
+        let e = format!("{:#}", load_run(d).unwrap_err());
+        assert!(e.contains("push-v3"), "{e}");
     }
 }
