@@ -7,6 +7,7 @@
 # --config       run file (default deploy/configs/mt10.toml; quick checks: deploy/configs/cluster-smoke.toml,
 #                and deploy/configs/smoke-terl.toml for the whole TERL loop within two minutes)
 # --tep-dataset  algorithm = "terl": start the planner's buffer from an earlier run's runs/<id>/tep-dataset.mcap
+#                (repeat the option to load several, e.g. the five MT1-Ind datasets)
 # --actors       actor processes (default: cores - 1, at least 1)
 # --learner-addr / --selector-addr   gRPC addresses (default 127.0.0.1:50051 / 127.0.0.1:50052;
 #                port 0 picks a free port, written to runs/<id>/<service>.addr)
@@ -24,7 +25,7 @@ run_id=""
 learner_addr=127.0.0.1:50051
 selector_addr=127.0.0.1:50052
 build=1
-tep_dataset=""
+tep_datasets=()
 while [ $# -gt 0 ]; do
     case "$1" in
         --config) config=$2; shift 2 ;;
@@ -33,13 +34,15 @@ while [ $# -gt 0 ]; do
         --learner-addr) learner_addr=$2; shift 2 ;;
         --selector-addr) selector_addr=$2; shift 2 ;;
         --no-build) build=0; shift ;;
-        --tep-dataset) tep_dataset=$2; shift 2 ;;
+        --tep-dataset) tep_datasets+=("$2"); shift 2 ;;
         -h|--help) sed -n 2,16p "$0"; exit 0 ;;
         *) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
     esac
 done
 [ -f "$config" ] || { echo "config not found: $config" >&2; exit 2; }
-[ -z "$tep_dataset" ] || [ -f "$tep_dataset" ] || { echo "TEP dataset not found: $tep_dataset" >&2; exit 2; }
+for d in "${tep_datasets[@]}"; do
+    [ -f "$d" ] || { echo "TEP dataset not found: $d" >&2; exit 2; }
+done
 [[ "$actors" =~ ^[1-9][0-9]*$ ]] || { echo "--actors must be a positive integer" >&2; exit 2; }
 
 if [ "$build" = 1 ]; then
@@ -97,7 +100,7 @@ wait_addr() {
     echo "[cluster] $1 did not start; see $out/$1.log" >&2; tail -5 "$out/$1.log" >&2; stop; exit 1
 }
 learner_extra=()
-[ -n "$tep_dataset" ] && learner_extra=(--tep-dataset "$tep_dataset")
+for d in "${tep_datasets[@]}"; do learner_extra+=(--tep-dataset "$d"); done
 "$bin/terl-learner" "${common[@]}" --addr "$learner_addr" --run-dir "$out" "${learner_extra[@]}" 2> "$out/learner.log" &
 pids+=($!)
 wait_addr learner

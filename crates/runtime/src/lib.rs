@@ -28,9 +28,9 @@ pub struct ServiceConfig {
     /// Selector with `algorithm = "terl"`: the learner whose weight stream (policy and critics)
     /// the PTR scoring follows.
     pub learner_addr: Option<String>,
-    /// Learner with `algorithm = "terl"`: a TEP dataset (MCAP) to load into the TEP buffer at
-    /// start-up, e.g. `runs/<older-run>/tep-dataset.mcap`.
-    pub tep_dataset: Option<std::path::PathBuf>,
+    /// Learner with `algorithm = "terl"`: TEP datasets (MCAP) to load into the TEP buffer at
+    /// start-up, in order, e.g. `runs/<older-run>/tep-dataset.mcap` of each MT1-Ind run.
+    pub tep_datasets: Vec<std::path::PathBuf>,
 }
 
 impl ServiceConfig {
@@ -48,7 +48,7 @@ impl ServiceConfig {
             num_actors,
             run_dir,
             learner_addr: None,
-            tep_dataset: None,
+            tep_datasets: Vec::new(),
         }
     }
 }

@@ -27,9 +27,9 @@ struct Args {
     #[arg(long)]
     run_dir: Option<PathBuf>,
     /// `algorithm = "terl"`: start the TEP buffer from this dataset (an earlier run's
-    /// `runs/<id>/tep-dataset.mcap`).
+    /// `runs/<id>/tep-dataset.mcap`); repeat the flag to load several, in order.
     #[arg(long)]
-    tep_dataset: Option<PathBuf>,
+    tep_dataset: Vec<PathBuf>,
 }
 
 #[tokio::main]
@@ -41,6 +41,6 @@ async fn main() -> anyhow::Result<()> {
         .run_dir
         .unwrap_or_else(|| PathBuf::from("runs").join(&a.run_id));
     let mut config = terl_learner::LearnerConfig::new(run, a.run_id, a.addr, a.num_actors, run_dir);
-    config.tep_dataset = a.tep_dataset;
+    config.tep_datasets = a.tep_dataset;
     terl_learner::run(config, terl_runtime::shutdown_signal()).await
 }

@@ -283,9 +283,7 @@ pub(crate) fn run(
     let terl = run.algorithm == Algorithm::Terl;
     let mut planner = if terl {
         let mut p = PlannerTrainer::new(run.tep.clone(), nt, run.train.seed)?;
-        if let Some(path) = &config.tep_dataset {
-            crate::dataset::load_into(path, &tasks, &mut p)?;
-        }
+        crate::dataset::load_all(&config.tep_datasets, &tasks, &mut p)?;
         Some(p)
     } else {
         None
