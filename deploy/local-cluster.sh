@@ -8,6 +8,7 @@
 #                and deploy/configs/smoke-terl.toml for the whole TERL loop within two minutes)
 # --tep-dataset  algorithm = "terl": start the planner's buffer from an earlier run's runs/<id>/tep-dataset.mcap
 #                (repeat the option to load several, e.g. the five MT1-Ind datasets)
+# --runs-root    folder of run folders (default runs; `terl cluster down` looks in runs/)
 # --actors       actor processes (default: cores - 1, at least 1)
 # --learner-addr / --selector-addr   gRPC addresses (default 127.0.0.1:50051 / 127.0.0.1:50052;
 #                port 0 picks a free port, written to runs/<id>/<service>.addr)
@@ -26,6 +27,7 @@ learner_addr=127.0.0.1:50051
 selector_addr=127.0.0.1:50052
 build=1
 tep_datasets=()
+runs_root=runs
 while [ $# -gt 0 ]; do
     case "$1" in
         --config) config=$2; shift 2 ;;
@@ -34,6 +36,7 @@ while [ $# -gt 0 ]; do
         --learner-addr) learner_addr=$2; shift 2 ;;
         --selector-addr) selector_addr=$2; shift 2 ;;
         --no-build) build=0; shift ;;
+        --runs-root) runs_root=$2; shift 2 ;;
         --tep-dataset) tep_datasets+=("$2"); shift 2 ;;
         -h|--help) sed -n 2,16p "$0"; exit 0 ;;
         *) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
@@ -53,7 +56,7 @@ fi
 bin=${CARGO_TARGET_DIR:-target}/release
 
 run_id=${run_id:-"$(basename "$config" .toml)-$(date +%Y%m%d-%H%M%S)"}
-out="runs/$run_id"
+out="$runs_root/$run_id"
 mkdir -p "$out"
 cp "$config" "$out/config.toml"
 cat > "$out/cluster.txt" <<INFO
@@ -64,7 +67,7 @@ learner_addr=$learner_addr
 selector_addr=$selector_addr
 started=$(date -Iseconds)
 INFO
-echo $$ > runs/.cluster.pid
+echo $$ > "$runs_root/.cluster.pid"
 
 pids=()
 stopping=0
@@ -84,7 +87,7 @@ stop() {
         done
         [ "$code" -gt "$stop_code" ] && stop_code=$code
     done
-    rm -f runs/.cluster.pid
+    rm -f "$runs_root/.cluster.pid"
     echo "[cluster] stopped (worst exit code ${stop_code}; run folder $out)" >&2
 }
 # The traps only record the signal; the main loop notices it and stops the cluster outside the

@@ -262,30 +262,46 @@ pub fn group_runs(runs: &[RunEval]) -> BTreeMap<(String, String), Vec<&RunEval>>
     groups
 }
 
-/// The final-evaluation summary of each group. Runs of one group must train the same tasks.
+/// The final-evaluation summary of each group.
+///
+/// A seed's result is the mean over tasks of its runs' final per-task success: one run per
+/// seed for a multi-task experiment (MT10), or one run per task and seed when each task trains
+/// alone (MT1-Ind). A task evaluated twice for one seed is an error. The group reports the mean
+/// and standard deviation of the seeds' results.
 pub fn summarize(runs: &[RunEval]) -> Result<Vec<GroupSummary>> {
     let mut out = Vec::new();
     for ((experiment, algorithm), members) in group_runs(runs) {
-        let tasks = members[0].tasks.clone();
+        let mut tasks: Vec<String> = Vec::new();
+        // seed → task → final success (%).
+        let mut by_seed: BTreeMap<u64, BTreeMap<String, f64>> = BTreeMap::new();
+        let mut finals: Vec<&EvalPoint> = Vec::new();
         for m in &members {
-            anyhow::ensure!(
-                m.tasks == tasks,
-                "{} and {} are both experiment {experiment} / {algorithm} but train different tasks",
-                members[0].dir.display(),
-                m.dir.display()
-            );
+            let Some(last) = m.last() else { continue };
+            finals.push(last);
+            let seed = by_seed.entry(m.seed).or_default();
+            for (t, s) in m.tasks.iter().zip(&last.per_task_success) {
+                anyhow::ensure!(
+                    seed.insert(t.clone(), 100.0 * s).is_none(),
+                    "experiment {experiment} / {algorithm}: seed {} evaluates {t} in two runs (one is {})",
+                    m.seed,
+                    m.dir.display()
+                );
+                if !tasks.contains(t) {
+                    tasks.push(t.clone());
+                }
+            }
         }
-        let finals: Vec<&EvalPoint> = members.iter().filter_map(|m| m.last()).collect();
-        let success: Vec<f64> = finals.iter().map(|p| 100.0 * p.mean_success).collect();
+        let success: Vec<f64> = by_seed
+            .values()
+            .map(|per| per.values().sum::<f64>() / per.len().max(1) as f64)
+            .collect();
         let (success_mean, success_std) = mean_std(&success);
         let per_task = tasks
             .iter()
-            .enumerate()
-            .map(|(k, t)| {
-                let v: Vec<f64> = finals
-                    .iter()
-                    .filter_map(|p| p.per_task_success.get(k))
-                    .map(|s| 100.0 * s)
+            .map(|t| {
+                let v: Vec<f64> = by_seed
+                    .values()
+                    .filter_map(|per| per.get(t).copied())
                     .collect();
                 let (m, s) = mean_std(&v);
                 (t.clone(), m, s)
@@ -295,7 +311,7 @@ pub fn summarize(runs: &[RunEval]) -> Result<Vec<GroupSummary>> {
         out.push(GroupSummary {
             paper_success: paper_success(&experiment, &algorithm)
                 .filter(|_| !algorithm.contains('(')),
-            seeds: members.iter().map(|m| m.seed).collect(),
+            seeds: by_seed.keys().copied().collect(),
             runs: members.iter().map(|m| m.dir.clone()).collect(),
             return_mean: mean_std(&finals.iter().map(|p| p.mean_return).collect::<Vec<_>>()).0,
             env_steps: (
@@ -468,40 +484,62 @@ fn interpolate(points: &[(f64, f64)], x: f64) -> f64 {
     }
 }
 
-/// The band of one group of runs.
-pub fn band(label: &str, runs: &[&RunEval], metric: CurveMetric) -> Option<Band> {
-    let curves: Vec<Vec<(f64, f64)>> = runs
-        .iter()
-        .map(|r| {
-            r.points
-                .iter()
-                .map(|p| (p.env_steps as f64, metric.of(p)))
-                .collect::<Vec<_>>()
-        })
-        .filter(|c: &Vec<(f64, f64)>| !c.is_empty())
-        .collect();
-    if curves.is_empty() {
-        return None;
+/// Mean of several curves on the union of their x values inside their common range (each
+/// linearly interpolated); one curve is returned as it is.
+fn mean_curve(curves: &[Vec<(f64, f64)>]) -> Vec<(f64, f64)> {
+    match curves {
+        [] => Vec::new(),
+        [one] => one.clone(),
+        _ => common_grid(curves)
+            .into_iter()
+            .map(|x| {
+                let ys: Vec<f64> = curves.iter().map(|c| interpolate(c, x)).collect();
+                (x, mean_std(&ys).0)
+            })
+            .collect(),
     }
+}
+
+/// The union of the curves' x values inside the range every curve covers: no invented
+/// resolution. Curves must be non-empty and sorted by x.
+fn common_grid(curves: &[Vec<(f64, f64)>]) -> Vec<f64> {
     let lo = curves.iter().map(|c| c[0].0).fold(f64::MIN, f64::max);
     let hi = curves
         .iter()
         .map(|c| c[c.len() - 1].0)
         .fold(f64::MAX, f64::min);
-    let grid: Vec<f64> = if hi > lo {
-        // The union of the seeds' evaluation steps inside [lo, hi]: no invented resolution.
-        let mut xs: Vec<f64> = curves
+    if hi <= lo {
+        return vec![lo];
+    }
+    let mut xs: Vec<f64> = curves
+        .iter()
+        .flat_map(|c| c.iter().map(|p| p.0))
+        .filter(|&x| x >= lo && x <= hi)
+        .collect();
+    xs.sort_by(f64::total_cmp);
+    xs.dedup();
+    xs
+}
+
+/// The band of one group of runs: per seed the mean curve of its runs (one per task when tasks
+/// train alone), then mean ± std over seeds.
+pub fn band(label: &str, runs: &[&RunEval], metric: CurveMetric) -> Option<Band> {
+    let mut by_seed: BTreeMap<u64, Vec<Vec<(f64, f64)>>> = BTreeMap::new();
+    for r in runs {
+        let c: Vec<(f64, f64)> = r
+            .points
             .iter()
-            .flat_map(|c| c.iter().map(|p| p.0))
-            .filter(|&x| x >= lo && x <= hi)
+            .map(|p| (p.env_steps as f64, metric.of(p)))
             .collect();
-        xs.sort_by(f64::total_cmp);
-        xs.dedup();
-        xs
-    } else {
-        vec![lo]
-    };
-    let points = grid
+        if !c.is_empty() {
+            by_seed.entry(r.seed).or_default().push(c);
+        }
+    }
+    let curves: Vec<Vec<(f64, f64)>> = by_seed.values().map(|c| mean_curve(c)).collect();
+    if curves.is_empty() {
+        return None;
+    }
+    let points = common_grid(&curves)
         .into_iter()
         .map(|x| {
             let ys: Vec<f64> = curves.iter().map(|c| interpolate(c, x)).collect();
@@ -872,5 +910,42 @@ mod tests {
         .unwrap();
         let e = format!("{:#}", load_run(d).unwrap_err());
         assert!(e.contains("push-v3"), "{e}");
+    }
+
+    #[test]
+    fn tasks_trained_alone_are_averaged_per_seed_then_over_seeds() {
+        let one = |task: &str, seed: u64, s: f64| RunEval {
+            dir: PathBuf::from(format!("runs/{task}-{seed}")),
+            experiment: "mt1-ind".into(),
+            algorithm: "mtsac".into(),
+            seed,
+            tasks: vec![task.into()],
+            points: vec![EvalPoint {
+                env_steps: 100,
+                mean_success: s,
+                per_task_success: vec![s],
+                mean_return: 0.0,
+                episodes_per_task: 50,
+            }],
+        };
+        let runs = vec![
+            one("door-open-v3", 1, 1.0),
+            one("window-open-v3", 1, 0.5),
+            one("door-open-v3", 2, 0.5),
+            one("window-open-v3", 2, 0.0),
+        ];
+        let s = summarize(&runs).unwrap();
+        // Seed 1: (100 + 50) / 2 = 75; seed 2: 25 → mean 50, std sqrt(1250).
+        assert_eq!(s[0].seeds, vec![1, 2]);
+        assert!((s[0].success_mean - 50.0).abs() < 1e-9);
+        assert!((s[0].success_std - 1250f64.sqrt()).abs() < 1e-9);
+        assert_eq!(s[0].tasks, vec!["door-open-v3", "window-open-v3"]);
+        assert!((s[0].per_task[0].1 - 75.0).abs() < 1e-9);
+        let b = band("x", &runs.iter().collect::<Vec<_>>(), CurveMetric::Success).unwrap();
+        assert_eq!(b.points.len(), 1);
+        assert!((b.points[0].1 - 50.0).abs() < 1e-9);
+        // The same task twice for one seed is refused.
+        let twice = vec![one("door-open-v3", 1, 1.0), one("door-open-v3", 1, 0.0)];
+        assert!(summarize(&twice).is_err());
     }
 }

@@ -1,0 +1,113 @@
+//! The paper's protocol as commands: `deploy/experiments/run.sh` at smoke scale runs MT1-Ind
+//! (MTSAC and TERL), MT10 (MTSAC, TERL cold and TERL from the MT1-Ind datasets) and the MT-Test
+//! zero-shot evaluation as real local clusters, and `terl report` builds the table and curves
+//! from the run folders.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+use common::{service_binaries, workspace};
+
+fn run_experiment(root: &Path, runs: &Path, experiment: &str) -> String {
+    let out = Command::new(root.join("deploy/experiments/run.sh"))
+        .current_dir(root)
+        .args([
+            experiment, "--scale", "smoke", "--seeds", "1", "--actors", "1",
+        ])
+        .args(["--no-build", "--runs-root", runs.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "{experiment}: {err}");
+    err
+}
+
+#[test]
+fn experiment_scripts_train_evaluate_and_report() {
+    service_binaries();
+    let release = Path::new(env!("CARGO_BIN_EXE_terl"))
+        .parent()
+        .and_then(Path::file_name)
+        .is_some_and(|n| n == "release");
+    if !release {
+        eprintln!(
+            "the experiment scripts run target/release binaries; run this test with --release"
+        );
+        return;
+    }
+    let root = workspace();
+    let dir = tempfile::tempdir().unwrap();
+    let runs = dir.path();
+    run_experiment(&root, runs, "mt1-ind");
+    for id in ["mt1-ind-mtsac-reach-s1", "mt1-ind-terl-reach-s1"] {
+        let run = runs.join(id);
+        assert!(
+            run.join("eval-final.json").is_file(),
+            "{id}: no final evaluation"
+        );
+        assert!(run.join("checkpoints/final.safetensors").is_file(), "{id}");
+    }
+    assert!(runs
+        .join("mt1-ind-terl-reach-s1/tep-dataset.mcap")
+        .is_file());
+    // A finished run is not trained again.
+    let again = run_experiment(&root, runs, "mt1-ind");
+    assert!(again.contains("done already"), "{again}");
+
+    let log = run_experiment(&root, runs, "mt10");
+    assert!(log.contains("mt10-terl-from-mt1-ind-s1"), "{log}");
+    let learner =
+        std::fs::read_to_string(runs.join("mt10-terl-from-mt1-ind-s1/learner.log")).unwrap();
+    assert!(
+        learner.contains("TEP buffer started from a dataset"),
+        "{learner}"
+    );
+    run_experiment(&root, runs, "mt-test");
+    let zero_shot: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(runs.join("mt-test-from-mtsac-s1/eval-final.json")).unwrap(),
+    )
+    .unwrap();
+    let tasks: Vec<&str> = zero_shot["tasks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t["task"].as_str().unwrap())
+        .collect();
+    assert_eq!(tasks, ["door-close-v3", "lever-pull-v3"]);
+    assert!(zero_shot["tasks"][0]["trained"] == false);
+
+    let mut args: Vec<String> = vec!["report".into()];
+    for entry in std::fs::read_dir(runs).unwrap() {
+        let p = entry.unwrap().path();
+        if p.is_dir() {
+            args.push(p.display().to_string());
+        }
+    }
+    let report_dir = runs.join("report");
+    args.extend(["--out".into(), report_dir.display().to_string()]);
+    let out = Command::new(env!("CARGO_BIN_EXE_terl"))
+        .args(&args)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let md = std::fs::read_to_string(report_dir.join("results.md")).unwrap();
+    for row in [
+        "| mt1-ind | mtsac |",
+        "| mt1-ind | terl |",
+        "| mt10 | mtsac |",
+        "| mt10 | terl |",
+        "| mt10 | terl (from-mt1-ind) |",
+        "| mt-test | mtsac |",
+    ] {
+        assert!(md.contains(row), "no row {row} in\n{md}");
+    }
+    for chart in ["mt10-eval-success.png", "mt1-ind-eval-return.svg"] {
+        assert!(report_dir.join(chart).is_file(), "{chart}");
+    }
+}
