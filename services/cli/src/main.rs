@@ -2,6 +2,7 @@
 
 mod bench;
 mod bench_tep;
+mod charts;
 mod cluster;
 mod env;
 mod eval;

@@ -1,0 +1,282 @@
+//! Learning-curve charts of `terl report`: per experiment, one line per algorithm (the mean
+//! over seeds of each seed's curve) with ± one standard deviation shaded, drawn by `plotters`
+//! as PNG (text rendered from DejaVu Sans) and SVG.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use plotters::prelude::*;
+
+use crate::results::{mean_std, EvalPoint, RunEval};
+
+/// Which evaluation quantity a curve shows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CurveMetric {
+    /// Mean success over tasks, in %.
+    Success,
+    /// Mean episode return.
+    Return,
+}
+
+impl CurveMetric {
+    fn of(self, p: &EvalPoint) -> f64 {
+        match self {
+            Self::Success => 100.0 * p.mean_success,
+            Self::Return => p.mean_return,
+        }
+    }
+    fn label(self) -> &'static str {
+        match self {
+            Self::Success => "evaluation success (%)",
+            Self::Return => "evaluation episode return",
+        }
+    }
+}
+
+/// One curve of a chart: an algorithm's mean over seeds, with ± one std, on a common grid of
+/// env steps. Each seed's curve is linearly interpolated onto the grid, which runs from the
+/// first to the last env steps that every seed evaluated.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Band {
+    pub label: String,
+    /// `(env steps, mean, std)`.
+    pub points: Vec<(f64, f64, f64)>,
+}
+
+fn interpolate(points: &[(f64, f64)], x: f64) -> f64 {
+    match points.iter().position(|&(px, _)| px >= x) {
+        Some(0) => points[0].1,
+        Some(i) => {
+            let ((x0, y0), (x1, y1)) = (points[i - 1], points[i]);
+            if x1 == x0 {
+                y1
+            } else {
+                y0 + (y1 - y0) * (x - x0) / (x1 - x0)
+            }
+        }
+        None => points.last().map_or(f64::NAN, |p| p.1),
+    }
+}
+
+/// Mean of several curves on the union of their x values inside their common range (each
+/// linearly interpolated); one curve is returned as it is.
+fn mean_curve(curves: &[Vec<(f64, f64)>]) -> Vec<(f64, f64)> {
+    match curves {
+        [] => Vec::new(),
+        [one] => one.clone(),
+        _ => common_grid(curves)
+            .into_iter()
+            .map(|x| {
+                let ys: Vec<f64> = curves.iter().map(|c| interpolate(c, x)).collect();
+                (x, mean_std(&ys).0)
+            })
+            .collect(),
+    }
+}
+
+/// The union of the curves' x values inside the range every curve covers: no invented
+/// resolution. Curves must be non-empty and sorted by x.
+fn common_grid(curves: &[Vec<(f64, f64)>]) -> Vec<f64> {
+    let lo = curves.iter().map(|c| c[0].0).fold(f64::MIN, f64::max);
+    let hi = curves
+        .iter()
+        .map(|c| c[c.len() - 1].0)
+        .fold(f64::MAX, f64::min);
+    if hi <= lo {
+        return vec![lo];
+    }
+    let mut xs: Vec<f64> = curves
+        .iter()
+        .flat_map(|c| c.iter().map(|p| p.0))
+        .filter(|&x| x >= lo && x <= hi)
+        .collect();
+    xs.sort_by(f64::total_cmp);
+    xs.dedup();
+    xs
+}
+
+/// The band of one group of runs: per seed the mean curve of its runs (one per task when tasks
+/// train alone), then mean ± std over seeds.
+pub fn band(label: &str, runs: &[&RunEval], metric: CurveMetric) -> Option<Band> {
+    let mut by_seed: BTreeMap<u64, Vec<Vec<(f64, f64)>>> = BTreeMap::new();
+    for r in runs {
+        let c: Vec<(f64, f64)> = r
+            .points
+            .iter()
+            .map(|p| (p.env_steps as f64, metric.of(p)))
+            .collect();
+        if !c.is_empty() {
+            by_seed.entry(r.seed).or_default().push(c);
+        }
+    }
+    let curves: Vec<Vec<(f64, f64)>> = by_seed.values().map(|c| mean_curve(c)).collect();
+    if curves.is_empty() {
+        return None;
+    }
+    let points = common_grid(&curves)
+        .into_iter()
+        .map(|x| {
+            let ys: Vec<f64> = curves.iter().map(|c| interpolate(c, x)).collect();
+            let (m, s) = mean_std(&ys);
+            (x, m, s)
+        })
+        .collect();
+    Some(Band {
+        label: label.to_string(),
+        points,
+    })
+}
+
+const FONT_PATHS: [&str; 3] = [
+    "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
+    "/usr/share/fonts/dejavu/DejaVuSans.ttf",
+    "/usr/share/fonts/TTF/DejaVuSans.ttf",
+];
+
+/// Registers DejaVu Sans (package fonts-dejavu-core, installed by `deploy/setup.sh`) as the
+/// charts' `sans-serif` font; PNG text needs a font file, SVG text does not.
+fn register_font() -> Result<()> {
+    static DONE: std::sync::OnceLock<std::result::Result<(), String>> = std::sync::OnceLock::new();
+    DONE.get_or_init(|| {
+        let path = FONT_PATHS
+            .iter()
+            .find(|p| Path::new(p).exists())
+            .ok_or_else(|| {
+                format!(
+                    "no DejaVuSans.ttf in {FONT_PATHS:?}: install the fonts-dejavu-core package \
+                     (./deploy/setup.sh does)"
+                )
+            })?;
+        let bytes = std::fs::read(path).map_err(|e| format!("reading {path}: {e}"))?;
+        let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
+        plotters::style::register_font("sans-serif", FontStyle::Normal, bytes)
+            .map_err(|_| format!("{path} is not a usable font"))
+    })
+    .clone()
+    .map_err(|e| anyhow::anyhow!(e))
+}
+
+const PALETTE: [RGBColor; 6] = [
+    RGBColor(31, 119, 180),
+    RGBColor(214, 39, 40),
+    RGBColor(44, 160, 44),
+    RGBColor(255, 127, 14),
+    RGBColor(148, 103, 189),
+    RGBColor(140, 86, 75),
+];
+
+fn draw<DB: DrawingBackend>(
+    root: DrawingArea<DB, plotters::coord::Shift>,
+    title: &str,
+    metric: CurveMetric,
+    bands: &[Band],
+) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let x_max = bands
+        .iter()
+        .flat_map(|b| b.points.iter().map(|p| p.0))
+        .fold(1.0f64, f64::max);
+    let (y_min, y_max) = match metric {
+        CurveMetric::Success => (0.0, 100.0),
+        CurveMetric::Return => {
+            let lo = bands
+                .iter()
+                .flat_map(|b| b.points.iter().map(|p| p.1 - p.2))
+                .fold(0.0f64, f64::min);
+            let hi = bands
+                .iter()
+                .flat_map(|b| b.points.iter().map(|p| p.1 + p.2))
+                .fold(1.0f64, f64::max);
+            (lo, hi * 1.05)
+        }
+    };
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 22))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(56)
+        .build_cartesian_2d(0.0..x_max, y_min..y_max)
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    chart
+        .configure_mesh()
+        .x_desc("environment steps")
+        .y_desc(metric.label())
+        .label_style(("sans-serif", 15))
+        .x_label_formatter(&|x| {
+            if x_max >= 1e6 {
+                format!("{:.1}M", x / 1e6)
+            } else {
+                format!("{:.0}k", x / 1e3)
+            }
+        })
+        .draw()
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    for (i, b) in bands.iter().enumerate() {
+        let color = PALETTE[i % PALETTE.len()];
+        let clamp = |v: f64| v.clamp(y_min, y_max);
+        let mut outline: Vec<(f64, f64)> = b
+            .points
+            .iter()
+            .map(|&(x, m, s)| (x, clamp(m + s)))
+            .collect();
+        outline.extend(b.points.iter().rev().map(|&(x, m, s)| (x, clamp(m - s))));
+        chart
+            .draw_series(std::iter::once(Polygon::new(
+                outline,
+                color.mix(0.18).filled(),
+            )))
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        chart
+            .draw_series(LineSeries::new(
+                b.points.iter().map(|&(x, m, _)| (x, m)),
+                color.stroke_width(2),
+            ))
+            .map_err(|e| anyhow::anyhow!("{e}"))?
+            .label(b.label.clone())
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
+            });
+    }
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperLeft)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 16))
+        .draw()
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    root.present().map_err(|e| anyhow::anyhow!("{e}"))?;
+    Ok(())
+}
+
+/// Writes `<stem>.png` and `<stem>.svg` (1000 × 560) of one chart.
+pub fn write_chart(
+    out_dir: &Path,
+    stem: &str,
+    title: &str,
+    metric: CurveMetric,
+    bands: &[Band],
+) -> Result<Vec<PathBuf>> {
+    register_font()?;
+    let png = out_dir.join(format!("{stem}.png"));
+    let svg = out_dir.join(format!("{stem}.svg"));
+    draw(
+        BitMapBackend::new(&png, (1000, 560)).into_drawing_area(),
+        title,
+        metric,
+        bands,
+    )
+    .with_context(|| format!("drawing {}", png.display()))?;
+    draw(
+        SVGBackend::new(&svg, (1000, 560)).into_drawing_area(),
+        title,
+        metric,
+        bands,
+    )
+    .with_context(|| format!("drawing {}", svg.display()))?;
+    Ok(vec![png, svg])
+}
