@@ -56,6 +56,12 @@ fi
 bin=${CARGO_TARGET_DIR:-target}/release
 
 run_id=${run_id:-"$(basename "$config" .toml)-$(date +%Y%m%d-%H%M%S)"}
+# Shared-memory service names carry the run id machine-wide: a second cluster with the id of a
+# live one (even in another runs root, or orphans of a killed launcher) would mix with it.
+if live=$(pgrep -f -- "terl-(learner|selector|actor) .*--run-id $run_id( |\$)"); then
+    echo "run id $run_id is in use by running processes ($(echo $live | tr '\n' ' ')): stop them, or choose another --run-id" >&2
+    exit 2
+fi
 out="$runs_root/$run_id"
 mkdir -p "$out"
 cp "$config" "$out/config.toml"

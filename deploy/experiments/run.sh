@@ -25,9 +25,12 @@
 #   --steps N                        override every run's env-step budget
 #   --actors N                       actors per run (default: cores - 1, at least 1)
 #   --runs-root DIR                  where run folders go (default runs)
+#   --tag TAG                        appended to every run id (run ids are machine-wide: two
+#                                    experiments at once on one machine need different tags)
 #   --no-build                       use the binaries already built
 # A run whose eval-final.json exists is skipped, so an interrupted experiment resumes where it
-# stopped (a run stopped mid-way starts again from scratch).
+# stopped (a run stopped mid-way starts again from scratch). A run whose id is held by running
+# processes is not touched. A failed run does not stop the others; the script then exits 1.
 set -euo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 cd "$ROOT"
@@ -45,6 +48,7 @@ cores=$(nproc 2>/dev/null || echo 2)
 actors=$(( cores > 1 ? cores - 1 : 1 ))
 build=1
 runs=runs
+tag=""
 while [ $# -gt 0 ]; do
     case "$1" in
         --scale) scale=$2; shift 2 ;;
@@ -55,6 +59,7 @@ while [ $# -gt 0 ]; do
         --actors) actors=$2; shift 2 ;;
         --no-build) build=0; shift ;;
         --runs-root) runs=$2; shift 2 ;;
+        --tag) tag=-$2; shift 2 ;;
         -h|--help) usage; exit 0 ;;
         *) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
     esac
@@ -63,9 +68,15 @@ case "$scale" in workstation|paper|smoke) ;; *) echo "--scale must be workstatio
 for a in $algorithms; do
     case "$a" in mtsac|terl) ;; *) echo "unknown algorithm $a (mtsac or terl)" >&2; exit 2 ;; esac
 done
+[ -n "${seeds// /}" ] || { echo "--seeds needs at least one seed" >&2; exit 2; }
+[ -n "${algorithms// /}" ] || { echo "--algorithms needs at least one algorithm" >&2; exit 2; }
 for s in $seeds; do
     [[ "$s" =~ ^[0-9]+$ ]] || { echo "seeds must be non-negative integers, got $s" >&2; exit 2; }
 done
+[[ "$actors" =~ ^[1-9][0-9]*$ ]] || { echo "--actors must be a positive integer" >&2; exit 2; }
+[[ "$tag" =~ ^(-[A-Za-z0-9_]+)?$ ]] || { echo "--tag takes letters, digits and _" >&2; exit 2; }
+[ -z "$tasks_override" ] || [ "$experiment" = mt1-ind ] \
+    || { echo "--tasks applies to mt1-ind only" >&2; exit 2; }
 [ -z "$steps" ] || [[ "$steps" =~ ^[1-9][0-9]*$ ]] || { echo "--steps must be a positive integer" >&2; exit 2; }
 
 bin=${CARGO_TARGET_DIR:-target}/release
@@ -113,32 +124,40 @@ train_run() {
         say "$id: done already ($dir/eval-final.json)"
         return 0
     fi
+    if pgrep -f -- "terl-(learner|selector|actor) .*--run-id $id( |\$)" >/dev/null; then
+        cat > /dev/null
+        say "$id: processes of a run with this id are still running (another experiment, or a killed one's orphans): not touched"
+        return 1
+    fi
     rm -rf "$dir"
     mkdir -p "$runs"
     local cfg
-    cfg=$(mktemp "${TMPDIR:-/tmp}/terl-$id.XXXXXX.toml")
-    cat > "$cfg"
+    cfg=$(mktemp "${TMPDIR:-/tmp}/terl-$id.XXXXXX.toml") || return 1
+    cat > "$cfg" || return 1
     say "$id: training (log: $dir/cluster.log)"
     mkdir -p "$dir"
     local start=$SECONDS
     if ! ./deploy/local-cluster.sh --config "$cfg" --run-id "$id" --actors "$actors" --no-build \
         --learner-addr 127.0.0.1:0 --selector-addr 127.0.0.1:0 --runs-root "$runs" "$@" \
-        > "$runs/$id.cluster.log" 2>&1; then
-        mv "$runs/$id.cluster.log" "$dir/cluster.log" 2>/dev/null || true
+        > "$dir/cluster.log" 2>&1; then
         rm -f "$cfg"
         say "$id: the cluster failed; see $dir/cluster.log"
         return 1
     fi
-    mv "$runs/$id.cluster.log" "$dir/cluster.log"
     rm -f "$cfg"
     echo "train_wall_seconds=$((SECONDS - start))" >> "$dir/cluster.txt"
     say "$id: trained in $((SECONDS - start)) s; evaluating the final checkpoint"
-    "$bin/terl" eval --checkpoint "$dir/checkpoints/final.safetensors" --json \
-        > "$dir/eval-final.json.tmp"
-    mv "$dir/eval-final.json.tmp" "$dir/eval-final.json"
+    # (Called in a `||` list, where bash ignores `set -e`: every step checks its status.)
+    if ! "$bin/terl" eval --checkpoint "$dir/checkpoints/final.safetensors" --json \
+        > "$dir/eval-final.json.tmp"; then
+        say "$id: evaluating the final checkpoint failed"
+        return 1
+    fi
+    mv "$dir/eval-final.json.tmp" "$dir/eval-final.json" || return 1
 }
 
 mt1_tasks="door-open-v3 button-press-v3 pick-place-v3 window-open-v3 sweep-into-v3"
+failed=()
 
 case "$experiment" in
     mt1-ind)
@@ -147,7 +166,8 @@ case "$experiment" in
         [ "$scale" = smoke ] && tasks=${tasks_override:-reach-v3}
         for seed in $seeds; do for alg in $algorithms; do for task in $tasks; do
             run_config "$base" mt1-ind "$task" "$alg" "" "$seed" \
-                | train_run "mt1-ind-$alg-${task%-v3}-s$seed" "$base"
+                | train_run "mt1-ind-$alg-${task%-v3}-s$seed$tag" "$base" \
+                || failed+=("mt1-ind-$alg-${task%-v3}-s$seed$tag")
         done; done; done
         ;;
     mt10|mt20)
@@ -156,10 +176,10 @@ case "$experiment" in
         [ "$scale" = smoke ] && set_tasks="reach-v3,push-v3"
         for seed in $seeds; do for alg in $algorithms; do
             run_config "$base" "$experiment" "$set_tasks" "$alg" "" "$seed" \
-                | train_run "$experiment-$alg-s$seed" "$base"
+                | train_run "$experiment-$alg-s$seed$tag" "$base" || failed+=("$experiment-$alg-s$seed$tag")
             if [ "$alg" = terl ] && [ "$experiment" = mt10 ]; then
                 datasets=()
-                for f in "$runs"/mt1-ind-terl-*-s"$seed"/tep-dataset.mcap; do
+                for f in "$runs"/mt1-ind-terl-*-s"$seed$tag"/tep-dataset.mcap; do
                     [ -f "$f" ] && datasets+=(--tep-dataset "$f")
                 done
                 if [ ${#datasets[@]} -eq 0 ]; then
@@ -167,7 +187,8 @@ case "$experiment" in
                     continue
                 fi
                 run_config "$base" "$experiment" "$set_tasks" terl from-mt1-ind "$seed" \
-                    | train_run "$experiment-terl-from-mt1-ind-s$seed" "$base" "${datasets[@]}"
+                    | train_run "$experiment-terl-from-mt1-ind-s$seed$tag" "$base" "${datasets[@]}" \
+                    || failed+=("$experiment-terl-from-mt1-ind-s$seed$tag")
             fi
         done; done
         ;;
@@ -200,4 +221,8 @@ case "$experiment" in
         ;;
     *) echo "unknown experiment $experiment (mt1-ind, mt10, mt-test, mt20)" >&2; exit 2 ;;
 esac
+if [ ${#failed[@]} -gt 0 ]; then
+    say "failed runs (the others finished): ${failed[*]}"
+    exit 1
+fi
 say "done; report: $bin/terl report $runs/$experiment-* --out $runs/report-$experiment"

@@ -280,6 +280,14 @@ pub fn evaluate_policy(
             "at least one task and one episode per task are needed".into(),
         ));
     }
+    if settings.episodes_per_task > MAX_EPISODES_PER_TASK {
+        return Err(EvalError::Settings(format!(
+            "{} episodes per task is more than the {MAX_EPISODES_PER_TASK} allowed (there are \
+             {NUM_VARIATIONS} goal variations; the policy and the simulation are deterministic, \
+             so more episodes only repeat them)",
+            settings.episodes_per_task
+        )));
+    }
     let start = Instant::now();
     let variations: Vec<Vec<Vec<f64>>> = tasks
         .iter()
@@ -542,6 +550,20 @@ pub fn resolve_checkpoint(path: &std::path::Path) -> Result<std::path::PathBuf, 
     })
 }
 
+/// Most episodes per task [`evaluate_policy`] accepts.
+pub const MAX_EPISODES_PER_TASK: usize = 100_000;
+
+/// Parameters of the policy `sac` describes (weights and biases of every layer; the output
+/// layer has `2 × act_dim` units), or `None` on overflow.
+fn policy_param_count(sac: &terl_rl::SacConfig) -> Option<u64> {
+    let mut sizes = vec![sac.obs_dim.checked_add(sac.num_tasks)? as u64];
+    sizes.extend(sac.policy_hidden.iter().map(|&h| h as u64));
+    sizes.push(2 * sac.act_dim as u64);
+    sizes.windows(2).try_fold(0u64, |acc, w| {
+        acc.checked_add(w[0].checked_mul(w[1])?.checked_add(w[1])?)
+    })
+}
+
 /// Reads the policy of a checkpoint file or run directory ([`resolve_checkpoint`]) and, when it
 /// sits in a run folder, that run's `config.toml`.
 ///
@@ -562,6 +584,19 @@ pub fn load_policy_checkpoint(path: &std::path::Path) -> Result<PolicyCheckpoint
         )
     })?;
     let sac = terl_rl::SacConfig::from_toml(toml).map_err(|e| err(e.to_string()))?;
+    // The config in the metadata sizes the network that is built before the tensors are read:
+    // bound it by the bytes the file actually holds (4 per f32 parameter).
+    let file_bytes = std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0);
+    let params = policy_param_count(&sac);
+    if params.is_none_or(|p| p.saturating_mul(4) > file_bytes) {
+        return Err(err(format!(
+            "its terl.sac_config describes a policy ({} inputs, hidden {:?}) of {} parameters, \
+             more than the file's {file_bytes} bytes can hold",
+            sac.policy_input(),
+            sac.policy_hidden,
+            params.map_or("too many".to_string(), |p| p.to_string())
+        )));
+    }
     let updates = file
         .i64_values("counters", &[2])
         .map(|c| c[0].max(0) as u64)
@@ -715,5 +750,34 @@ mod tests {
         )
         .unwrap_err();
         assert!(matches!(err, EvalError::Cancelled));
+    }
+
+    #[test]
+    fn sizes_from_a_checkpoint_or_the_command_line_are_bounded() {
+        // A config in the metadata that describes a network far larger than the file: an
+        // error before anything that size is allocated.
+        let dir = std::env::temp_dir().join(format!("terl-eval-bound-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("huge.safetensors");
+        let mut meta = std::collections::BTreeMap::new();
+        meta.insert(
+            "terl.sac_config".to_string(),
+            "num_tasks = 2\npolicy_hidden = [200000, 200000]\n".to_string(),
+        );
+        let t = terl_nn::Tensor::from_values("counters", vec![2], &[0.0f32, 0.0]);
+        terl_nn::tensors::save_file(&path, &[t], &meta).unwrap();
+        let e = load_policy_checkpoint(&path).unwrap_err().to_string();
+        assert!(e.contains("more than the file"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+        // Episodes per task above the bound are refused up front.
+        let settings = EvalSettings {
+            episodes_per_task: MAX_EPISODES_PER_TASK + 1,
+            ..EvalSettings::default()
+        };
+        let plan = plan_tasks(&["reach-v3"], &["reach-v3"], UnseenTaskEncoding::Uniform);
+        let e = evaluate_policy(&policy(1), &plan, &settings, &|_| {}, None)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("allowed"), "{e}");
     }
 }

@@ -54,11 +54,19 @@ impl ServiceConfig {
 }
 
 /// Task names of a task spec: a task set (`mt10`, `mt1-ind`, ...) or comma-separated names,
-/// in order; task ids everywhere are positions in this list.
+/// in order; task ids everywhere are positions in this list. A task named twice is an error.
 pub fn resolve_tasks(spec: &str) -> anyhow::Result<Vec<&'static str>> {
-    let mut out = Vec::new();
+    let mut out: Vec<&'static str> = Vec::new();
     for part in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
-        out.extend(terl_sim::metaworld::task_set(part)?);
+        for task in terl_sim::metaworld::task_set(part)? {
+            // A task twice would get two one-hot slots (two policies' worth of conditioning
+            // for one task) and be evaluated twice: refuse it.
+            anyhow::ensure!(
+                !out.contains(&task),
+                "task {task} appears twice in \"{spec}\" (a task set already includes it?)"
+            );
+            out.push(task);
+        }
     }
     anyhow::ensure!(!out.is_empty(), "no tasks given");
     Ok(out)

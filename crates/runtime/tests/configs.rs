@@ -71,3 +71,12 @@ fn mt10_uses_the_reference_mtsac_settings() {
         );
     }
 }
+
+#[test]
+fn a_task_named_twice_is_refused() {
+    assert_eq!(terl_runtime::resolve_tasks("mt10").unwrap().len(), 10);
+    for spec in ["reach-v3,reach-v3", "mt10,reach-v3", "mt1-ind,mt-test"] {
+        let e = format!("{:#}", terl_runtime::resolve_tasks(spec).unwrap_err());
+        assert!(e.contains("twice"), "{spec}: {e}");
+    }
+}

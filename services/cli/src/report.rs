@@ -31,9 +31,10 @@ pub struct ReportArgs {
     /// evaluations) and `terl train` runs (`progress.jsonl`).
     #[arg(required = true, num_args = 1..)]
     pub run_dirs: Vec<PathBuf>,
-    /// Where to write the cross-run results (`results.md`, `results.json`, charts) and, for a
-    /// single run, its training report (default: the run folder for one run, `./report` for
-    /// several).
+    /// Where to write the cross-run results (`results.md`, `results.json`, charts) and the
+    /// training reports of cluster runs (for several runs under `runs/<run folder name>/`;
+    /// default: the run folder for one run, `./report` for several). A folder that cannot be
+    /// read is noted and skipped.
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Episodes per task in the rolling success window.
@@ -277,16 +278,34 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
     let mut evaluated = Vec::new();
     let mut anything = false;
+    let mut used_names: Vec<String> = Vec::new();
     for dir in &args.run_dirs {
-        anyhow::ensure!(dir.is_dir(), "{} is not a folder", dir.display());
+        if !dir.is_dir() {
+            eprintln!("note: {} is not a run folder; skipped", dir.display());
+            continue;
+        }
         if !terl_telemetry::existing_paths(dir, "episodes").is_empty() {
+            // One run: its training report goes to --out (default: the run folder). Several:
+            // each goes to a folder of its own under --out, never into the run folders.
             let run_out = if args.run_dirs.len() == 1 {
                 out.clone()
             } else {
-                dir.clone()
+                let base = dir
+                    .file_name()
+                    .map_or_else(|| "run".to_string(), |n| n.to_string_lossy().into_owned());
+                let mut name = base.clone();
+                let mut k = 2;
+                while used_names.contains(&name) {
+                    name = format!("{base}-{k}");
+                    k += 1;
+                }
+                used_names.push(name.clone());
+                out.join("runs").join(name)
             };
-            training_report(dir, &run_out, args.window)?;
-            anything = true;
+            match training_report(dir, &run_out, args.window) {
+                Ok(()) => anything = true,
+                Err(e) => eprintln!("note: no training report for {}: {e:#}", dir.display()),
+            }
         }
         match crate::results::load_run(dir) {
             Ok(r) => evaluated.push(r),

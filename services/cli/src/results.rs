@@ -55,6 +55,17 @@ pub struct RunEval {
     pub points: Vec<EvalPoint>,
 }
 
+impl EvalPoint {
+    /// One finite success rate in [0, 1] per task (and the mean too).
+    fn is_valid(&self, num_tasks: usize) -> bool {
+        let rate = |v: f64| v.is_finite() && (0.0..=1.0).contains(&v);
+        self.per_task_success.len() == num_tasks
+            && self.per_task_success.iter().all(|&v| rate(v))
+            && rate(self.mean_success)
+            && self.mean_return.is_finite()
+    }
+}
+
 impl RunEval {
     /// The last evaluation.
     pub fn last(&self) -> Option<&EvalPoint> {
@@ -101,6 +112,15 @@ pub fn load_run(dir: &Path) -> Result<RunEval> {
             }
         }));
     }
+    let before = points.len();
+    points.retain(|p| p.is_valid(tasks.len()));
+    if points.len() < before {
+        eprintln!(
+            "note: {}: {} evaluation(s) skipped (not one success rate in [0, 1] per task of its config)",
+            dir.display(),
+            before - points.len()
+        );
+    }
     points.sort_by_key(|p| p.env_steps);
     let final_eval = dir.join(FINAL_EVAL);
     if final_eval.exists() {
@@ -110,6 +130,11 @@ pub fn load_run(dir: &Path) -> Result<RunEval> {
             points.last().map_or(0, |p| p.env_steps)
         };
         let p = final_eval_point(&final_eval, &tasks, at)?;
+        anyhow::ensure!(
+            p.is_valid(tasks.len()),
+            "{}: success rates must be in [0, 1]",
+            final_eval.display()
+        );
         points.retain(|q| q.env_steps < p.env_steps);
         points.push(p);
     }
@@ -249,6 +274,8 @@ pub struct GroupSummary {
     pub env_steps: (u64, u64),
     pub episodes_per_task: usize,
     pub paper_success: Option<f64>,
+    /// `(seed, task)` pairs with no final evaluation while another seed of the group has one.
+    pub missing: Vec<(u64, String)>,
 }
 
 /// Groups runs by (experiment, algorithm), in a stable order.
@@ -308,8 +335,18 @@ pub fn summarize(runs: &[RunEval]) -> Result<Vec<GroupSummary>> {
                 (t.clone(), m, s)
             })
             .collect();
+        let missing = by_seed
+            .iter()
+            .flat_map(|(seed, per)| {
+                tasks
+                    .iter()
+                    .filter(|t| !per.contains_key(*t))
+                    .map(move |t| (*seed, t.clone()))
+            })
+            .collect();
         let steps: Vec<u64> = finals.iter().map(|p| p.env_steps).collect();
         out.push(GroupSummary {
+            missing,
             paper_success: paper_success(&experiment, &algorithm)
                 .filter(|_| !algorithm.contains('(')),
             seeds: by_seed.keys().copied().collect(),
@@ -405,6 +442,15 @@ pub fn markdown(summaries: &[GroupSummary]) -> String {
                 .collect();
             let _ = writeln!(s, "| {task} | {} |", cells.join(" | "));
         }
+        for g in &groups {
+            for (seed, task) in &g.missing {
+                let _ = writeln!(
+                    s,
+                    "\n**Note:** {} seed {seed} has no evaluation of {task}; that seed's mean is over its other tasks.",
+                    g.algorithm
+                );
+            }
+        }
         let _ = writeln!(
             s,
             "\nCurves: `{0}-eval-success.png` / `.svg`, `{0}-eval-return.png` / `.svg`.",
@@ -422,10 +468,13 @@ fn seeds_label(n: usize) -> String {
     }
 }
 
-/// A file-name-safe form of an experiment name.
+/// A file-name-safe form of an experiment name: ASCII letters, digits and `-` kept, anything
+/// else `_`, at most 60 characters; when that changed the name (or it was empty), an FNV-1a
+/// hash of the name is appended, so distinct names never share a chart file.
 pub fn file_stem(experiment: &str) -> String {
-    experiment
+    let safe: String = experiment
         .chars()
+        .take(60)
         .map(|c| {
             if c.is_ascii_alphanumeric() || c == '-' {
                 c
@@ -433,7 +482,14 @@ pub fn file_stem(experiment: &str) -> String {
                 '_'
             }
         })
-        .collect()
+        .collect();
+    if safe == experiment && !safe.is_empty() {
+        return safe;
+    }
+    let hash = experiment.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
+    });
+    format!("{safe}-{:08x}", hash as u32)
 }
 
 /// Everything `terl report` writes for a set of runs: `results.md`, `results.json` and the
@@ -677,5 +733,78 @@ mod tests {
         // The same task twice for one seed is refused.
         let twice = vec![one("door-open-v3", 1, 1.0), one("door-open-v3", 1, 0.0)];
         assert!(summarize(&twice).is_err());
+    }
+
+    #[test]
+    fn chart_names_of_distinct_experiments_never_collide() {
+        assert_eq!(file_stem("mt10"), "mt10");
+        assert_eq!(file_stem("mt1-ind"), "mt1-ind");
+        let names = ["a/b", "a_b", "mt 10 ü", "mt 10 é", "", &"x".repeat(300)];
+        let stems: Vec<String> = names.iter().map(|n| file_stem(n)).collect();
+        for (i, a) in stems.iter().enumerate() {
+            assert!(!a.is_empty() && a.len() <= 70, "{a}");
+            assert!(a
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_'));
+            for b in &stems[i + 1..] {
+                assert_ne!(a, b);
+            }
+        }
+    }
+
+    #[test]
+    fn evaluations_that_do_not_fit_the_config_are_skipped_or_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        std::fs::write(
+            d.join("config.toml"),
+            "tasks = \"reach-v3,push-v3\"\nnum_envs = 2\n[train]\ntotal_env_steps = 3000\n",
+        )
+        .unwrap();
+        let line = |steps: u64, per: Vec<f64>| {
+            serde_json::to_string(&terl_rl::train::TrainProgress {
+                env_steps: steps,
+                eval: Some(terl_rl::train::EvalReport {
+                    success_rate: 0.5,
+                    per_task_success: per,
+                    mean_return: 1.0,
+                    episodes: 2,
+                }),
+                ..Default::default()
+            })
+            .unwrap()
+        };
+        // One task short, one rate above 1, one good.
+        let progress = [
+            line(1000, vec![0.5]),
+            line(2000, vec![0.5, 42.0]),
+            line(3000, vec![0.5, 0.5]),
+        ]
+        .join("\n");
+        std::fs::write(d.join("progress.jsonl"), progress).unwrap();
+        let r = load_run(d).unwrap();
+        assert_eq!(r.points.len(), 1);
+        assert_eq!(r.points[0].env_steps, 3000);
+        std::fs::write(
+            d.join(FINAL_EVAL),
+            r#"{"mean_success_rate": 0.5, "mean_return": 1.0, "episodes_per_task": 50,
+                "tasks": [{"task": "reach-v3", "success_rate": 42},
+                          {"task": "push-v3", "success_rate": 0.0}]}"#,
+        )
+        .unwrap();
+        let e = format!("{:#}", load_run(d).unwrap_err());
+        assert!(e.contains("[0, 1]"), "{e}");
+    }
+
+    #[test]
+    fn a_seed_without_a_task_is_noted() {
+        let mut a = run("mtsac", 1, &[(1000, 0.5)]);
+        let mut b = run("mtsac", 2, &[(1000, 1.0)]);
+        a.tasks = vec!["reach-v3".into(), "push-v3".into()];
+        b.tasks = vec!["reach-v3".into()];
+        b.points[0].per_task_success = vec![1.0];
+        let s = summarize(&[a, b]).unwrap();
+        assert_eq!(s[0].missing, vec![(2, "push-v3".to_string())]);
+        assert!(markdown(&s).contains("seed 2 has no evaluation of push-v3"));
     }
 }

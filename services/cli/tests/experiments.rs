@@ -10,6 +10,10 @@ use std::process::Command;
 
 use common::{service_binaries, workspace};
 
+fn tag() -> String {
+    format!("-it{}", std::process::id())
+}
+
 fn run_experiment(root: &Path, runs: &Path, experiment: &str) -> String {
     let out = Command::new(root.join("deploy/experiments/run.sh"))
         .current_dir(root)
@@ -17,6 +21,9 @@ fn run_experiment(root: &Path, runs: &Path, experiment: &str) -> String {
             experiment, "--scale", "smoke", "--seeds", "1", "--actors", "1",
         ])
         .args(["--no-build", "--runs-root", runs.to_str().unwrap()])
+        // Run ids are machine-wide (shared-memory names): a tag keeps these apart from any
+        // experiment running on the same machine.
+        .args(["--tag", &format!("it{}", std::process::id())])
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr).into_owned();
@@ -42,31 +49,33 @@ fn experiment_scripts_train_evaluate_and_report() {
     let runs = dir.path();
     run_experiment(&root, runs, "mt1-ind");
     for id in ["mt1-ind-mtsac-reach-s1", "mt1-ind-terl-reach-s1"] {
-        let run = runs.join(id);
+        let run = runs.join(format!("{id}{}", tag()));
         assert!(
             run.join("eval-final.json").is_file(),
             "{id}: no final evaluation"
         );
         assert!(run.join("checkpoints/final.safetensors").is_file(), "{id}");
     }
-    assert!(runs
-        .join("mt1-ind-terl-reach-s1/tep-dataset.mcap")
-        .is_file());
+    let terl_run = runs.join(format!("mt1-ind-terl-reach-s1{}", tag()));
+    assert!(terl_run.join("tep-dataset.mcap").is_file());
     // A finished run is not trained again.
     let again = run_experiment(&root, runs, "mt1-ind");
     assert!(again.contains("done already"), "{again}");
 
     let log = run_experiment(&root, runs, "mt10");
     assert!(log.contains("mt10-terl-from-mt1-ind-s1"), "{log}");
-    let learner =
-        std::fs::read_to_string(runs.join("mt10-terl-from-mt1-ind-s1/learner.log")).unwrap();
+    let from = runs.join(format!("mt10-terl-from-mt1-ind-s1{}", tag()));
+    let learner = std::fs::read_to_string(from.join("learner.log")).unwrap();
     assert!(
         learner.contains("TEP buffer started from a dataset"),
         "{learner}"
     );
     run_experiment(&root, runs, "mt-test");
     let zero_shot: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(runs.join("mt-test-from-mtsac-s1/eval-final.json")).unwrap(),
+        &std::fs::read_to_string(
+            runs.join(format!("mt-test-from-mtsac-s1{}/eval-final.json", tag())),
+        )
+        .unwrap(),
     )
     .unwrap();
     let tasks: Vec<&str> = zero_shot["tasks"]
@@ -107,6 +116,14 @@ fn experiment_scripts_train_evaluate_and_report() {
     ] {
         assert!(md.contains(row), "no row {row} in\n{md}");
     }
+    // Training reports of several runs go under --out, never into the run folders.
+    let one = format!("mt1-ind-mtsac-reach-s1{}", tag());
+    assert!(report_dir
+        .join("runs")
+        .join(&one)
+        .join("report.md")
+        .is_file());
+    assert!(!runs.join(&one).join("report.md").exists());
     for chart in ["mt10-eval-success.png", "mt1-ind-eval-return.svg"] {
         assert!(report_dir.join(chart).is_file(), "{chart}");
     }

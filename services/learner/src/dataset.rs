@@ -46,7 +46,15 @@ pub(crate) fn load_all(
     tasks: &[&str],
     planner: &mut PlannerTrainer,
 ) -> anyhow::Result<()> {
+    let mut seen = Vec::new();
     for (file, path) in paths.iter().enumerate() {
+        let canonical = std::fs::canonicalize(path).unwrap_or_else(|_| path.clone());
+        anyhow::ensure!(
+            !seen.contains(&canonical),
+            "the TEP dataset {} is given twice (its samples would be loaded twice)",
+            path.display()
+        );
+        seen.push(canonical);
         load_into(file, path, tasks, planner)?;
     }
     Ok(())
@@ -134,6 +142,10 @@ mod tests {
         load_all(&[a.clone(), b], &tasks, &mut planner).unwrap();
         // Kept apart, nothing is merged away as a duplicate step of one trajectory.
         assert_eq!(planner.buffer_len(), 50);
+        // The same file twice is refused.
+        let mut planner = PlannerTrainer::new(TepConfig::default(), tasks.len(), 1).unwrap();
+        let e = load_all(&[a.clone(), a.clone()], &tasks, &mut planner).unwrap_err();
+        assert!(format!("{e:#}").contains("twice"), "{e:#}");
         // A file without any sample of the run's tasks is an error naming it.
         let mut planner = PlannerTrainer::new(TepConfig::default(), 1, 1).unwrap();
         let e = load_all(&[a], &["reach-v3"], &mut planner).unwrap_err();
