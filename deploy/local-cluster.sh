@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # The main job: a local training cluster — one learner, one selector and N actors — on this machine.
 #
-#   ./deploy/local-cluster.sh [--config FILE] [--actors N] [--run-id ID] [--tep-dataset MCAP]
-#                             [--learner-addr ADDR] [--selector-addr ADDR] [--no-build]
+#   ./deploy/local-cluster.sh [--config FILE] [--actors N] [--run-id ID] [--tep-dataset MCAP]...
+#                             [--learner-addr ADDR] [--selector-addr ADDR] [--runs-root DIR]
+#                             [--no-build]
 #
 # --config       run file (default deploy/configs/mt10.toml; quick checks: deploy/configs/cluster-smoke.toml,
 #                and deploy/configs/smoke-terl.toml for the whole TERL loop within two minutes)
@@ -38,7 +39,7 @@ while [ $# -gt 0 ]; do
         --no-build) build=0; shift ;;
         --runs-root) runs_root=$2; shift 2 ;;
         --tep-dataset) tep_datasets+=("$2"); shift 2 ;;
-        -h|--help) sed -n 2,16p "$0"; exit 0 ;;
+        -h|--help) sed -n '2,/^set -euo/p' "$0" | sed '$d'; exit 0 ;;
         *) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
     esac
 done

@@ -198,7 +198,7 @@ where
         .caption(title, ("sans-serif", 22))
         .margin(12)
         .x_label_area_size(40)
-        .y_label_area_size(56)
+        .y_label_area_size(72)
         .build_cartesian_2d(0.0..x_max, y_min..y_max)
         .map_err(|e| anyhow::anyhow!("{e}"))?;
     chart
@@ -209,8 +209,10 @@ where
         .x_label_formatter(&|x| {
             if x_max >= 1e6 {
                 format!("{:.1}M", x / 1e6)
-            } else {
+            } else if x_max >= 1e4 {
                 format!("{:.0}k", x / 1e3)
+            } else {
+                format!("{x:.0}")
             }
         })
         .draw()
@@ -240,6 +242,15 @@ where
             .legend(move |(x, y)| {
                 PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
             });
+        // Markers at the evaluations, so a curve of one point (a run with only its final
+        // evaluation) still shows.
+        chart
+            .draw_series(
+                b.points
+                    .iter()
+                    .map(|&(x, m, _)| Circle::new((x, m), 3, color.filled())),
+            )
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
     }
     chart
         .configure_series_labels()

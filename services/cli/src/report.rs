@@ -302,7 +302,7 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
                 used_names.push(name.clone());
                 out.join("runs").join(name)
             };
-            match training_report(dir, &run_out, args.window) {
+            match training_report(dir, &run_out, args.window, args.run_dirs.len() == 1) {
                 Ok(()) => anything = true,
                 Err(e) => eprintln!("note: no training report for {}: {e:#}", dir.display()),
             }
@@ -329,7 +329,7 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
 }
 
 /// `report.md` and `learning-curves.svg` of one cluster run's training episodes.
-fn training_report(run_dir: &Path, out: &Path, window: usize) -> Result<()> {
+fn training_report(run_dir: &Path, out: &Path, window: usize, print: bool) -> Result<()> {
     let episode_files = terl_telemetry::existing_paths(run_dir, "episodes");
     let mut episodes = Vec::new();
     for f in &episode_files {
@@ -364,7 +364,9 @@ fn training_report(run_dir: &Path, out: &Path, window: usize) -> Result<()> {
     let svg_path = out.join("learning-curves.svg");
     std::fs::write(&svg_path, svg(&rows, window))
         .with_context(|| format!("writing {}", svg_path.display()))?;
-    print!("{md}");
+    if print {
+        print!("{md}");
+    }
     eprintln!("wrote {} and {}", md_path.display(), svg_path.display());
     Ok(())
 }
