@@ -48,11 +48,23 @@ impl PolicySpec {
     }
 
     /// Number of `f32` parameters of the flat weight vector.
+    ///
+    /// # Panics
+    /// If the count overflows `usize` (see [`Self::checked_num_params`] for sizes read from
+    /// untrusted files).
     pub fn num_params(&self) -> usize {
-        let mut sizes = vec![self.obs_dim + self.num_tasks];
+        self.checked_num_params()
+            .expect("policy parameter count overflows usize")
+    }
+
+    /// [`Self::num_params`], or `None` when the sizes overflow `usize`.
+    pub fn checked_num_params(&self) -> Option<usize> {
+        let mut sizes = vec![self.obs_dim.checked_add(self.num_tasks)?];
         sizes.extend_from_slice(&self.hidden);
-        sizes.push(2 * self.act_dim);
-        sizes.windows(2).map(|w| w[0] * w[1] + w[1]).sum()
+        sizes.push(self.act_dim.checked_mul(2)?);
+        sizes.windows(2).try_fold(0usize, |acc, w| {
+            acc.checked_add(w[0].checked_mul(w[1])?.checked_add(w[1])?)
+        })
     }
 }
 

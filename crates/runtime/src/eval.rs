@@ -553,17 +553,6 @@ pub fn resolve_checkpoint(path: &std::path::Path) -> Result<std::path::PathBuf, 
 /// Most episodes per task [`evaluate_policy`] accepts.
 pub const MAX_EPISODES_PER_TASK: usize = 100_000;
 
-/// Parameters of the policy `sac` describes (weights and biases of every layer; the output
-/// layer has `2 × act_dim` units), or `None` on overflow.
-fn policy_param_count(sac: &terl_rl::SacConfig) -> Option<u64> {
-    let mut sizes = vec![sac.obs_dim.checked_add(sac.num_tasks)? as u64];
-    sizes.extend(sac.policy_hidden.iter().map(|&h| h as u64));
-    sizes.push(2 * sac.act_dim as u64);
-    sizes.windows(2).try_fold(0u64, |acc, w| {
-        acc.checked_add(w[0].checked_mul(w[1])?.checked_add(w[1])?)
-    })
-}
-
 /// Reads the policy of a checkpoint file or run directory ([`resolve_checkpoint`]) and, when it
 /// sits in a run folder, that run's `config.toml`.
 ///
@@ -587,8 +576,8 @@ pub fn load_policy_checkpoint(path: &std::path::Path) -> Result<PolicyCheckpoint
     // The config in the metadata sizes the network that is built before the tensors are read:
     // bound it by the bytes the file actually holds (4 per f32 parameter).
     let file_bytes = std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0);
-    let params = policy_param_count(&sac);
-    if params.is_none_or(|p| p.saturating_mul(4) > file_bytes) {
+    let params = terl_rl::PolicySpec::from_config(&sac).checked_num_params();
+    if params.is_none_or(|p| (p as u64).saturating_mul(4) > file_bytes) {
         return Err(err(format!(
             "its terl.sac_config describes a policy ({} inputs, hidden {:?}) of {} parameters, \
              more than the file's {file_bytes} bytes can hold",
