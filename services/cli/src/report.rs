@@ -328,35 +328,37 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// `report.md` and `learning-curves.svg` of one cluster run's training episodes.
-fn training_report(run_dir: &Path, out: &Path, window: usize, print: bool) -> Result<()> {
-    let episode_files = terl_telemetry::existing_paths(run_dir, "episodes");
-    let mut episodes = Vec::new();
-    for f in &episode_files {
-        let log = terl_telemetry::read_log::<EpisodeSummary>(f)
+/// Every record of the run's `<kind>.mcap` log and its restarted segments (`<kind>.2.mcap`,
+/// …), in order, and the segments whose writer was stopped (read up to their last flush).
+pub(crate) fn read_run_log<R: terl_telemetry::LogRecord>(
+    run_dir: &Path,
+    kind: &str,
+) -> Result<(Vec<R>, Vec<PathBuf>)> {
+    let (mut records, mut cut) = (Vec::new(), Vec::new());
+    for f in terl_telemetry::existing_paths(run_dir, kind) {
+        let log = terl_telemetry::read_log::<R>(&f)
             .with_context(|| format!("reading {}", f.display()))?;
         if log.truncated {
-            eprintln!(
-                "note: {} ends early (its writer was stopped); using what was flushed",
-                f.display()
-            );
+            cut.push(f);
         }
-        episodes.extend(log.records);
+        records.extend(log.records);
     }
-    let mut metrics = Vec::new();
-    for f in terl_telemetry::existing_paths(run_dir, "metrics") {
-        let log = terl_telemetry::read_log::<Metric>(&f)
-            .with_context(|| format!("reading {}", f.display()))?;
-        metrics.extend(log.records);
+    Ok((records, cut))
+}
+
+/// `report.md` and `learning-curves.svg` of one cluster run's training episodes.
+fn training_report(run_dir: &Path, out: &Path, window: usize, print: bool) -> Result<()> {
+    let (episodes, cut) = read_run_log::<EpisodeSummary>(run_dir, "episodes")?;
+    for f in cut {
+        eprintln!(
+            "note: {} ends early (its writer was stopped); using what was flushed",
+            f.display()
+        );
     }
+    let (metrics, _) = read_run_log::<Metric>(run_dir, "metrics")?;
     let rows = task_rows(&episodes, window);
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    let mut evals = Vec::new();
-    for f in terl_telemetry::existing_paths(run_dir, "eval") {
-        let log = terl_telemetry::read_log::<terl_wire::EvalResult>(&f)
-            .with_context(|| format!("reading {}", f.display()))?;
-        evals.extend(log.records);
-    }
+    let (evals, _) = read_run_log::<terl_wire::EvalResult>(run_dir, "eval")?;
     let mut md = markdown(run_dir, &rows, window, &metrics);
     md.push_str(&eval_markdown(&evals));
     let md_path = out.join("report.md");

@@ -91,27 +91,24 @@ pub fn load_run(dir: &Path) -> Result<RunEval> {
             cfg.eval_envs_per_task * cfg.train.eval_episodes_per_env,
         )?);
     }
-    for f in terl_telemetry::existing_paths(dir, "eval") {
-        let log = terl_telemetry::read_log::<terl_wire::EvalResult>(&f)
-            .with_context(|| format!("reading {}", f.display()))?;
-        points.extend(log.records.iter().map(|e| {
-            let by_name: BTreeMap<&str, f64> = e
-                .tasks
+    let (evals, _) = crate::report::read_run_log::<terl_wire::EvalResult>(dir, "eval")?;
+    points.extend(evals.iter().map(|e| {
+        let by_name: BTreeMap<&str, f64> = e
+            .tasks
+            .iter()
+            .map(|t| (t.task.as_str(), t.success_rate))
+            .collect();
+        EvalPoint {
+            env_steps: e.env_steps,
+            mean_success: e.mean_success_rate,
+            per_task_success: tasks
                 .iter()
-                .map(|t| (t.task.as_str(), t.success_rate))
-                .collect();
-            EvalPoint {
-                env_steps: e.env_steps,
-                mean_success: e.mean_success_rate,
-                per_task_success: tasks
-                    .iter()
-                    .map(|t| by_name.get(t.as_str()).copied().unwrap_or(f64::NAN))
-                    .collect(),
-                mean_return: e.mean_return,
-                episodes_per_task: e.episodes_per_task as usize,
-            }
-        }));
-    }
+                .map(|t| by_name.get(t.as_str()).copied().unwrap_or(f64::NAN))
+                .collect(),
+            mean_return: e.mean_return,
+            episodes_per_task: e.episodes_per_task as usize,
+        }
+    }));
     let before = points.len();
     points.retain(|p| p.is_valid(tasks.len()));
     if points.len() < before {
