@@ -25,6 +25,9 @@ pub enum NnError {
     /// The bytes are not a valid safetensors file.
     #[error("invalid safetensors data: {0}")]
     Format(String),
+    /// The file's content does not match the checksum stored in it (a damaged file).
+    #[error("the content does not match its checksum (stored {stored}, computed {computed}): the file is damaged")]
+    Checksum { stored: String, computed: String },
     /// A value could not be represented (for example a non-finite weight was asked to load).
     #[error("invalid value: {0}")]
     InvalidValue(String),

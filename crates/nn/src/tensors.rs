@@ -158,21 +158,97 @@ pub fn to_safetensors(
         .map_err(|e| NnError::Format(e.to_string()))
 }
 
-/// Writes tensors to a safetensors file (the write goes to `path.tmp` first, then is renamed, so
-/// a crash never leaves a half-written checkpoint under the real name).
+/// Metadata key of the content checksum [`save_file`] writes and [`TensorFile::from_bytes`]
+/// verifies: `crc32:` and eight hex digits, the CRC-32 of every tensor (sorted by name: name,
+/// dtype, shape, data) and every other metadata entry, each length-prefixed.
+pub const CHECKSUM_KEY: &str = "terl.checksum";
+/// Metadata key of the file format version [`save_file`] writes.
+pub const FORMAT_VERSION_KEY: &str = "terl.format_version";
+/// The file format version this crate writes and the newest it reads.
+pub const FORMAT_VERSION: u32 = 1;
+
+/// The content checksum stored under [`CHECKSUM_KEY`] (see there).
+fn content_checksum<'a>(
+    tensors: impl IntoIterator<Item = &'a Tensor>,
+    metadata: &BTreeMap<String, String>,
+) -> String {
+    let mut sorted: Vec<&Tensor> = tensors.into_iter().collect();
+    sorted.sort_by(|a, b| a.name.cmp(&b.name));
+    let mut h = crc32fast::Hasher::new();
+    let mut field = |bytes: &[u8]| {
+        h.update(&(bytes.len() as u64).to_le_bytes());
+        h.update(bytes);
+    };
+    for t in sorted {
+        field(t.name.as_bytes());
+        field(t.dtype.to_string().as_bytes());
+        let shape: Vec<u8> = t
+            .shape
+            .iter()
+            .flat_map(|d| (*d as u64).to_le_bytes())
+            .collect();
+        field(&shape);
+        field(&t.data);
+    }
+    for (k, v) in metadata.iter().filter(|(k, _)| *k != CHECKSUM_KEY) {
+        field(k.as_bytes());
+        field(v.as_bytes());
+    }
+    format!("crc32:{:08x}", h.finalize())
+}
+
+/// Writes tensors to a safetensors file durably and atomically, with a format version
+/// ([`FORMAT_VERSION_KEY`]) and a content checksum ([`CHECKSUM_KEY`]) added to `metadata`.
+///
+/// The bytes go to `<path>.tmp` first, which is flushed to disk (`fsync`), renamed to `path`, and
+/// then the folder is flushed too, so after a crash or power loss the real name holds either
+/// the previous file or the complete new one, never half a file.
+///
+/// # Errors
+/// [`NnError::Io`] naming the file (for example a full disk; the temporary file is removed and
+/// an earlier file under `path` is left as it was), [`NnError::Format`] for invalid tensors.
 pub fn save_file(
     path: &Path,
     tensors: &[Tensor],
     metadata: &BTreeMap<String, String>,
 ) -> Result<(), NnError> {
-    let bytes = to_safetensors(tensors, metadata)?;
-    let io = |source| NnError::Io {
-        path: path.display().to_string(),
-        source,
+    use std::io::Write;
+    let mut metadata = metadata.clone();
+    metadata
+        .entry(FORMAT_VERSION_KEY.to_string())
+        .or_insert_with(|| FORMAT_VERSION.to_string());
+    metadata.insert(
+        CHECKSUM_KEY.to_string(),
+        content_checksum(tensors, &metadata),
+    );
+    let bytes = to_safetensors(tensors, &metadata)?;
+    let mut tmp_name = path.as_os_str().to_owned();
+    tmp_name.push(".tmp");
+    let tmp = std::path::PathBuf::from(tmp_name);
+    let io = |at: &Path| {
+        let at = at.display().to_string();
+        move |source| NnError::Io { path: at, source }
     };
-    let tmp = path.with_extension("safetensors.tmp");
-    std::fs::write(&tmp, bytes).map_err(io)?;
-    std::fs::rename(&tmp, path).map_err(io)
+    let written = std::fs::File::create(&tmp)
+        .and_then(|mut f| {
+            f.write_all(&bytes)?;
+            f.sync_all()
+        })
+        .map_err(io(&tmp));
+    if let Err(e) = written {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(e);
+    }
+    std::fs::rename(&tmp, path).map_err(io(path))?;
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    // Flushing the folder makes the rename itself durable (not supported on every platform).
+    if let Ok(d) = std::fs::File::open(dir) {
+        let _ = d.sync_all();
+    }
+    Ok(())
 }
 
 /// A decoded safetensors file: tensors by name plus metadata.
@@ -205,12 +281,31 @@ impl TensorFile {
             };
             tensors.insert(name, t);
         }
-        let metadata = meta
+        let metadata: BTreeMap<String, String> = meta
             .metadata()
             .clone()
             .unwrap_or_default()
             .into_iter()
             .collect();
+        if let Some(v) = metadata.get(FORMAT_VERSION_KEY) {
+            match v.parse::<u32>() {
+                Ok(v) if v <= FORMAT_VERSION => {}
+                _ => {
+                    return Err(NnError::Format(format!(
+                        "format version {v:?} is not one this build reads (up to {FORMAT_VERSION})"
+                    )))
+                }
+            }
+        }
+        if let Some(stored) = metadata.get(CHECKSUM_KEY) {
+            let computed = content_checksum(tensors.values(), &metadata);
+            if *stored != computed {
+                return Err(NnError::Checksum {
+                    stored: stored.clone(),
+                    computed,
+                });
+            }
+        }
         Ok(Self { tensors, metadata })
     }
 
