@@ -11,7 +11,7 @@ mod config;
 pub mod eval;
 mod metaworld_vec;
 
-pub use config::{Algorithm, ClusterConfig, RunConfig};
+pub use config::{Algorithm, ClusterConfig, OnCheckpointError, RunConfig};
 pub use metaworld_vec::MetaWorldVec;
 
 /// What a cluster service (learner or selector) needs to start.
@@ -31,6 +31,9 @@ pub struct ServiceConfig {
     /// Learner with `algorithm = "terl"`: TEP datasets (MCAP) to load into the TEP buffer at
     /// start-up, in order, e.g. `runs/<older-run>/tep-dataset.mcap` of each MT1-Ind run.
     pub tep_datasets: Vec<std::path::PathBuf>,
+    /// Continue the run in `run_dir` from its newest intact checkpoint (learner), or from its
+    /// logs (selector) instead of starting fresh.
+    pub resume: bool,
 }
 
 impl ServiceConfig {
@@ -49,6 +52,7 @@ impl ServiceConfig {
             run_dir,
             learner_addr: None,
             tep_datasets: Vec::new(),
+            resume: false,
         }
     }
 }

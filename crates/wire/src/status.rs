@@ -68,6 +68,12 @@ pub struct LearnerStatus {
     /// Mean predicted distance `F(s_t, s', a_t)` to the hindsight goal over the last window, in
     /// env steps (≥ 0).
     pub tep_goal_distance_mean: f64,
+    /// The checkpoint a resumed learner continued from (empty: a fresh start).
+    pub resumed_from: String,
+    /// That checkpoint's update count (0: a fresh start).
+    pub resumed_at_update: u64,
+    /// Checkpoints that could not be written since this learner started.
+    pub checkpoint_failures: u64,
 }
 
 /// Statistics of PTR priorities.
@@ -364,6 +370,9 @@ impl TryFrom<pb::LearnerStatus> for LearnerStatus {
                 "tep_goal_distance_mean",
                 m.tep_goal_distance_mean,
             )?,
+            resumed_from: m.resumed_from,
+            resumed_at_update: m.resumed_at_update,
+            checkpoint_failures: m.checkpoint_failures,
         })
     }
 }
@@ -395,6 +404,9 @@ impl From<LearnerStatus> for pb::LearnerStatus {
             guided_steps: d.guided_steps,
             tep_target_mean: d.tep_target_mean,
             tep_goal_distance_mean: d.tep_goal_distance_mean,
+            resumed_from: d.resumed_from,
+            resumed_at_update: d.resumed_at_update,
+            checkpoint_failures: d.checkpoint_failures,
         }
     }
 }

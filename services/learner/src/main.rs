@@ -30,6 +30,13 @@ struct Args {
     /// `runs/<id>/tep-dataset.mcap`); repeat the flag to load several, in order.
     #[arg(long)]
     tep_dataset: Vec<PathBuf>,
+    /// Continue the run in the run folder from its newest intact checkpoint (networks, targets,
+    /// optimisers, per-task α, counters, generators, planner; the TEP buffer from the run's
+    /// tep-dataset files). Damaged checkpoints are skipped with a warning; a run without any
+    /// checkpoint starts fresh. The replay buffer refills with warmup_env_steps fresh
+    /// transitions before updates continue.
+    #[arg(long)]
+    resume: bool,
 }
 
 #[tokio::main]
@@ -42,5 +49,6 @@ async fn main() -> anyhow::Result<()> {
         .unwrap_or_else(|| PathBuf::from("runs").join(&a.run_id));
     let mut config = terl_learner::LearnerConfig::new(run, a.run_id, a.addr, a.num_actors, run_dir);
     config.tep_datasets = a.tep_dataset;
+    config.resume = a.resume;
     terl_learner::run(config, terl_runtime::shutdown_signal()).await
 }

@@ -29,6 +29,10 @@ struct Args {
     /// critic weights.
     #[arg(long)]
     learner_addr: Option<String>,
+    /// Continue the run in the run folder: success windows and PTR gates are rebuilt from its
+    /// episode logs; new episodes, selected samples and evaluations go to new log files.
+    #[arg(long)]
+    resume: bool,
 }
 
 #[tokio::main(flavor = "current_thread")]
@@ -42,5 +46,6 @@ async fn main() -> anyhow::Result<()> {
     let mut config =
         terl_selector::SelectorConfig::new(run, a.run_id, a.addr, a.num_actors, run_dir);
     config.learner_addr = a.learner_addr;
+    config.resume = a.resume;
     terl_selector::run(config, terl_runtime::shutdown_signal()).await
 }
