@@ -37,12 +37,19 @@ struct Args {
     /// transitions before updates continue.
     #[arg(long)]
     resume: bool,
+    /// Stop (as on SIGTERM) when the process with this pid, the launcher, exits or is killed:
+    /// no orphans (deploy/local-cluster.sh passes its own pid).
+    #[arg(long)]
+    parent_pid: Option<u32>,
 }
 
 #[tokio::main]
 async fn main() -> anyhow::Result<()> {
     terl_runtime::init_tracing();
     let a = Args::parse();
+    if let Some(pid) = a.parent_pid {
+        terl_runtime::exit_with_parent(pid)?;
+    }
     let run = terl_runtime::RunConfig::load(&a.config)?;
     let run_dir = a
         .run_dir
