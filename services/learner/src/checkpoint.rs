@@ -376,6 +376,61 @@ mod tests {
         );
     }
 
+    /// A full disk (a 512 KiB tmpfs): the write fails with an error naming the file, leaves no
+    /// temporary file and no file under the checkpoint's name, and the earlier checkpoint stays
+    /// intact and is what a resume finds. Needs root to mount; elsewhere it says so and skips.
+    #[test]
+    fn a_full_disk_fails_the_write_cleanly_and_keeps_the_earlier_checkpoint() {
+        let dir = tempfile::tempdir().unwrap();
+        let mount = dir.path().join("small");
+        std::fs::create_dir_all(&mount).unwrap();
+        let mounted = std::process::Command::new("mount")
+            .args(["-t", "tmpfs", "-o", "size=512k", "tmpfs"])
+            .arg(&mount)
+            .stderr(std::process::Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success());
+        if !mounted {
+            eprintln!("SKIPPED: cannot mount a tmpfs here (needs root); the full-disk case is not exercised");
+            return;
+        }
+        struct Unmount(PathBuf);
+        impl Drop for Unmount {
+            fn drop(&mut self) {
+                let _ = std::process::Command::new("umount").arg(&self.0).status();
+            }
+        }
+        let _guard = Unmount(mount.clone());
+        let ckpt = mount.join("checkpoints");
+        let mut c = Checkpointer::open(ckpt.clone(), 3).unwrap();
+        let small = sac(1);
+        c.periodic(1, &Snapshot::new(&small, None, &state(10)).unwrap())
+            .unwrap();
+        // ~600k parameters with targets and Adam moments: far more than what is left.
+        let big = Sac::<f32>::new(SacConfig {
+            obs_dim: 5,
+            act_dim: 2,
+            num_tasks: 2,
+            policy_hidden: vec![256, 256],
+            critic_hidden: vec![256, 256],
+            batch_size: 4,
+            ..SacConfig::default()
+        })
+        .unwrap();
+        let err = c
+            .periodic(2, &Snapshot::new(&big, None, &state(20)).unwrap())
+            .unwrap_err();
+        let msg = format!("{err:#}");
+        assert!(msg.contains("update-0000000002"), "{msg}");
+        let names: Vec<String> = std::fs::read_dir(&ckpt)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        assert_eq!(names, ["update-0000000001.safetensors"], "{msg}");
+        let found = newest_intact(&ckpt).unwrap().unwrap();
+        assert_eq!(found.state.env_steps, 10);
+    }
+
     #[test]
     fn generator_states_round_trip() {
         use rand::{Rng, SeedableRng};
