@@ -167,17 +167,19 @@ impl SelectorClient {
 }
 
 /// Follows the learner's weight stream for `kinds` forever: connects, hands every version to
-/// `sink`, and reconnects after a failure or when the learner goes away (every 500 ms; the
-/// first wait and every stream error are logged once). For the actors and the selector, which
+/// `sink`, and reconnects after a failure or when the learner goes away (waiting 0.25 s, doubled up
+/// to 5 s while it stays away; the first wait and every stream error are logged once). For the actors and the selector, which
 /// must keep working while the learner restarts. Cancel by dropping/aborting the future.
 pub async fn follow_weights(addr: String, kinds: Vec<WeightsKind>, mut sink: impl FnMut(Weights)) {
     let mut logged_wait = false;
+    let mut backoff = FOLLOW_BACKOFF_MIN;
     loop {
         match connect_learner(&addr).await {
             Ok(mut client) => match client.watch_weights(&kinds).await {
                 Ok(mut stream) => {
                     tracing::info!(%addr, ?kinds, "following the learner's weights");
                     logged_wait = false;
+                    backoff = FOLLOW_BACKOFF_MIN;
                     while let Some(item) = futures_util::StreamExt::next(&mut stream).await {
                         match item {
                             Ok(weights) => sink(weights),
@@ -197,6 +199,12 @@ pub async fn follow_weights(addr: String, kinds: Vec<WeightsKind>, mut sink: imp
                 }
             }
         }
-        tokio::time::sleep(std::time::Duration::from_millis(500)).await;
+        tokio::time::sleep(backoff).await;
+        backoff = (backoff * 2).min(FOLLOW_BACKOFF_MAX);
     }
 }
+
+/// [`follow_weights`]' wait before reconnecting: doubled after each failed attempt from the
+/// first to the last, and back to the first once a stream is open.
+const FOLLOW_BACKOFF_MIN: std::time::Duration = std::time::Duration::from_millis(250);
+const FOLLOW_BACKOFF_MAX: std::time::Duration = std::time::Duration::from_secs(5);
