@@ -167,9 +167,10 @@ impl SelectorClient {
 }
 
 /// Follows the learner's weight stream for `kinds` forever: connects, hands every version to
-/// `sink`, and reconnects after a failure or when the learner goes away (waiting 0.25 s, doubled up
-/// to 5 s while it stays away; the first wait and every stream error are logged once). For the actors and the selector, which
-/// must keep working while the learner restarts. Cancel by dropping/aborting the future.
+/// `sink`, and reconnects after a failure or when the learner goes away (waiting 0.25 s, doubled
+/// up to 5 s while it stays away; the first wait and every stream error are logged once). For
+/// the actors and the selector, which must keep working while the learner restarts. Cancel by
+/// dropping/aborting the future.
 pub async fn follow_weights(addr: String, kinds: Vec<WeightsKind>, mut sink: impl FnMut(Weights)) {
     let mut logged_wait = false;
     let mut backoff = FOLLOW_BACKOFF_MIN;
