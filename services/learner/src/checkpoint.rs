@@ -18,8 +18,8 @@
 //!
 //! **Resuming** ([`newest_intact`]) reads every checkpoint of the folder, verifies its checksum
 //! and shapes, skips damaged ones with a warning naming the file and the reason, and continues
-//! from the one with the most updates. The replay buffer is **not** persisted (at the paper's
-//! MT10 size it is 10 × 1M transitions, ~3.3 GB per checkpoint): after a resume the learner
+//! from the one with the most updates. The replay buffer is **not** persisted (MT10's is 10 ×
+//! 100k transitions, ~340 MB, and grows with `replay_capacity_per_task`): after a resume the learner
 //! refills it with `train.warmup_env_steps` fresh transitions from the restored policy before
 //! updates continue, at the run's update-to-data ratio from then on.
 
