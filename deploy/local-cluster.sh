@@ -245,7 +245,7 @@ while [ -z "$interrupted" ]; do
     done
     [ -n "$interrupted" ] && break
     echo "---- $(date +%H:%M:%S)" >&2
-    "$bin/terl" status --addr "$learner_addr" --selector-addr "$selector_addr" >&2 || true
+    "$bin/terl" status --run "$out" >&2 || true
 done
 reason="interrupted (signal $((interrupted - 128)))"
 stop

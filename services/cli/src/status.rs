@@ -22,6 +22,84 @@ pub struct StatusArgs {
     /// Seconds to wait for each server.
     #[arg(long, default_value_t = 5.0)]
     pub timeout: f64,
+    /// A launcher's run folder (runs/<id>): the addresses come from its learner.addr and
+    /// selector.addr, and the launcher's processes (alive or not) and restarts are shown too.
+    #[arg(long, value_name = "RUN_DIR")]
+    pub run: Option<std::path::PathBuf>,
+}
+
+/// One process of a launcher's run (`runs/<id>/pids`).
+#[derive(Debug, serde::Serialize)]
+struct Process {
+    role: String,
+    pid: u32,
+    alive: bool,
+}
+
+/// What the launcher's files say about a run's processes.
+#[derive(Debug, Default, serde::Serialize)]
+struct Launcher {
+    processes: Vec<Process>,
+    /// `restart=<time> role=<role> exit_code=<code>` lines of `cluster.txt`, in order.
+    restarts: Vec<String>,
+    resumed: Vec<String>,
+}
+
+fn read_launcher(run: &std::path::Path) -> Launcher {
+    let processes = std::fs::read_to_string(run.join("pids"))
+        .unwrap_or_default()
+        .lines()
+        .filter_map(|l| {
+            let (role, pid) = l.split_once(' ')?;
+            let pid: u32 = pid.trim().parse().ok()?;
+            let alive = std::fs::read_to_string(format!("/proc/{pid}/cmdline"))
+                .is_ok_and(|c| c.contains("terl-"));
+            Some(Process {
+                role: role.to_string(),
+                pid,
+                alive,
+            })
+        })
+        .collect();
+    let info = std::fs::read_to_string(run.join("cluster.txt")).unwrap_or_default();
+    let pick = |prefix: &str| -> Vec<String> {
+        info.lines()
+            .filter_map(|l| l.strip_prefix(prefix))
+            .map(str::to_string)
+            .collect()
+    };
+    Launcher {
+        processes,
+        restarts: pick("restart="),
+        resumed: pick("resumed="),
+    }
+}
+
+fn print_launcher(l: &Launcher) {
+    let procs: Vec<String> = l
+        .processes
+        .iter()
+        .map(|p| {
+            format!(
+                "{} {} ({})",
+                p.role,
+                p.pid,
+                if p.alive { "alive" } else { "gone" }
+            )
+        })
+        .collect();
+    println!(
+        "processes {}  restarts {}{}",
+        procs.join("  "),
+        l.restarts.len(),
+        l.resumed
+            .last()
+            .map(|r| format!("  resumed by the launcher at {r}"))
+            .unwrap_or_default()
+    );
+    for r in l.restarts.iter().rev().take(5).rev() {
+        println!("restarted {r}");
+    }
 }
 
 async fn learner_status(addr: &str) -> Result<LearnerStatus> {
@@ -131,7 +209,28 @@ fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyho
     }
 }
 
-pub fn run(args: StatusArgs) -> Result<ExitCode> {
+pub fn run(mut args: StatusArgs) -> Result<ExitCode> {
+    let launcher = match &args.run {
+        Some(dir) => {
+            let read = |name: &str| -> Result<String> {
+                let path = dir.join(format!("{name}.addr"));
+                Ok(std::fs::read_to_string(&path)
+                    .with_context(|| {
+                        format!(
+                            "{} not found: is {} a run folder?",
+                            path.display(),
+                            dir.display()
+                        )
+                    })?
+                    .trim()
+                    .to_string())
+            };
+            args.addr = read("learner")?;
+            args.selector_addr = read("selector")?;
+            Some(read_launcher(dir))
+        }
+        None => None,
+    };
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
@@ -149,10 +248,14 @@ pub fn run(args: StatusArgs) -> Result<ExitCode> {
             let value = serde_json::json!({
                 "learner": learner,
                 "selector": selector.as_ref().ok(),
+                "launcher": launcher,
             });
             println!("{}", serde_json::to_string(&value)?);
         } else {
             print_table(&learner, selector.as_ref());
+            if let Some(l) = &launcher {
+                print_launcher(l);
+            }
         }
         Ok(ExitCode::SUCCESS)
     })
