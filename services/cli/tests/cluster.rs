@@ -819,6 +819,18 @@ fn killed_learner_is_restarted_and_runs_resume_past_a_damaged_checkpoint() {
         cluster_txt.contains("role=learner exit_code=137"),
         "{cluster_txt}"
     );
+    // `terl status --run` shows the launcher's processes (alive) and the restart.
+    let out = Command::new(env!("CARGO_BIN_EXE_terl"))
+        .args(["status", "--json", "--run", run_dir.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let restarts = v["launcher"]["restarts"].as_array().unwrap();
+    assert_eq!(restarts.len(), 1, "{v}");
+    assert!(restarts[0].as_str().unwrap().contains("role=learner"));
+    let procs = v["launcher"]["processes"].as_array().unwrap();
+    assert_eq!(procs.len(), 3);
+    assert!(procs.iter().all(|p| p["alive"] == true), "{v}");
     // Updates continue past the checkpoint once the replay buffer has refilled.
     wait_until("updates past the resume point", limit, || {
         status(&learner_addr, &selector_addr)
