@@ -17,8 +17,9 @@
 #                (repeat the option to load several, e.g. the five MT1-Ind datasets)
 # --runs-root    folder of run folders (default runs; `terl cluster down` looks in runs/)
 # --actors       actor processes (default: cores - 1, at least 1)
-# --learner-addr / --selector-addr   gRPC addresses (default 127.0.0.1:50051 / 127.0.0.1:50052;
-#                port 0 picks a free port, written to runs/<id>/<service>.addr)
+# --learner-addr / --selector-addr   gRPC addresses (default 127.0.0.1:0: a free port, written to
+#                runs/<id>/<service>.addr; `terl status` finds the cluster started last, or
+#                `terl status --run runs/<id>` a given one)
 # --restarts N   restart a process that dies (exit code other than 0, or a signal) up to N times
 #                per process, the learner and selector with --resume (default 3; 0: a death stops
 #                the cluster)
@@ -39,8 +40,8 @@ selector_given=0
 cores=$(nproc 2>/dev/null || echo 2)
 actors=""
 run_id=""
-learner_addr=127.0.0.1:50051
-selector_addr=127.0.0.1:50052
+learner_addr=127.0.0.1:0
+selector_addr=127.0.0.1:0
 build=1
 tep_datasets=()
 runs_root=runs
@@ -122,6 +123,7 @@ else
     echo "resumed=$(date -Iseconds) actors=$actors" >> "$out/cluster.txt"
 fi
 echo $$ > "$runs_root/.cluster.pid"
+echo "$out" > "$runs_root/.cluster.run"
 echo $$ > "$out/launcher.pid"
 
 # Processes by role: learner, selector, actor-<i>; their pids, restarts so far and the last
@@ -148,7 +150,9 @@ stop() {
     done
     pid_of=()
     rm -f "$out/launcher.pid" "$out/pids"
-    [ "$(cat "$runs_root/.cluster.pid" 2>/dev/null)" = "$$" ] && rm -f "$runs_root/.cluster.pid"
+    if [ "$(cat "$runs_root/.cluster.pid" 2>/dev/null)" = "$$" ]; then
+        rm -f "$runs_root/.cluster.pid" "$runs_root/.cluster.run"
+    fi
     echo "[cluster] stopped: ${reason:-stopped} (worst exit code ${worst}; run folder $out)" >&2
 }
 # The traps only record the signal; the main loop notices it and stops the cluster outside the

@@ -10,12 +10,13 @@ use terl_wire::{LearnerStatus, SelectorStatus};
 
 #[derive(Debug, Args)]
 pub struct StatusArgs {
-    /// Learner gRPC address.
-    #[arg(long, default_value = terl_wire::DEFAULT_LEARNER_ADDR)]
-    pub addr: String,
-    /// Selector gRPC address.
-    #[arg(long, default_value = terl_wire::DEFAULT_SELECTOR_ADDR)]
-    pub selector_addr: String,
+    /// Learner gRPC address. Without it (and without --run): the cluster the launcher started
+    /// last (`runs/.cluster.run`), else 127.0.0.1:50051.
+    #[arg(long)]
+    pub addr: Option<String>,
+    /// Selector gRPC address (same default rule; else 127.0.0.1:50052).
+    #[arg(long)]
+    pub selector_addr: Option<String>,
     /// Print JSON ({"learner": ..., "selector": ... or null}).
     #[arg(long)]
     pub json: bool,
@@ -209,41 +210,63 @@ fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyho
     }
 }
 
-pub fn run(mut args: StatusArgs) -> Result<ExitCode> {
-    let launcher = match &args.run {
-        Some(dir) => {
-            let read = |name: &str| -> Result<String> {
-                let path = dir.join(format!("{name}.addr"));
-                Ok(std::fs::read_to_string(&path)
-                    .with_context(|| {
-                        format!(
-                            "{} not found: is {} a run folder?",
-                            path.display(),
-                            dir.display()
-                        )
-                    })?
-                    .trim()
-                    .to_string())
-            };
-            args.addr = read("learner")?;
-            args.selector_addr = read("selector")?;
-            Some(read_launcher(dir))
-        }
-        None => None,
+/// The run folder of the cluster the launcher started last in `runs/`, if it is still running.
+fn last_started_run() -> Option<std::path::PathBuf> {
+    let dir = std::fs::read_to_string("runs/.cluster.run").ok()?;
+    let dir = std::path::PathBuf::from(dir.trim());
+    dir.join("learner.addr").is_file().then_some(dir)
+}
+
+pub fn run(args: StatusArgs) -> Result<ExitCode> {
+    let run_dir = match (&args.run, &args.addr) {
+        (Some(dir), _) => Some(dir.clone()),
+        (None, None) => last_started_run(),
+        (None, Some(_)) => None,
+    };
+    let read = |dir: &std::path::Path, name: &str| -> Result<String> {
+        let path = dir.join(format!("{name}.addr"));
+        Ok(std::fs::read_to_string(&path)
+            .with_context(|| {
+                format!(
+                    "{} not found: is {} the folder of a running cluster?",
+                    path.display(),
+                    dir.display()
+                )
+            })?
+            .trim()
+            .to_string())
+    };
+    let (addr, selector_addr, launcher) = match &run_dir {
+        Some(dir) => (
+            args.addr.clone().map_or_else(|| read(dir, "learner"), Ok)?,
+            args.selector_addr
+                .clone()
+                .map_or_else(|| read(dir, "selector"), Ok)?,
+            Some(read_launcher(dir)),
+        ),
+        None => (
+            args.addr
+                .clone()
+                .unwrap_or_else(|| terl_wire::DEFAULT_LEARNER_ADDR.to_string()),
+            args.selector_addr
+                .clone()
+                .unwrap_or_else(|| terl_wire::DEFAULT_SELECTOR_ADDR.to_string()),
+            None,
+        ),
     };
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
     let timeout = Duration::from_secs_f64(args.timeout.max(0.1));
     runtime.block_on(async {
-        let learner = tokio::time::timeout(timeout, learner_status(&args.addr))
+        let learner = tokio::time::timeout(timeout, learner_status(&addr))
             .await
             .unwrap_or_else(|_| Err(anyhow::anyhow!("timed out")))
-            .with_context(|| format!("learner at {}", args.addr))?;
-        let selector = tokio::time::timeout(timeout, selector_status(&args.selector_addr))
+            .with_context(|| format!("learner at {addr}"))?;
+        let selector = tokio::time::timeout(timeout, selector_status(&selector_addr))
             .await
             .unwrap_or_else(|_| Err(anyhow::anyhow!("timed out")))
-            .with_context(|| format!("selector at {}", args.selector_addr));
+            .with_context(|| format!("selector at {selector_addr}"));
         if args.json {
             let value = serde_json::json!({
                 "learner": learner,
