@@ -59,6 +59,9 @@ fn learner_status() -> LearnerStatus {
         guided_steps: 99,
         tep_target_mean: 14.5,
         tep_goal_distance_mean: 13.25,
+        resumed_from: "runs/x/checkpoints/update-0000000010.safetensors".into(),
+        resumed_at_update: 10,
+        checkpoint_failures: 1,
     }
 }
 

@@ -304,10 +304,9 @@ pub(crate) fn run(
         resumed: None,
     };
     if let Some(found) = resume_from {
+        check_compatible(&found, &tasks, run.algorithm)?;
         restore(
             found,
-            &tasks,
-            run.algorithm,
             &mut sac,
             planner.as_mut(),
             &mut rng,
@@ -569,15 +568,11 @@ fn learner_state(
 
 /// Restores a found checkpoint into the freshly built learner, or fails with nothing half
 /// restored that matters (the process then exits).
-fn restore(
-    found: checkpoint::Found,
+/// Refuses a checkpoint of another task list or algorithm.
+fn check_compatible(
+    found: &checkpoint::Found,
     tasks: &[&str],
     algorithm: Algorithm,
-    sac: &mut Sac<f32>,
-    planner: Option<&mut PlannerTrainer>,
-    rng: &mut ChaCha8Rng,
-    c: &mut Counters,
-    window_len: usize,
 ) -> anyhow::Result<()> {
     let state = &found.state;
     let path = found.path.display().to_string();
@@ -597,6 +592,19 @@ fn restore(
         state.algorithm,
         algorithm.as_str()
     );
+    Ok(())
+}
+
+fn restore(
+    found: checkpoint::Found,
+    sac: &mut Sac<f32>,
+    planner: Option<&mut PlannerTrainer>,
+    rng: &mut ChaCha8Rng,
+    c: &mut Counters,
+    window_len: usize,
+) -> anyhow::Result<()> {
+    let state = &found.state;
+    let path = found.path.display().to_string();
     let sampler = state.sampler.restore()?;
     sac.restore_checkpoint(&found.file).with_context(|| {
         format!("cannot resume from {path}: it does not fit this run's [sac] networks")
