@@ -15,6 +15,7 @@
 //! written its final checkpoint and dropped its shared-memory node.
 
 mod dataset;
+mod losses;
 mod metrics;
 mod planner;
 mod trainer;

@@ -78,6 +78,8 @@ struct Counters {
     /// Per task, the guided share of the last completed window.
     guidance_shown: Vec<f64>,
     guided_steps: u64,
+    /// Loss stamps of everything received (status: `*_dropped`).
+    inbound: crate::losses::Inbound,
 }
 
 /// Batches taken out of shared memory and not yet in replay, one queue per actor.
@@ -157,6 +159,7 @@ fn ingest(
     replay: &mut MultiTaskReplay,
     c: &mut Counters,
 ) -> u64 {
+    c.inbound.batch(batch);
     let ts = batch.as_slice();
     let valid = ts.iter().all(|t| {
         (t.task as usize) < num_tasks
@@ -331,6 +334,7 @@ pub(crate) fn run(
         guidance_window: vec![(0, 0); nt],
         guidance_shown: vec![0.0; nt],
         guided_steps: 0,
+        inbound: crate::losses::Inbound::default(),
     };
     let mut last_status = start - STATUS_EVERY;
     let mut last_log = start;
@@ -365,6 +369,7 @@ pub(crate) fn run(
             busy = true;
         }
         while let Some(()) = episodes.try_receive_with(|e| {
+            c.inbound.episode(e);
             if let Some(w) = c.windows.get_mut(e.task as usize) {
                 if w.len() == window_len {
                     w.pop_front();
@@ -374,9 +379,12 @@ pub(crate) fn run(
         })? {
             busy = true;
         }
-        while let Some(n) = selected.try_receive_with(|s| match planner.as_mut() {
-            Some(p) => p.ingest_batch(s),
-            None => s.as_slice().len() as u64,
+        while let Some(n) = selected.try_receive_with(|s| {
+            c.inbound.selected(s);
+            match planner.as_mut() {
+                Some(p) => p.ingest_batch(s),
+                None => s.as_slice().len() as u64,
+            }
         })? {
             c.selected_samples += n;
             busy = true;
@@ -457,6 +465,7 @@ pub(crate) fn run(
                 }
             }
             let mut status = snapshot(config, &tasks, &c, &sac, &replay, capacity, now);
+            c.inbound.fill(&mut status);
             status.algorithm = run.algorithm.as_str().to_string();
             if let Some(p) = &planner {
                 status.tep_updates = p.updates();
@@ -558,6 +567,7 @@ fn snapshot(
                 env_steps_per_second: t.steps_per_second,
                 policy_version: t.policy_version,
                 seconds_since_seen: t.last_seen.map_or(0.0, |s| (now - s).as_secs_f64()),
+                ..ActorStats::default()
             })
             .collect(),
         replay_size: replay.total_len() as u64,
