@@ -273,7 +273,7 @@ pub fn episode_timeouts_are_counted_per_receiver<T: Transport>(make: Make<T>, ru
         e.actor_id = 2;
         e
     };
-    let mut observe = |tracker: &mut LossTracker, source: &mut Box<dyn MessageSource<_>>| {
+    let observe = |tracker: &mut LossTracker, source: &mut Box<dyn MessageSource<_>>| {
         let e: Box<EpisodeSummary> = source.try_receive().unwrap().expect("an episode");
         tracker.observe(e.actor_id, e.episode_index, e.losses());
         e
