@@ -8,6 +8,12 @@
 //! dataset (`runs/<id>/tep-dataset.mcap`, flushed after every delivery, so a killed selector
 //! loses at most the selection it was writing).
 //!
+//! Episodes that never arrive are counted, not silently lost: an actor whose send times out
+//! on a full receiver stamps its running count on its next episode (the selector's status
+//! shows the sum as `episodes_dropped`), and gaps in each actor's episode indices are the
+//! episodes this selector itself never received (`episodes_missed`, and `missed_before` on the
+//! next record of that actor in `episodes.mcap`).
+//!
 //! With `train.eval_every_env_steps > 0` and the learner's address, its [`evaluator`] thread
 //! evaluates the latest policy version deterministically on every task at that interval
 //! (`runs/<id>/eval.mcap`, and the last result in `GetStatus`).
