@@ -37,7 +37,7 @@ use faer::Par;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
-use terl_nn::tensors::Tensor;
+use terl_nn::tensors::{Tensor, TensorFile};
 use terl_nn::{
     par_for_threads, Activation, Adam, AdamConfig, Float, InputGrad, Mlp, MlpCache, MlpSpec,
 };
@@ -538,6 +538,51 @@ impl<T: Float> Tep<T> {
         self.f.export_values("tep_f", &f, &mut out);
         self.an.export_values("tep_an", &an, &mut out);
         out
+    }
+
+    /// All state of the planner learner as named tensors, for resuming: F and AN
+    /// (`tep_f.*`, `tep_an.*`), their targets (`tep_f_target.*`, `tep_an_target.*`), both Adam
+    /// states (`tep_f_adam.*`, `tep_an_adam.*`) and `tep_counters` = `[updates,
+    /// rejected_batches]` (i64). Restored by [`Tep::restore_checkpoint`].
+    pub fn checkpoint_tensors(&self) -> Vec<Tensor> {
+        let mut t = Vec::new();
+        self.f.export("tep_f", &mut t);
+        self.an.export("tep_an", &mut t);
+        self.f_target.export("tep_f_target", &mut t);
+        self.an_target.export("tep_an_target", &mut t);
+        self.f_adam.export("tep_f_adam", &mut t);
+        self.an_adam.export("tep_an_adam", &mut t);
+        t.push(Tensor::from_i64(
+            "tep_counters",
+            vec![2],
+            &[self.updates as i64, self.rejected_batches as i64],
+        ));
+        t
+    }
+
+    /// Restores state written by [`Tep::checkpoint_tensors`]. Shapes and dtypes must match this
+    /// planner's config (an error names the first tensor that does not); on error nothing is
+    /// changed.
+    pub fn restore_checkpoint(&mut self, file: &TensorFile) -> Result<(), SacError> {
+        let (mut f, mut an) = (self.f.clone(), self.an.clone());
+        let (mut f_target, mut an_target) = (self.f_target.clone(), self.an_target.clone());
+        let (mut f_adam, mut an_adam) = (self.f_adam.clone(), self.an_adam.clone());
+        f.import("tep_f", file)?;
+        an.import("tep_an", file)?;
+        f_target.import("tep_f_target", file)?;
+        an_target.import("tep_an_target", file)?;
+        f_adam.import("tep_f_adam", file)?;
+        an_adam.import("tep_an_adam", file)?;
+        let counters = file.i64_values("tep_counters", &[2])?;
+        self.f = f;
+        self.an = an;
+        self.f_target = f_target;
+        self.an_target = an_target;
+        self.f_adam = f_adam;
+        self.an_adam = an_adam;
+        self.updates = counters[0].max(0) as u64;
+        self.rejected_batches = counters[1].max(0) as u64;
+        Ok(())
     }
 
     /// An inference planner with these weights for up to `max_rows` rows per call.

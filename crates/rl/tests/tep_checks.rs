@@ -287,3 +287,42 @@ fn targets_stay_at_least_one_when_the_target_net_outputs_minus_five() {
     );
     assert!(out[0] >= 0.0, "F = {}", out[0]);
 }
+
+/// A planner restored from its checkpoint tensors continues bit-identically (weights, targets,
+/// both optimisers, counters); a planner of another shape refuses them and keeps its weights.
+#[test]
+fn checkpoint_round_trip_continues_bit_identically() {
+    let cfg = small_config(8);
+    let mut a: Tep<f32> = Tep::new(cfg.clone()).unwrap();
+    for s in 0..4 {
+        a.update(&random_batch(8, &cfg, s)).unwrap();
+    }
+    let file = terl_nn::tensors::TensorFile::from_tensors(a.checkpoint_tensors());
+    let mut b: Tep<f32> = Tep::new(TepConfig {
+        seed: 99,
+        ..cfg.clone()
+    })
+    .unwrap();
+    assert_ne!(a.f_net().params, b.f_net().params);
+    b.restore_checkpoint(&file).unwrap();
+    assert_eq!(b.updates(), 4);
+    for s in 10..13 {
+        let (sa, sb) = (
+            a.update(&random_batch(8, &cfg, s)).unwrap(),
+            b.update(&random_batch(8, &cfg, s)).unwrap(),
+        );
+        assert_eq!(sa, sb);
+    }
+    assert_eq!(a.f_net().params, b.f_net().params);
+    assert_eq!(a.an_target_net().params, b.an_target_net().params);
+
+    let mut c: Tep<f32> = Tep::new(TepConfig {
+        an_hidden: vec![5],
+        ..cfg
+    })
+    .unwrap();
+    let before = c.f_net().params.clone();
+    let err = c.restore_checkpoint(&file).unwrap_err();
+    assert!(err.to_string().contains("tep_an"), "{err}");
+    assert_eq!(c.f_net().params, before);
+}

@@ -31,6 +31,19 @@ impl Algorithm {
     }
 }
 
+/// What the learner does when a checkpoint cannot be written (a full disk, a read-only folder):
+/// either way the error is logged with the file and counted in status
+/// (`checkpoint_failures`), and no half-written file is left under a checkpoint's name.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum OnCheckpointError {
+    /// Stop training with an error (exit code 1); the checkpoints written before are kept.
+    #[default]
+    Stop,
+    /// Keep training and try again at the next checkpoint.
+    Continue,
+}
+
 /// The run file.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -111,8 +124,11 @@ pub struct ClusterConfig {
     pub critic_publish_every_updates: u64,
     /// Seconds between periodic checkpoints (0: only at shutdown and on request).
     pub checkpoint_every_secs: f64,
-    /// Periodic checkpoints kept (older ones are deleted).
+    /// Periodic checkpoints (`checkpoints/update-*.safetensors`) kept, counting the ones earlier
+    /// processes of the same run folder wrote (older ones are deleted).
     pub keep_checkpoints: usize,
+    /// When a checkpoint cannot be written: `"stop"` (default) or `"continue"`.
+    pub on_checkpoint_error: OnCheckpointError,
     /// How long an actor's send may wait for a full learner before giving up on that batch
     /// (counted and logged), seconds.
     pub block_timeout_secs: f64,
@@ -136,6 +152,7 @@ impl Default for ClusterConfig {
             critic_publish_every_updates: 1000,
             checkpoint_every_secs: 300.0,
             keep_checkpoints: 3,
+            on_checkpoint_error: OnCheckpointError::Stop,
             block_timeout_secs: 30.0,
             buffer_batches: 8,
             eval_episodes_per_task: 10,

@@ -83,6 +83,12 @@ pub struct LearnerStatus {
     /// Selected batches / samples the selector could not deliver (learner stayed full).
     pub selected_batches_dropped: u64,
     pub selected_samples_dropped: u64,
+    /// The checkpoint a resumed learner continued from (empty: a fresh start).
+    pub resumed_from: String,
+    /// That checkpoint's update count (0: a fresh start).
+    pub resumed_at_update: u64,
+    /// Checkpoints that could not be written since this learner started.
+    pub checkpoint_failures: u64,
 }
 
 /// Statistics of PTR priorities.
@@ -394,6 +400,9 @@ impl TryFrom<pb::LearnerStatus> for LearnerStatus {
             episodes_dropped: m.episodes_dropped,
             selected_batches_dropped: m.selected_batches_dropped,
             selected_samples_dropped: m.selected_samples_dropped,
+            resumed_from: m.resumed_from,
+            resumed_at_update: m.resumed_at_update,
+            checkpoint_failures: m.checkpoint_failures,
         })
     }
 }
@@ -430,6 +439,9 @@ impl From<LearnerStatus> for pb::LearnerStatus {
             episodes_dropped: d.episodes_dropped,
             selected_batches_dropped: d.selected_batches_dropped,
             selected_samples_dropped: d.selected_samples_dropped,
+            resumed_from: d.resumed_from,
+            resumed_at_update: d.resumed_at_update,
+            checkpoint_failures: d.checkpoint_failures,
         }
     }
 }

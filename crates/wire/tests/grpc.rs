@@ -67,6 +67,9 @@ fn learner_status() -> LearnerStatus {
         episodes_dropped: 2,
         selected_batches_dropped: 1,
         selected_samples_dropped: 512,
+        resumed_from: "runs/test/checkpoints/update-0000000100.safetensors".into(),
+        resumed_at_update: 100,
+        checkpoint_failures: 1,
     }
 }
 

@@ -46,6 +46,18 @@ fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyho
         l.policy_version, l.replay_size, l.replay_capacity, l.staleness_mean, l.staleness_max,
         l.rejected_batches
     );
+    if !l.resumed_from.is_empty() {
+        println!(
+            "resumed   from {} (update {}); replay refilled since then",
+            l.resumed_from, l.resumed_at_update
+        );
+    }
+    if l.checkpoint_failures > 0 {
+        println!(
+            "WARNING   {} checkpoint(s) could not be written (see the learner's log)",
+            l.checkpoint_failures
+        );
+    }
     for a in &l.actors {
         println!(
             "actor {:<3} env steps {:>10} ({:>6.0}/s)  acts with policy v{}  last seen {:.1}s ago  dropped: {} transitions ({} batches), {} episodes",

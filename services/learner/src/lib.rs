@@ -18,6 +18,7 @@
 //! `run` returns when `shutdown` completes (or the trainer fails), after the trainer thread has
 //! written its final checkpoint and dropped its shared-memory node.
 
+mod checkpoint;
 mod dataset;
 mod losses;
 mod metrics;

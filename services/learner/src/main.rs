@@ -30,17 +30,32 @@ struct Args {
     /// `runs/<id>/tep-dataset.mcap`); repeat the flag to load several, in order.
     #[arg(long)]
     tep_dataset: Vec<PathBuf>,
+    /// Continue the run in the run folder from its newest intact checkpoint (networks, targets,
+    /// optimisers, per-task α, counters, generators, planner; the TEP buffer from the run's
+    /// tep-dataset files). Damaged checkpoints are skipped with a warning; a run without any
+    /// checkpoint starts fresh. The replay buffer refills with warmup_env_steps fresh
+    /// transitions before updates continue.
+    #[arg(long)]
+    resume: bool,
+    /// Stop (as on SIGTERM) when the process with this pid, the launcher, exits or is killed:
+    /// no orphans (deploy/local-cluster.sh passes its own pid).
+    #[arg(long)]
+    parent_pid: Option<u32>,
 }
 
 #[tokio::main]
 async fn main() -> anyhow::Result<()> {
     terl_runtime::init_tracing();
     let a = Args::parse();
+    if let Some(pid) = a.parent_pid {
+        terl_runtime::exit_with_parent(pid)?;
+    }
     let run = terl_runtime::RunConfig::load(&a.config)?;
     let run_dir = a
         .run_dir
         .unwrap_or_else(|| PathBuf::from("runs").join(&a.run_id));
     let mut config = terl_learner::LearnerConfig::new(run, a.run_id, a.addr, a.num_actors, run_dir);
     config.tep_datasets = a.tep_dataset;
+    config.resume = a.resume;
     terl_learner::run(config, terl_runtime::shutdown_signal()).await
 }

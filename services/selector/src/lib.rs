@@ -304,6 +304,18 @@ fn receive_loop(config: &SelectorConfig, shared: &Shared) -> anyhow::Result<()> 
     } else {
         None
     };
+    if config.resume {
+        let mut stats = shared
+            .stats
+            .lock()
+            .map_err(|_| anyhow::anyhow!("episode statistics lock poisoned"))?;
+        resume_from_logs(
+            &config.run_dir,
+            &tasks,
+            &mut stats,
+            selecting.as_mut().map(|s| &mut s.scorer),
+        )?;
+    }
     let episode_path = terl_telemetry::fresh_path(&config.run_dir, "episodes");
     let mut episode_log = terl_telemetry::EpisodeLogWriter::create(&episode_path)
         .with_context(|| format!("cannot create the episode log {}", episode_path.display()))?;
@@ -425,6 +437,54 @@ fn receive_loop(config: &SelectorConfig, shared: &Shared) -> anyhow::Result<()> 
         tracing::info!(samples = n, "TEP dataset closed");
     }
     Ok(())
+}
+
+/// `--resume`: rebuilds the success windows, episode totals and PTR gates from the episode
+/// logs earlier processes of this run wrote (`episodes.mcap`, `episodes.2.mcap`, …), so gates
+/// that were open stay open and windows continue. Episodes of tasks outside this run's task list
+/// are skipped; a log cut short by a kill contributes what was flushed. PTR pools that were not
+/// full when the earlier process stopped are not recovered (they were never selected).
+fn resume_from_logs(
+    run_dir: &std::path::Path,
+    tasks: &[&str],
+    stats: &mut EpisodeStats,
+    mut scorer: Option<&mut Scorer>,
+) -> anyhow::Result<u64> {
+    let paths = terl_telemetry::existing_paths(run_dir, "episodes");
+    let mut replayed = 0u64;
+    for path in &paths {
+        let log = terl_telemetry::read_log::<terl_wire::EpisodeSummary>(path)
+            .with_context(|| format!("--resume: cannot read the episode log {}", path.display()))?;
+        if log.truncated {
+            tracing::warn!(file = %path.display(), episodes = log.records.len(), "episode log was cut short (a killed selector); resuming from what it holds");
+        }
+        for e in &log.records {
+            let Some(task) = tasks.iter().position(|t| *t == e.task) else {
+                continue;
+            };
+            stats.record(task, e.success, e.episode_return, e.length);
+            if let Some(s) = scorer.as_deref_mut() {
+                s.replay_episode(task, e.success);
+            }
+            replayed += 1;
+        }
+    }
+    let open: Vec<&str> = match scorer.as_deref() {
+        Some(s) => tasks
+            .iter()
+            .enumerate()
+            .filter(|(k, _)| s.gate_open(*k))
+            .map(|(_, t)| *t)
+            .collect(),
+        None => Vec::new(),
+    };
+    tracing::info!(
+        logs = paths.len(),
+        episodes = replayed,
+        open_gates = ?open,
+        "resumed the success windows and PTR gates from the episode logs"
+    );
+    Ok(replayed)
 }
 
 /// Runs the selector until `shutdown` completes or receiving fails.
@@ -567,6 +627,66 @@ pub async fn run(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn episode(task: &str, index: u64, success: bool) -> terl_wire::EpisodeSummary {
+        terl_wire::EpisodeSummary {
+            task: task.into(),
+            actor_id: 0,
+            episode_index: index,
+            episode_return: 1.0,
+            success,
+            length: 500,
+            policy_version: 1,
+            guided_steps: 0,
+            missed_before: 0,
+        }
+    }
+
+    /// Windows and gates continue from the logs of earlier processes (two files, the second
+    /// cut short as by a kill); an unknown task in a log is skipped.
+    #[test]
+    fn resume_rebuilds_windows_and_gates_from_the_episode_logs() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut first =
+            terl_telemetry::EpisodeLogWriter::create(dir.path().join("episodes.mcap")).unwrap();
+        // reach: 4 successes (gate threshold 0.75 over a window of 4: opens); push: 1 of 4.
+        for k in 0..4 {
+            first.write(&episode("reach-v3", k, true), k).unwrap();
+            first.write(&episode("push-v3", k, k == 0), k).unwrap();
+        }
+        first.write(&episode("door-open-v3", 9, true), 9).unwrap();
+        first.finish().unwrap();
+        let mut second =
+            terl_telemetry::EpisodeLogWriter::create(dir.path().join("episodes.2.mcap")).unwrap();
+        // After the gate opened, reach fails twice: a latched gate stays open.
+        for k in 4..6 {
+            second.write(&episode("reach-v3", k, false), k).unwrap();
+        }
+        second.flush().unwrap();
+        std::mem::forget(second); // killed: never finished
+
+        let tasks = ["reach-v3", "push-v3"];
+        let mut stats = EpisodeStats::new(tasks.iter().map(|t| t.to_string()).collect(), 4);
+        let ptr = terl_rl::ptr::PtrConfig {
+            success_threshold: 0.75,
+            success_window: 4,
+            ..terl_rl::ptr::PtrConfig::default()
+        };
+        let sac = terl_rl::SacConfig {
+            obs_dim: OBS_DIM,
+            act_dim: ACTION_DIM,
+            num_tasks: 2,
+            ..terl_rl::SacConfig::default()
+        };
+        let mut scorer = Scorer::new(ptr, &sac);
+        let n = resume_from_logs(dir.path(), &tasks, &mut stats, Some(&mut scorer)).unwrap();
+        assert_eq!(n, 10);
+        assert!(scorer.gate_open(0) && !scorer.gate_open(1));
+        let ts = stats.task_success();
+        assert_eq!((ts[0].success_rate, ts[0].episodes), (0.5, 4));
+        assert_eq!((ts[1].success_rate, ts[1].episodes), (0.25, 4));
+        assert_eq!(stats.per_task()[0].episodes, 6);
+    }
 
     #[test]
     fn windows_roll_and_unknown_tasks_are_counted() {
