@@ -201,6 +201,7 @@ mod tests {
             length: 500,
             policy_version: 9,
             guided_steps: 7,
+            missed_before: 2,
         };
         e.write(&ep, 5).unwrap();
         drop(e);

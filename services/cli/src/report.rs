@@ -387,6 +387,7 @@ mod tests {
             length: 500,
             policy_version: 1,
             guided_steps: guided,
+            missed_before: 0,
         }
     }
 

@@ -139,10 +139,16 @@ fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyho
     }
     for a in &l.actors {
         println!(
-            "actor {:<3} env steps {:>10} ({:>6.0}/s)  acts with policy v{}  last seen {:.1}s ago",
-            a.actor_id, a.env_steps, a.env_steps_per_second, a.policy_version, a.seconds_since_seen
+            "actor {:<3} env steps {:>10} ({:>6.0}/s)  acts with policy v{}  last seen {:.1}s ago  dropped: {} transitions ({} batches), {} episodes",
+            a.actor_id, a.env_steps, a.env_steps_per_second, a.policy_version, a.seconds_since_seen,
+            a.transitions_dropped, a.transition_batches_dropped, a.episodes_dropped
         );
     }
+    println!(
+        "dropped   {} transitions ({} batches) never reached the learner, {} episodes not delivered to every receiver, {} selected samples ({} batches) (a receiver stayed full for longer than cluster.block_timeout_secs)",
+        l.transitions_dropped, l.transition_batches_dropped, l.episodes_dropped,
+        l.selected_samples_dropped, l.selected_batches_dropped
+    );
     let tasks: Vec<String> = l
         .task_success
         .iter()
@@ -175,8 +181,10 @@ fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyho
                 .map(|t| format!("{} {} ({})", t.task, percent(t.success_rate), t.episodes))
                 .collect();
             println!(
-                "selector  episodes {}  selected {}  [{}]",
+                "selector  episodes {} (never received {}, dropped by actors {})  selected {}  [{}]",
                 s.episodes_seen,
+                s.episodes_missed,
+                s.episodes_dropped,
                 s.selected_samples,
                 tasks.join("  ")
             );

@@ -8,6 +8,10 @@
 //! updates, publishes the planner (and, for the selector's PTR scoring, the critics) on the
 //! same weight stream, and reports TEP losses and the guidance rate per task.
 //!
+//! Transitions, episodes and selections that senders could not deliver (the learner stalled
+//! longer than `[cluster] block_timeout_secs`) are reported in the status and the metrics log
+//! from the loss stamps on what does arrive (see `losses`).
+//!
 //! Two halves: the training loop ([`trainer`]) is CPU-bound and runs on its own thread; the
 //! gRPC server runs on the tokio runtime of the caller. They share a status snapshot the
 //! trainer refreshes a few times a second, the [`WeightHub`], and a checkpoint-request channel.
@@ -16,6 +20,7 @@
 
 mod checkpoint;
 mod dataset;
+mod losses;
 mod metrics;
 mod planner;
 mod trainer;

@@ -79,6 +79,8 @@ struct Counters {
     /// Per task, the guided share of the last completed window.
     guidance_shown: Vec<f64>,
     guided_steps: u64,
+    /// Loss stamps of everything received (status: `*_dropped`).
+    inbound: crate::losses::Inbound,
     checkpoint_failures: u64,
     /// The checkpoint this learner resumed from and its update count.
     resumed: Option<(PathBuf, u64)>,
@@ -161,6 +163,7 @@ fn ingest(
     replay: &mut MultiTaskReplay,
     c: &mut Counters,
 ) -> u64 {
+    c.inbound.batch(batch);
     let ts = batch.as_slice();
     let valid = ts.iter().all(|t| {
         (t.task as usize) < num_tasks
@@ -300,6 +303,7 @@ pub(crate) fn run(
         guidance_window: vec![(0, 0); nt],
         guidance_shown: vec![0.0; nt],
         guided_steps: 0,
+        inbound: crate::losses::Inbound::default(),
         checkpoint_failures: 0,
         resumed: None,
     };
@@ -361,6 +365,7 @@ pub(crate) fn run(
             busy = true;
         }
         while let Some(()) = episodes.try_receive_with(|e| {
+            c.inbound.episode(e);
             if let Some(w) = c.windows.get_mut(e.task as usize) {
                 if w.len() == window_len {
                     w.pop_front();
@@ -370,9 +375,12 @@ pub(crate) fn run(
         })? {
             busy = true;
         }
-        while let Some(n) = selected.try_receive_with(|s| match planner.as_mut() {
-            Some(p) => p.ingest_batch(s),
-            None => s.as_slice().len() as u64,
+        while let Some(n) = selected.try_receive_with(|s| {
+            c.inbound.selected(s);
+            match planner.as_mut() {
+                Some(p) => p.ingest_batch(s),
+                None => s.as_slice().len() as u64,
+            }
         })? {
             c.selected_samples += n;
             busy = true;
@@ -482,6 +490,7 @@ pub(crate) fn run(
                 }
             }
             let mut status = snapshot(config, &tasks, &c, &sac, &replay, capacity, now);
+            c.inbound.fill(&mut status);
             status.algorithm = run.algorithm.as_str().to_string();
             if let Some(p) = &planner {
                 status.tep_updates = p.updates();
@@ -566,8 +575,6 @@ fn learner_state(
     }
 }
 
-/// Restores a found checkpoint into the freshly built learner, or fails with nothing half
-/// restored that matters (the process then exits).
 /// Refuses a checkpoint of another task list or algorithm.
 fn check_compatible(
     found: &checkpoint::Found,
@@ -595,6 +602,8 @@ fn check_compatible(
     Ok(())
 }
 
+/// Restores a found checkpoint into the freshly built learner, or fails with nothing half
+/// restored that matters (the process then exits).
 fn restore(
     found: checkpoint::Found,
     sac: &mut Sac<f32>,
@@ -694,6 +703,7 @@ fn snapshot(
                 env_steps_per_second: t.steps_per_second,
                 policy_version: t.policy_version,
                 seconds_since_seen: t.last_seen.map_or(0.0, |s| (now - s).as_secs_f64()),
+                ..ActorStats::default()
             })
             .collect(),
         replay_size: replay.total_len() as u64,

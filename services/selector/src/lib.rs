@@ -8,6 +8,12 @@
 //! dataset (`runs/<id>/tep-dataset.mcap`, flushed after every delivery, so a killed selector
 //! loses at most the selection it was writing).
 //!
+//! Episodes that never arrive are counted, not silently lost: an actor whose send times out
+//! on a full receiver stamps its running count on its next episode (the selector's status
+//! shows the sum as `episodes_dropped`), and gaps in each actor's episode indices are the
+//! episodes this selector itself never received (`episodes_missed`, and `missed_before` on the
+//! next record of that actor in `episodes.mcap`).
+//!
 //! With `train.eval_every_env_steps > 0` and the learner's address, its [`evaluator`] thread
 //! evaluates the latest policy version deterministically on every task at that interval
 //! (`runs/<id>/eval.mcap`, and the last result in `GetStatus`).
@@ -21,8 +27,9 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use terl_runtime::Algorithm;
 use terl_transport::{
-    EpisodeSummary, Message, MessageSink, MessageSource, SelectedBatch, SelectedSample,
-    ShmTransport, TransportConfig, TransportError, ACTION_DIM, OBS_DIM, SELECTED_PER_BATCH,
+    EpisodeSummary, LossTracker, Message, MessageSink, MessageSource, SelectedBatch,
+    SelectedSample, ShmTransport, TransportConfig, TransportError, ACTION_DIM, OBS_DIM,
+    SELECTED_PER_BATCH,
 };
 use terl_wire::{PriorityStats, SelectorBackend, SelectorStatus, TaskSuccess, WeightsKind};
 use tonic::Status;
@@ -54,6 +61,11 @@ pub struct EpisodeStats {
     episodes_seen: u64,
     /// Episodes naming a task outside the run's task list (a misconfigured actor).
     rejected: u64,
+    /// Episodes the actors report they could not deliver to every receiver (their loss
+    /// stamps, summed over actors and actor restarts).
+    episodes_dropped: u64,
+    /// Episodes this selector never received: gaps in each actor's episode indices.
+    episodes_missed: u64,
 }
 
 impl EpisodeStats {
@@ -65,7 +77,16 @@ impl EpisodeStats {
             per_task,
             episodes_seen: 0,
             rejected: 0,
+            episodes_dropped: 0,
+            episodes_missed: 0,
         }
+    }
+
+    /// Takes the loss counts of the episode stream from the receive loop's tracker.
+    pub fn set_losses(&mut self, tracker: &LossTracker) {
+        let total = tracker.total();
+        self.episodes_dropped = total.reported.messages;
+        self.episodes_missed = total.missed;
     }
 
     /// Records one finished episode.
@@ -173,6 +194,8 @@ impl SelectorBackend for Backend {
             critic_version: selection.critic_version,
             last_eval,
             evaluations,
+            episodes_dropped: stats.episodes_dropped,
+            episodes_missed: stats.episodes_missed,
         })
     }
 }
@@ -298,6 +321,11 @@ fn receive_loop(config: &SelectorConfig, shared: &Shared) -> anyhow::Result<()> 
         .with_context(|| format!("cannot create the episode log {}", episode_path.display()))?;
     let mut last_flush = Instant::now();
     let mut last_log = Instant::now();
+    // Episodes that never arrived: the actors' loss stamps and gaps in their episode indices
+    // (an actor's send gave up on this selector, or on the learner, after the block timeout).
+    let mut losses = LossTracker::new();
+    let mut missed_logged = 0;
+    let mut gaps: Vec<u64> = Vec::new();
     let mut received: Vec<Box<EpisodeSummary>> = Vec::new();
     let mut spare: Vec<Box<EpisodeSummary>> = Vec::new();
     while !shared.stop.load(Ordering::Relaxed) {
@@ -317,7 +345,23 @@ fn receive_loop(config: &SelectorConfig, shared: &Shared) -> anyhow::Result<()> 
         }
         let got = received.len();
         let now_ns = terl_telemetry::unix_nanos();
-        for e in &received {
+        gaps.clear();
+        gaps.extend(
+            received
+                .iter()
+                .map(|e| losses.observe(e.actor_id, e.episode_index, e.losses())),
+        );
+        let missed = losses.total().missed;
+        if missed > missed_logged {
+            missed_logged = missed;
+            tracing::warn!(
+                episodes_missed = missed,
+                episodes_dropped = losses.total().reported.messages,
+                "episodes never arrived: an actor's send gave up on a full receiver after \
+                 cluster.block_timeout_secs (totals so far)"
+            );
+        }
+        for (e, &missed_before) in received.iter().zip(&gaps) {
             let Some(task) = tasks.get(usize::from(e.task)) else {
                 continue;
             };
@@ -330,6 +374,7 @@ fn receive_loop(config: &SelectorConfig, shared: &Shared) -> anyhow::Result<()> 
                 length: e.length,
                 policy_version: e.policy_version,
                 guided_steps: u32::from(e.guided_steps).min(e.length),
+                missed_before,
             };
             if record.episode_return.is_finite() {
                 episode_log.write(&record, now_ns)?;
@@ -340,6 +385,7 @@ fn receive_loop(config: &SelectorConfig, shared: &Shared) -> anyhow::Result<()> 
             episode_log.flush()?;
         }
         if let Ok(mut stats) = shared.stats.lock() {
+            stats.set_losses(&losses);
             for e in &received {
                 stats.record(
                     usize::from(e.task),
@@ -592,6 +638,7 @@ mod tests {
             length: 500,
             policy_version: 1,
             guided_steps: 0,
+            missed_before: 0,
         }
     }
 
