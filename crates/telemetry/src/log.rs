@@ -4,12 +4,12 @@
 use std::{
     collections::{BTreeMap, HashMap, HashSet},
     fs::{self, File, OpenOptions},
-    io::{self, BufReader, BufWriter},
+    io::{self, BufReader, BufWriter, Read as _},
     path::{Path, PathBuf},
 };
 
 use mcap::{
-    records::{MessageHeader, Record},
+    records::{op, MessageHeader, Record},
     sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions},
     McapError, WriteOptions, Writer,
 };
@@ -21,8 +21,11 @@ use crate::{Result, TelemetryError};
 pub(crate) const PROTOBUF: &str = "protobuf";
 /// Target uncompressed chunk size: a chunk is closed once it exceeds this (or on `flush`).
 const CHUNK_SIZE: u64 = 1 << 20;
-/// Buffer between the MCAP writer and the file.
+/// Buffer between the MCAP writer and the file (and between the file and the reader).
 const IO_BUFFER: usize = 256 << 10;
+/// Most bytes the reader's buffer grows by per read: however long a record claims to be, the
+/// buffer only ever holds bytes that were really read from the file.
+const READ_STEP: usize = 1 << 20;
 
 /// Which channel a log file carries.
 #[doc(hidden)]
@@ -191,13 +194,19 @@ impl Drop for ProtoWriter {
 pub(crate) struct Messages<T> {
     pub(crate) items: Vec<T>,
     pub(crate) rejected: u64,
-    pub(crate) truncated: bool,
+    /// Why reading stopped before the end of a complete file, if it did.
+    pub(crate) stopped: Option<String>,
 }
 
 /// Reads every message on `channel` of the MCAP file at `path`, front to back with the mcap
 /// crate's linear reader, using only chunks whose CRC matches. `accept` decodes and validates
 /// one message's bytes; refusals are counted and skipped with one warning. A file that ends
-/// early or breaks off yields what came before, with `truncated` set.
+/// early or breaks off (a cut, a damaged length, a chunk whose CRC does not match) yields what
+/// came before, with the reason in `stopped`.
+///
+/// Reading is bounded by the file as it is when reading begins: no record may claim more bytes
+/// than that, the reader's buffer grows only by bytes really read, and bytes appended by a
+/// writer still running are left for the next read.
 pub(crate) fn read_channel<T>(
     path: &Path,
     channel: Channel,
@@ -207,9 +216,13 @@ pub(crate) fn read_channel<T>(
         path: path.to_owned(),
         source,
     };
-    let mut input = BufReader::with_capacity(IO_BUFFER, File::open(path).map_err(io_err)?);
+    let file = File::open(path).map_err(io_err)?;
+    let size = file.metadata().map_err(io_err)?.len();
+    let mut input = BufReader::with_capacity(IO_BUFFER, file.take(size));
     let mut reader = LinearReader::new_with_options(
-        LinearReaderOptions::default().with_prevalidate_chunk_crcs(true),
+        LinearReaderOptions::default()
+            .with_prevalidate_chunk_crcs(true)
+            .with_record_length_limit(usize::try_from(size).unwrap_or(usize::MAX)),
     );
     let mut state = ReadState {
         channel,
@@ -221,22 +234,24 @@ pub(crate) fn read_channel<T>(
         out: Messages {
             items: Vec::new(),
             rejected: 0,
-            truncated: false,
+            stopped: None,
         },
     };
-    let mut stopped: Option<McapError> = None;
+    let mut stopped: Option<Stop> = None;
     while let Some(event) = reader.next_event() {
         let record = match event {
             Ok(LinearReadEvent::ReadRequest(need)) => {
-                let read = read_some(&mut input, reader.insert(need)).map_err(io_err)?;
+                let buf = reader.insert(need.min(READ_STEP));
+                let read = read_some(&mut input, buf).map_err(io_err)?;
                 reader.notify_read(read);
                 continue;
             }
-            Ok(LinearReadEvent::Record { opcode, data }) => mcap::parse_record(opcode, data),
-            Err(err) => Err(err),
+            Ok(LinearReadEvent::Record { opcode, data }) => parse_record(opcode, data),
+            Err(err) => Err(Stop::Mcap(err)),
         };
         match record {
-            Ok(record) => state.record(path, record, &mut accept)?,
+            Ok(Some(record)) => state.record(path, record, &mut accept)?,
+            Ok(None) => {}
             Err(err) => {
                 stopped = Some(err);
                 break;
@@ -245,25 +260,30 @@ pub(crate) fn read_channel<T>(
     }
     if let Some(err) = stopped {
         if !state.header_seen {
+            let reason = match err {
+                Stop::Mcap(err) => err.to_string(),
+                long => long.reason(size),
+            };
             return Err(TelemetryError::NotMcap {
                 path: path.to_owned(),
-                source: err,
+                reason,
             });
         }
+        let reason = err.reason(size);
         warn!(
             path = %path.display(),
             messages = state.out.items.len(),
-            "{} is truncated or damaged ({err}); keeping the messages before that point",
+            "{} is cut short: {reason}; keeping the messages before that point",
             channel.what
         );
-        state.out.truncated = true;
+        state.out.stopped = Some(reason);
     }
     if state.channels.is_empty() {
         return Err(TelemetryError::NoChannel {
             path: path.to_owned(),
             topic: channel.topic,
             what: channel.what,
-            truncated: state.out.truncated,
+            truncated: state.out.stopped.is_some(),
         });
     }
     if let Some(reason) = &state.first_rejection {
@@ -285,6 +305,96 @@ pub(crate) fn read_channel<T>(
         }
     }
     Ok(state.out)
+}
+
+/// What stopped a read before the end of the file.
+#[derive(Debug)]
+enum Stop {
+    Mcap(McapError),
+    /// A header, schema or channel record with a string longer than the record.
+    LongString { opcode: u8 },
+}
+
+impl Stop {
+    /// Why reading stopped, in words, for a file of `size` bytes.
+    fn reason(&self, size: u64) -> String {
+        match self {
+            Stop::Mcap(McapError::UnexpectedEof) => {
+                "the file ends inside a record (its writer was stopped, or the file was cut)".into()
+            }
+            Stop::Mcap(McapError::RecordTooLarge { opcode, len }) => format!(
+                "a record (opcode {opcode:#04x}) claims {len} bytes, more than the whole file \
+                 ({size} bytes): a damaged length, or a file cut inside that record"
+            ),
+            Stop::Mcap(McapError::ChunkTooLarge(len)) => format!(
+                "a chunk claims {len} bytes, more than the whole file ({size} bytes): a damaged \
+                 length, or a file cut inside that chunk"
+            ),
+            Stop::Mcap(McapError::BadChunkCrc { saved, calculated }) => format!(
+                "a chunk's contents do not match its CRC (stored {saved:#010x}, computed \
+                 {calculated:#010x}): the chunk is damaged"
+            ),
+            Stop::Mcap(other) => format!("damaged data ({other})"),
+            Stop::LongString { opcode } => format!(
+                "damaged data (a record with opcode {opcode:#04x} has a string longer than \
+                 the record)"
+            ),
+        }
+    }
+}
+
+/// Parses the records the reader uses (header, schema, channel, message, statistics); others
+/// are skipped unparsed. mcap's parser reserves a string's stated length before reading it, so
+/// the strings of header, schema and channel records are first checked to fit in the record.
+fn parse_record(opcode: u8, data: &[u8]) -> std::result::Result<Option<Record<'_>>, Stop> {
+    let fits = match opcode {
+        op::HEADER => strings_end(data, 0, 2).is_some(),
+        op::SCHEMA => strings_end(data, 2, 2).is_some(),
+        op::CHANNEL => channel_strings_fit(data),
+        op::MESSAGE | op::STATISTICS => true,
+        _ => return Ok(None),
+    };
+    if !fits {
+        return Err(Stop::LongString { opcode });
+    }
+    mcap::parse_record(opcode, data).map(Some).map_err(Stop::Mcap)
+}
+
+/// Offset just past `n` length-prefixed strings (u32 little-endian length, then the bytes)
+/// starting at `at`, or `None` if one of them runs past the end of `data`.
+fn strings_end(data: &[u8], mut at: usize, n: usize) -> Option<usize> {
+    for _ in 0..n {
+        let len = data.get(at..at.checked_add(4)?)?;
+        let len = u32::from_le_bytes(len.try_into().ok()?) as usize;
+        at = at.checked_add(4)?.checked_add(len)?;
+        if at > data.len() {
+            return None;
+        }
+    }
+    Some(at)
+}
+
+/// Whether a channel record's topic, encoding and metadata strings all fit in it.
+fn channel_strings_fit(data: &[u8]) -> bool {
+    let Some(at) = strings_end(data, 4, 2) else {
+        return false;
+    };
+    let Some(map_len) = data.get(at..at + 4) else {
+        return false;
+    };
+    let map_len = u32::from_le_bytes(map_len.try_into().expect("4 bytes")) as usize;
+    let start = at + 4;
+    let Some(end) = start.checked_add(map_len).filter(|&e| e <= data.len()) else {
+        return false;
+    };
+    let mut at = start;
+    while at < end {
+        match strings_end(&data[..end], at, 2) {
+            Some(next) => at = next,
+            None => return false,
+        }
+    }
+    true
 }
 
 /// `read` that retries on `Interrupted`.

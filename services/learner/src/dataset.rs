@@ -81,6 +81,13 @@ pub(crate) fn load_into(
             to_selected(s, tasks, id)
         })
         .collect();
+    if let Some(reason) = &data.truncation {
+        tracing::warn!(
+            path = %path.display(),
+            kept = data.samples.len(),
+            "the TEP dataset is read only in part: {reason}; using the samples before that point"
+        );
+    }
     let other_tasks = data.samples.len() - converted.len();
     let accepted = planner.ingest(&converted);
     tracing::info!(
