@@ -160,6 +160,50 @@ mod tests {
     }
 
     #[test]
+    fn a_damaged_record_length_loads_the_samples_before_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("tep-dataset.mcap");
+        let mut w = TepDatasetWriter::create(&path).unwrap();
+        let sample = |trajectory_id: u64, step: u32| TepSample {
+            task: "door-open-v3".into(),
+            trajectory_id,
+            step,
+            priority: 1.0,
+            obs: [step as f32 * 0.01; terl_transport::OBS_DIM],
+            next_obs: [0.5; terl_transport::OBS_DIM],
+            goal_obs: None,
+            action: [0.1; terl_transport::ACTION_DIM],
+        };
+        // Two trajectories of 25 steps, flushed apart: one chunk each (after the schema chunk).
+        for trajectory_id in [3, 4] {
+            for step in 0..25 {
+                w.write(&sample(trajectory_id, step), u64::from(step))
+                    .unwrap();
+            }
+            w.flush().unwrap();
+        }
+        w.finish().unwrap();
+        // Damage the length of the third top-level chunk (the second trajectory's) to 4.6 EB.
+        let mut bytes = std::fs::read(&path).unwrap();
+        let (mut at, mut chunks) = (8usize, 0);
+        loop {
+            let len = u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap()) as usize;
+            chunks += usize::from(bytes[at] == 0x06);
+            if chunks == 3 {
+                break;
+            }
+            at += 9 + len;
+        }
+        bytes[at + 1..at + 9].copy_from_slice(&(4u64 << 60).to_le_bytes());
+        std::fs::write(&path, &bytes).unwrap();
+
+        let tasks = ["door-open-v3"];
+        let mut planner = PlannerTrainer::new(TepConfig::default(), tasks.len(), 1).unwrap();
+        load_all(&[path], &tasks, &mut planner).unwrap();
+        assert_eq!(planner.buffer_len(), 25);
+    }
+
+    #[test]
     fn loaded_ids_are_distinct_across_files_and_from_live_ids() {
         // The selector's live id of actor 31000's episode 5 (actor in the top 16 bits).
         let live = (31_000u64 << 48) | 5;
