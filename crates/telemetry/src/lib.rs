@@ -43,7 +43,10 @@
 //! parsing them. A damaged length, a flipped byte in a chunk (its CRC no longer matches) or a
 //! cut anywhere therefore ends the read at that point with the messages before it kept and
 //! `truncated` set, never a crash; records the reader does not need (indexes, attachments,
-//! metadata) are skipped unparsed.
+//! metadata) are skipped unparsed. Damage that would otherwise drop a chunk silently (its opcode
+//! turned into another record's) shows in files of our writer as a gap in the message numbers,
+//! an opcode the writer never writes, or fewer messages than the file's statistics count, and
+//! ends or marks the read the same way.
 
 mod log;
 mod records;

@@ -211,8 +211,10 @@ const OUR_LIBRARY: &str = "terl-telemetry ";
 /// read, and bytes appended by a writer still running are left for the next read. Chunks are
 /// taken whole, their CRC checked before any record in them is used, and their records split
 /// here with every length checked against the chunk. In a file of our writer, which puts every
-/// message in a chunk and numbers them 0, 1, 2, …, a message outside a chunk or a jump in the
-/// numbering (a chunk lost to a damaged opcode) also ends the read.
+/// message in a chunk, numbers them 0, 1, 2, … and writes only the MCAP specification's
+/// records, a message outside a chunk, a jump in the numbering or an unknown opcode (a chunk
+/// lost to a damaged opcode) also ends the read; and a complete file whose statistics count
+/// more messages than were found is reported as read in part.
 pub(crate) fn read_channel<T>(
     path: &Path,
     channel: Channel,
@@ -314,7 +316,17 @@ pub(crate) fn read_channel<T>(
     }
     if let Some(expected) = state.stats_count {
         let got = state.out.items.len() as u64 + state.out.rejected;
-        if got != expected {
+        if got < expected && state.out.stopped.is_none() {
+            // A complete file that lacks messages: a chunk was lost to damage the reader could
+            // not see (say, a damaged opcode on the last one).
+            let reason = format!(
+                "the file's statistics count {expected} messages on {}, but only {got} were \
+                 found: the others were lost to a damaged record",
+                channel.topic
+            );
+            warn!(path = %path.display(), "{} is read only in part: {reason}", channel.what);
+            state.out.stopped = Some(reason);
+        } else if got != expected {
             warn!(
                 path = %path.display(),
                 "the file's statistics count {expected} {} messages, but {got} were read",
@@ -525,6 +537,12 @@ impl<T> ReadState<T> {
         in_chunk: bool,
         accept: &mut impl FnMut(&[u8]) -> std::result::Result<T, String>,
     ) -> std::result::Result<(), Stop> {
+        if self.ours && !(op::HEADER..=op::DATA_END).contains(&opcode) {
+            // Our writer writes only the records of the MCAP specification.
+            return Err(Stop::Damaged(format!(
+                "a record with opcode {opcode:#04x}, which the writer never writes"
+            )));
+        }
         let Some(record) = parse_record(opcode, data)? else {
             return Ok(());
         };
