@@ -171,11 +171,21 @@ impl SelectorClient {
 /// up to 5 s while it stays away; the first wait and every stream error are logged once). For
 /// the actors and the selector, which must keep working while the learner restarts. Cancel by
 /// dropping/aborting the future.
-pub async fn follow_weights(addr: String, kinds: Vec<WeightsKind>, mut sink: impl FnMut(Weights)) {
+pub async fn follow_weights(addr: String, kinds: Vec<WeightsKind>, sink: impl FnMut(Weights)) {
+    follow_weights_with(addr, kinds, ClientOptions::default(), sink).await
+}
+
+/// [`follow_weights`] with explicit client options (a message limit matching the learner's).
+pub async fn follow_weights_with(
+    addr: String,
+    kinds: Vec<WeightsKind>,
+    options: ClientOptions,
+    mut sink: impl FnMut(Weights),
+) {
     let mut logged_wait = false;
     let mut backoff = FOLLOW_BACKOFF_MIN;
     loop {
-        match connect_learner(&addr).await {
+        match connect_learner_with(&addr, options).await {
             Ok(mut client) => match client.watch_weights(&kinds).await {
                 Ok(mut stream) => {
                     tracing::info!(%addr, ?kinds, "following the learner's weights");

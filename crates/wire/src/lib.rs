@@ -29,8 +29,8 @@ pub mod pb {
 }
 
 pub use client::{
-    connect_learner, connect_learner_with, connect_selector, follow_weights, ClientOptions,
-    ConnectError, LearnerClient, SelectorClient, WeightsStream,
+    connect_learner, connect_learner_with, connect_selector, follow_weights, follow_weights_with,
+    ClientOptions, ConnectError, LearnerClient, SelectorClient, WeightsStream,
 };
 pub use dataset::{EpisodeSummary, Metric, TepSample, ACTION_DIM, OBS_DIM};
 pub use hub::{PublishError, WeightHub};

@@ -117,9 +117,13 @@ pub async fn run(
     };
     let follower = {
         let mailbox = Arc::clone(&mailbox);
-        tokio::spawn(terl_wire::follow_weights(
+        let options = terl_wire::ClientOptions {
+            max_message_bytes: config.run.cluster.max_message_bytes(),
+        };
+        tokio::spawn(terl_wire::follow_weights_with(
             config.learner_addr.clone(),
             kinds,
+            options,
             move |w| post(&mailbox, w),
         ))
     };

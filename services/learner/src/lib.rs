@@ -111,6 +111,11 @@ pub async fn run(
     config: LearnerConfig,
     shutdown: impl Future<Output = ()> + Send,
 ) -> anyhow::Result<()> {
+    // Weights that would not fit a gRPC message fail here, naming the run-file key, rather than
+    // at the first publication after minutes of training.
+    let num_tasks = terl_runtime::resolve_tasks(&config.run.tasks)?.len();
+    config.run.check_weight_messages(num_tasks)?;
+    let max_message_bytes = config.run.cluster.max_message_bytes();
     let listener = terl_wire::bind(config.addr)
         .await
         .with_context(|| format!("cannot listen on {}", config.addr))?;
@@ -126,7 +131,7 @@ pub async fn run(
         }),
         stop: AtomicBool::new(false),
     });
-    let hub = WeightHub::new();
+    let hub = WeightHub::with_max_message_bytes(max_message_bytes);
     let (checkpoint_tx, checkpoint_rx) = mpsc::channel();
     let (done_tx, mut done_rx) = tokio::sync::watch::channel(false);
     let trainer = {
@@ -150,11 +155,74 @@ pub async fn run(
             _ = done_rx.wait_for(|done| *done) => tracing::info!("trainer stopped; shutting down"),
         }
     };
-    let served = terl_wire::serve_learner(listener, backend, stop_serving).await;
+    let options = terl_wire::ServeOptions {
+        max_message_bytes,
+        ..terl_wire::ServeOptions::default()
+    };
+    let served = terl_wire::serve_learner_with(listener, backend, stop_serving, options).await;
     shared.stop.store(true, Ordering::Relaxed);
     let trained = tokio::task::spawn_blocking(move || trainer.join())
         .await?
         .map_err(|_| anyhow::anyhow!("trainer thread panicked"))?;
     served.context("gRPC server")?;
     trained
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Networks whose weights would not fit a gRPC message stop the learner before it listens
+    /// or allocates them, naming the run-file key that raises the limit; the encoded size of a
+    /// real policy message stays within the bound the check uses.
+    #[test]
+    fn weights_over_the_message_limit_are_refused_at_start_up() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.toml");
+        std::fs::write(
+            &path,
+            "tasks = \"mt10\"\nnum_envs = 10\n[sac]\npolicy_hidden = [4096, 4096, 4096]\n",
+        )
+        .unwrap();
+        let run_config = terl_runtime::RunConfig::load(&path).unwrap();
+        let config = LearnerConfig::new(
+            run_config,
+            format!("msg-limit-{}", std::process::id()),
+            "127.0.0.1:0".parse().unwrap(),
+            1,
+            dir.path().join("run"),
+        );
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        let e = rt
+            .block_on(super::run(config, std::future::pending()))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("policy weights message") && e.contains("max_message_mib = 129"),
+            "{e}"
+        );
+        assert!(!dir.path().join("run").join("learner.addr").exists());
+
+        // The bound against a real message of a small policy.
+        let mut sac_config = terl_rl::SacConfig {
+            num_tasks: 10,
+            policy_hidden: vec![64, 32],
+            ..terl_rl::SacConfig::default()
+        };
+        sac_config.batch_size = 8;
+        let sac = terl_rl::Sac::<f32>::new(sac_config.clone()).unwrap();
+        let weights =
+            to_weights(terl_wire::WeightsKind::Policy, 1, 0, sac.policy_tensors()).unwrap();
+        let encoded = prost::Message::encoded_len(&terl_wire::pb::WeightsUpdate::from(&weights));
+        let mut cfg = terl_runtime::RunConfig::load(&path).unwrap();
+        cfg.sac = sac_config;
+        let bound = cfg.weight_message_bytes(10)[0].1;
+        assert!(
+            encoded as u64 <= bound && bound < encoded as u64 + 2048,
+            "encoded {encoded}, bound {bound}"
+        );
+    }
 }

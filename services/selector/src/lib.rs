@@ -544,9 +544,13 @@ pub async fn run(
             } else {
                 vec![WeightsKind::Policy]
             };
-            Some(tokio::spawn(terl_wire::follow_weights(
+            let options = terl_wire::ClientOptions {
+                max_message_bytes: config.run.cluster.max_message_bytes(),
+            };
+            Some(tokio::spawn(terl_wire::follow_weights_with(
                 addr.clone(),
                 kinds,
+                options,
                 move |w| {
                     let (kind, version) = (w.kind(), w.version());
                     let flat: Vec<f32> = w.into_flat();
