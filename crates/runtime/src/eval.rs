@@ -384,16 +384,17 @@ pub fn evaluate_policy_with(
             };
             let task = &tasks[t];
             let pool = set.entry(task.name).or_default();
+            let had = pool.len();
             let got = run_chunk(
                 &mut pol,
                 pool,
-                &envs.built,
                 task,
                 &variations[t],
                 range.clone(),
                 &mut rng,
                 cancel,
             );
+            envs.built.fetch_add(pool.len() - had, Ordering::Relaxed);
             match got {
                 Ok(eps) => {
                     on_episodes(eps.len());
@@ -472,7 +473,6 @@ pub fn evaluate_policy_with(
 fn run_chunk(
     policy: &mut Policy,
     pool: &mut Vec<Env>,
-    built: &AtomicUsize,
     task: &EvalTask,
     variations: &[Vec<f64>],
     range: std::ops::Range<usize>,
@@ -482,7 +482,6 @@ fn run_chunk(
     let m = range.len();
     while pool.len() < m {
         pool.push(Env::new(task.name)?);
-        built.fetch_add(1, Ordering::Relaxed);
     }
     let nt = policy.spec().num_tasks;
     let mut enc_row = vec![0.0f32; nt];
