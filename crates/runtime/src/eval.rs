@@ -888,6 +888,7 @@ mod tests {
             evaluate_policy_with(&envs, &p, &tasks, &s, &|_| {}, None).unwrap();
         }
         let growth = rss_bytes().saturating_sub(after_first);
+        eprintln!("first evaluation: {footprint} bytes; 4 more: +{growth} bytes");
         assert!(
             growth <= footprint / 2,
             "4 more evaluations grew the resident set by {growth} bytes; the first \
