@@ -17,6 +17,7 @@ fn episode(i: u64) -> EpisodeSummary {
         length: 500,
         policy_version: i,
         guided_steps: 0,
+        missed_before: 0,
     }
 }
 
