@@ -50,6 +50,10 @@ restarts=3
 backoff=2
 while [ $# -gt 0 ]; do
     case "$1" in
+        --config|--actors|--run-id|--learner-addr|--selector-addr|--runs-root|--tep-dataset|--resume|--restarts|--restart-backoff)
+            [ $# -ge 2 ] || { echo "$1 needs a value (see --help)" >&2; exit 2; } ;;
+    esac
+    case "$1" in
         --config) config=$2; config_given=1; shift 2 ;;
         --actors) actors=$2; shift 2 ;;
         --run-id) run_id=$2; shift 2 ;;
@@ -69,9 +73,9 @@ done
 [[ "$backoff" =~ ^[0-9]+$ ]] || { echo "--restart-backoff must be a whole number of seconds" >&2; exit 2; }
 if [ -n "$resume" ]; then
     resume=${resume%/}
-    [ -f "$resume/config.toml" ] || { echo "--resume: $resume/config.toml not found (not a run folder)" >&2; exit 2; }
     [ "$config_given" = 0 ] && [ -z "$run_id" ] && [ ${#tep_datasets[@]} -eq 0 ] \
         || { echo "--resume takes the run's own config, run id and TEP datasets; drop --config/--run-id/--tep-dataset" >&2; exit 2; }
+    [ -f "$resume/config.toml" ] || { echo "--resume: $resume/config.toml not found (not a run folder)" >&2; exit 2; }
     run_id=$(basename "$resume")
     runs_root=$(dirname "$resume")
     config="$resume/config.toml"

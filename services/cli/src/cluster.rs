@@ -76,6 +76,14 @@ pub fn run(cmd: ClusterCommand) -> Result<ExitCode> {
                 !pid.is_empty() && pid.chars().all(|c| c.is_ascii_digit()),
                 "bad pid {pid:?} in {pid_file}"
             );
+            // A launcher killed with SIGKILL leaves its pid file; the pid may since belong to
+            // an unrelated process, which must not be signalled.
+            let cmdline = std::fs::read(format!("/proc/{pid}/cmdline")).unwrap_or_default();
+            anyhow::ensure!(
+                String::from_utf8_lossy(&cmdline).contains("local-cluster.sh"),
+                "no running cluster launcher has pid {pid} (stale {pid_file}: the launcher was \
+                 killed); its services stop by themselves when it dies"
+            );
             let ok = Command::new("kill")
                 .args(["-TERM", pid])
                 .status()?
