@@ -584,6 +584,14 @@ fn terl_cluster_selects_trains_the_planner_and_guides() {
     );
 }
 
+/// Whether these tests run against release binaries (the launcher runs `target/release`).
+fn release_build() -> bool {
+    Path::new(env!("CARGO_BIN_EXE_terl"))
+        .parent()
+        .and_then(Path::file_name)
+        .is_some_and(|n| n == "release")
+}
+
 /// The README's launcher on a run with a training budget: the learner stops by itself at
 /// `train.total_env_steps`, and `deploy/local-cluster.sh` then stops the cluster and exits 0.
 #[test]
@@ -591,11 +599,7 @@ fn launcher_stops_the_cluster_at_the_training_budget() {
     let shm_before = shm_files();
     service_binaries();
     let root = workspace();
-    let release = Path::new(env!("CARGO_BIN_EXE_terl"))
-        .parent()
-        .and_then(Path::file_name)
-        .is_some_and(|n| n == "release");
-    if !release {
+    if !release_build() {
         eprintln!("the launcher runs target/release binaries; run this test with --release");
         return;
     }
@@ -704,11 +708,7 @@ fn launcher(root: &Path, args: &[&str], log: &Path) -> Child {
 fn killed_learner_is_restarted_and_runs_resume_past_a_damaged_checkpoint() {
     service_binaries();
     let root = workspace();
-    let release = Path::new(env!("CARGO_BIN_EXE_terl"))
-        .parent()
-        .and_then(Path::file_name)
-        .is_some_and(|n| n == "release");
-    if !release {
+    if !release_build() {
         eprintln!("the launcher runs target/release binaries; run this test with --release");
         return;
     }
