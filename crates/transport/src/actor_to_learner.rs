@@ -26,7 +26,7 @@ pub mod flags {
 }
 
 /// One environment step `(s, a, r, s')` with the bookkeeping the learner needs.
-#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C)]
 pub struct Transition {
     /// Version of the policy weights that chose `action`; the learner reports staleness
@@ -81,7 +81,7 @@ impl Transition {
 }
 
 /// Up to [`TRANSITIONS_PER_BATCH`] transitions; only the first `len` are meaningful.
-#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, ZeroCopySend, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C)]
 pub struct TransitionBatch {
     /// Number of valid entries in `transitions`.

@@ -10,7 +10,7 @@ use crate::{ACTION_DIM, OBS_DIM};
 pub const MAX_EPISODE_STEPS: usize = 500;
 
 /// One step of a stored trajectory: the state, the executed action and its reward.
-#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C)]
 pub struct TrajectoryStep {
     pub obs: [f32; OBS_DIM],
@@ -29,7 +29,7 @@ impl TrajectoryStep {
 }
 
 /// A finished episode: summary statistics plus up to [`MAX_EPISODE_STEPS`] steps.
-#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, ZeroCopySend, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C)]
 pub struct EpisodeSummary {
     /// Policy version the episode started with (actors may pick up new weights mid-episode).
@@ -59,11 +59,13 @@ pub struct EpisodeSummary {
     /// Observation after the last step (s_T), so GAE can bootstrap on truncation.
     pub final_obs: [f32; OBS_DIM],
     pub trajectory: [TrajectoryStep; MAX_EPISODE_STEPS],
+    /// Explicit tail padding to the 8-byte alignment (zero), so every byte is data.
+    pub reserved_tail: [u8; 4],
 }
 
 const _: () = assert!(
     core::mem::size_of::<EpisodeSummary>()
-        == 56 + 4 * OBS_DIM + 4 + MAX_EPISODE_STEPS * core::mem::size_of::<TrajectoryStep>()
+        == 56 + 4 * OBS_DIM + MAX_EPISODE_STEPS * core::mem::size_of::<TrajectoryStep>() + 4
 );
 
 impl EpisodeSummary {
@@ -83,6 +85,7 @@ impl EpisodeSummary {
         reserved: [0; 2],
         final_obs: [0.0; OBS_DIM],
         trajectory: [TrajectoryStep::ZERO; MAX_EPISODE_STEPS],
+        reserved_tail: [0; 4],
     };
 
     /// The valid trajectory steps.

@@ -41,7 +41,10 @@ impl Topic {
 }
 
 /// A fixed-layout message that can travel through shared memory.
-pub trait Message: ZeroCopySend + Copy + Debug + Send + 'static {
+///
+/// `bytemuck::Pod` (no padding, any bit pattern valid) lets network transports send the
+/// message as its bytes and check only the length on receipt.
+pub trait Message: ZeroCopySend + bytemuck::Pod + Copy + Debug + Send + 'static {
     /// The stream this message type travels on.
     const TOPIC: Topic;
     /// A valid all-zero value, heap allocated (messages are tens to hundreds of KiB).

@@ -37,6 +37,68 @@ pub struct TransportConfig {
     pub block_timeout: Duration,
     /// Check that `/dev/shm` has room for the run before creating anything.
     pub check_shm: bool,
+    /// Session settings of the Zenoh transport ([`crate::zenoh_net`]); unused by shared
+    /// memory.
+    pub zenoh: ZenohConfig,
+}
+
+/// Which engine carries a run's streams.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TransportKind {
+    /// iceoryx2 shared memory: every process on one host (the default).
+    #[default]
+    Shm,
+    /// Zenoh over TCP: processes on several hosts.
+    Zenoh,
+}
+
+/// Zenoh's role for this process.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ZenohMode {
+    /// Connects directly to the peers it learns of (through `connect` and gossip).
+    #[default]
+    Peer,
+    /// Connects only to the router or peer in `connect`; everything goes through it.
+    Client,
+}
+
+/// The Zenoh session of one process: how it finds the others.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ZenohConfig {
+    pub mode: ZenohMode,
+    /// Endpoints to listen on, e.g. `tcp/0.0.0.0:7447`. Empty: Zenoh's default for the mode
+    /// (a peer listens on a random TCP port of every interface).
+    pub listen: Vec<String>,
+    /// Endpoints to connect to, e.g. `tcp/10.0.0.1:7447` (the learner's host or a router).
+    /// Retried until reachable.
+    pub connect: Vec<String>,
+    /// Find peers on the local network by UDP multicast as well (off: only `connect` and
+    /// the gossip of connected peers).
+    pub multicast_scouting: bool,
+}
+
+impl ZenohConfig {
+    /// Checks the endpoint syntax (`<proto>/<address>`; only `tcp` is built in).
+    pub fn validate(&self) -> Result<(), TransportError> {
+        for endpoint in self.listen.iter().chain(&self.connect) {
+            if !endpoint.starts_with("tcp/") || endpoint.len() <= 4 {
+                return Err(TransportError::Config(format!(
+                    "zenoh endpoint {endpoint:?} must look like tcp/<host>:<port> (only TCP is \
+                     built in)"
+                )));
+            }
+        }
+        if self.mode == ZenohMode::Client && self.connect.is_empty() {
+            return Err(TransportError::Config(
+                "zenoh mode \"client\" needs at least one `connect` endpoint (a router or peer)"
+                    .into(),
+            ));
+        }
+        Ok(())
+    }
 }
 
 impl Default for TransportConfig {
@@ -50,6 +112,7 @@ impl Default for TransportConfig {
             overflow: OverflowPolicy::Block,
             block_timeout: DEFAULT_BLOCK_TIMEOUT,
             check_shm: true,
+            zenoh: ZenohConfig::default(),
         }
     }
 }

@@ -42,6 +42,12 @@ pub enum TransportError {
         run_id: String,
         service: String,
     },
+    #[error("zenoh {operation} failed for {key}: {detail}")]
+    Zenoh {
+        operation: &'static str,
+        key: String,
+        detail: String,
+    },
     #[error("timed out after {after:?} waiting for {what}")]
     Timeout { what: String, after: Duration },
     #[error(

@@ -148,7 +148,19 @@ impl TransportStats {
 /// sink gave up on because a receiver stayed full — `StatsSnapshot::dropped` and
 /// `dropped_items` at the moment of sending. Counted since the sink was created, so a restarted
 /// sender starts again at zero ([`LossTracker`] handles that). 16 bytes of plain data.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend, Serialize, Deserialize)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    Default,
+    PartialEq,
+    Eq,
+    ZeroCopySend,
+    bytemuck::Pod,
+    bytemuck::Zeroable,
+    Serialize,
+    Deserialize,
+)]
 #[repr(C)]
 pub struct Losses {
     /// Messages not delivered to at least one receiver.

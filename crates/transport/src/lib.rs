@@ -20,6 +20,7 @@ pub mod ipc;
 pub mod memory;
 pub mod selector_to_learner;
 pub mod shm;
+pub mod zenoh_net;
 
 /// Meta-World observation width (hand, gripper, two objects, goal).
 pub const OBS_DIM: usize = 39;
@@ -32,7 +33,7 @@ pub use channel::{
     EpisodeSink, EpisodeSource, Message, MessageSink, MessageSource, SelectedSink, SelectedSource,
     Topic, TransitionSink, TransitionSource, Transport,
 };
-pub use config::{ServiceLimits, TransportConfig};
+pub use config::{ServiceLimits, TransportConfig, TransportKind, ZenohConfig, ZenohMode};
 pub use error::TransportError;
 pub use flow::{
     LossTracker, Losses, OverflowPolicy, RateLimiter, RateLimiterError, SendOutcome, SenderLosses,
@@ -41,3 +42,4 @@ pub use flow::{
 pub use ipc::{SenderClaim, ShmSink, ShmSource, ShmTransport, StaleCleanup};
 pub use memory::MemoryTransport;
 pub use selector_to_learner::{SelectedBatch, SelectedSample, SELECTED_PER_BATCH};
+pub use zenoh_net::{ZenohSink, ZenohSource, ZenohTransport};

@@ -10,7 +10,7 @@ use crate::{ACTION_DIM, OBS_DIM};
 pub const SELECTED_PER_BATCH: usize = 512;
 
 /// One selected transition with where it came from and its priority.
-#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C)]
 pub struct SelectedSample {
     /// Globally unique trajectory id: `(actor_id << 48) | episode_index` by convention,
@@ -45,7 +45,7 @@ impl SelectedSample {
 }
 
 /// Up to [`SELECTED_PER_BATCH`] selected samples; only the first `len` are meaningful.
-#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, ZeroCopySend, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C)]
 pub struct SelectedBatch {
     pub len: u32,

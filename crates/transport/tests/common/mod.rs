@@ -46,6 +46,30 @@ pub fn batch(actor: u16, sequence: u64) -> Box<TransitionBatch> {
     b
 }
 
+/// The next message of `source`, waiting up to 10 s for it (network transports deliver
+/// asynchronously; shared memory and the in-memory twin have it at once).
+pub fn receive_next<M: Message>(source: &mut dyn MessageSource<M>) -> Option<Box<M>> {
+    let start = Instant::now();
+    loop {
+        if let Some(m) = source.try_receive().unwrap() {
+            return Some(m);
+        }
+        if start.elapsed() >= Duration::from_secs(10) {
+            return None;
+        }
+        std::thread::yield_now();
+    }
+}
+
+/// Waits up to 10 s for `cond` (peer counts of network transports settle asynchronously).
+pub fn eventually(what: &str, mut cond: impl FnMut() -> bool) {
+    let start = Instant::now();
+    while !cond() {
+        assert!(start.elapsed() < Duration::from_secs(10), "never: {what}");
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
 fn receive_until<M: Message>(
     source: &mut dyn MessageSource<M>,
     want: usize,
@@ -202,7 +226,7 @@ pub fn block_timeouts_are_counted_and_reported<T: Transport>(make: Make<T>, run:
     let mut sink = actor.sink::<TransitionBatch>().unwrap();
     let mut tracker = LossTracker::new();
     let mut receive = |source: &mut Box<dyn MessageSource<TransitionBatch>>| {
-        let b = source.try_receive().unwrap().expect("a batch is queued");
+        let b = receive_next(source.as_mut()).expect("a batch is queued");
         tracker.observe(b.actor_id, b.sequence, b.losses());
         b
     };
@@ -274,7 +298,7 @@ pub fn episode_timeouts_are_counted_per_receiver<T: Transport>(make: Make<T>, ru
         e
     };
     let observe = |tracker: &mut LossTracker, source: &mut Box<dyn MessageSource<_>>| {
-        let e: Box<EpisodeSummary> = source.try_receive().unwrap().expect("an episode");
+        let e: Box<EpisodeSummary> = receive_next(source.as_mut()).expect("an episode");
         tracker.observe(e.actor_id, e.episode_index, e.losses());
         e
     };
@@ -428,10 +452,13 @@ pub fn episodes_broadcast_and_selected_flow<T: Transport>(make: Make<T>, run: &s
         assert!(episode.push_step(step));
     }
     assert!(!episode.push_step(TrajectoryStep::ZERO));
+    ep_sink
+        .wait_for_receivers(2, Duration::from_secs(10))
+        .unwrap();
     assert_eq!(ep_sink.receivers(), 2);
     assert_eq!(ep_sink.send(&episode).unwrap(), SendOutcome::Delivered);
     for source in [&mut ep_learner, &mut ep_selector] {
-        let got = source.try_receive().unwrap().expect("episode");
+        let got = receive_next(source.as_mut()).expect("episode");
         assert_eq!(*got, *episode);
         assert_eq!(got.steps().len(), MAX_EPISODE_STEPS);
     }
@@ -447,13 +474,15 @@ pub fn episodes_broadcast_and_selected_flow<T: Transport>(make: Make<T>, run: &s
         s.priority = i as f32 / 512.0;
         assert!(sel.push(s));
     }
+    selected_sink
+        .wait_for_receivers(1, Duration::from_secs(10))
+        .unwrap();
     assert_eq!(selected_sink.send(&sel).unwrap(), SendOutcome::Delivered);
-    let got = selected_source
-        .try_receive()
-        .unwrap()
-        .expect("selected batch");
+    let got = receive_next(selected_source.as_mut()).expect("selected batch");
     assert_eq!(*got, *sel);
-    assert_eq!(selected_source.senders(), 1);
+    eventually("one sender of selected batches", || {
+        selected_source.senders() == 1
+    });
 }
 
 /// Limits follow the config: one transition subscriber (the learner), `num_actors` + spare

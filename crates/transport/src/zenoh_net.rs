@@ -1,0 +1,806 @@
+//! The Zenoh implementation of the transport seam: the same streams between processes on
+//! different hosts, over TCP.
+//!
+//! # Contract, as for shared memory
+//!
+//! Zenoh itself offers a reliable, ordered stream per session pair and, when its send queue
+//! is full, either blocks (`CongestionControl::Block`) or drops silently
+//! (`CongestionControl::Drop`). A silent drop would break the rule that every loss is
+//! counted, and blocking inside Zenoh knows nothing of the receiver's buffer, so this module
+//! adds **credit-based flow control** on top and uses `Block` underneath:
+//!
+//! - Every source has a random 64-bit port id and declares the liveliness token
+//!   `terl/<run_id>/<topic>/rx/<id>`; every sink declares `…/tx/<id>`. Sinks count receivers
+//!   (and sources count senders) from these tokens, so a receiver whose host disappears is
+//!   no longer waited for once Zenoh's lease expires (10 s).
+//! - A sink sends each message **to each receiver separately** (`…/to/<receiver id>`),
+//!   prefixed by a 16-byte header (sender port id, link epoch; little-endian `u64`s) and
+//!   followed by the message's bytes (`bytemuck::Pod`, exactly `size_of::<M>()` bytes).
+//! - A sink may have at most the receiver's buffer size (`buffer_batches`,
+//!   `buffer_episodes`, `buffer_selected`) of messages outstanding at each receiver. The
+//!   source acknowledges every message it hands out (`…/ack/<sender id>`: receiver id,
+//!   epoch, messages consumed in this epoch; 24 bytes) and each ack returns one credit.
+//! - With no credit left the sink follows its [`OverflowPolicy`] exactly as over shared
+//!   memory: `DropNewest` skips that receiver and returns [`SendOutcome::Full`]; `Block`
+//!   waits for an ack up to the block timeout, then gives up with
+//!   `TransportError::BlockTimeout`. Either way the message is counted in
+//!   `dropped`/`dropped_items` and stamped on the next message ([`crate::flow`]).
+//!
+//! # Loss, ordering, back-pressure
+//!
+//! - **Ordering:** per sender and receiver, in send order (one reliable Zenoh stream).
+//! - **Back-pressure:** the credits above; a receiver never holds more than its buffer
+//!   from one sender, so Zenoh's own `Block` queue only waits for the network.
+//! - **Loss:** given-up messages are counted by the sender and stamped. A message already
+//!   handed to Zenoh is lost only when the TCP session between the two hosts closes (the
+//!   link stayed down longer than the lease, or Zenoh's queue was blocked for 5 s); the
+//!   receiver then counts it as a gap in the sender's sequence numbers
+//!   ([`crate::LossTracker`]'s `missed`). The credits of such a link are reset when the
+//!   receiver's token comes back (a new epoch). A message whose length is not the
+//!   expected one is rejected and counted in the source's `rejected`.
+//! - **Limits:** a new port counts the existing tokens of its kind first (a liveliness query
+//!   to every reachable process) and is refused over the config's limit, like iceoryx2's
+//!   table; two ports created at the same instant on different hosts can both get in.
+
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use crossbeam_channel::{Receiver, Sender, TrySendError};
+use zenoh::liveliness::LivelinessToken;
+use zenoh::pubsub::{Publisher, Subscriber};
+use zenoh::qos::CongestionControl;
+use zenoh::sample::SampleKind;
+use zenoh::{Session, Wait};
+
+use crate::channel::{Message, MessageSink, MessageSource, Transport};
+use crate::config::{TransportConfig, ZenohMode};
+use crate::error::TransportError;
+use crate::flow::{OverflowPolicy, SendOutcome, StatsSnapshot, TransportStats};
+
+/// Bytes in front of every message: sender port id, link epoch.
+pub const HEADER_BYTES: usize = 16;
+/// Bytes of an acknowledgement: receiver port id, epoch, messages consumed in the epoch.
+pub const ACK_BYTES: usize = 24;
+/// How long a new port waits for the answers to its liveliness query (limits, receivers).
+const QUERY_TIMEOUT: Duration = Duration::from_secs(2);
+/// How long a sink waits for Zenoh to route to a newly seen receiver.
+const MATCH_TIMEOUT: Duration = Duration::from_secs(5);
+/// Slice of a blocked send between checks of the cancel flag.
+const BLOCK_POLL: Duration = Duration::from_millis(5);
+
+fn zenoh_err(
+    operation: &'static str,
+    key: &str,
+    detail: impl core::fmt::Display,
+) -> TransportError {
+    TransportError::Zenoh {
+        operation,
+        key: key.to_owned(),
+        detail: detail.to_string(),
+    }
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// The last key component `<hex id>` of a liveliness token, or `None` for foreign keys.
+fn token_id(key: &str) -> Option<u64> {
+    u64::from_str_radix(key.rsplit('/').next()?, 16).ok()
+}
+
+fn read_u64(bytes: &[u8], at: usize) -> Option<u64> {
+    let b: [u8; 8] = bytes.get(at..at + 8)?.try_into().ok()?;
+    Some(u64::from_le_bytes(b))
+}
+
+/// A process's Zenoh session for one run's streams.
+#[derive(Clone)]
+pub struct ZenohTransport {
+    config: TransportConfig,
+    session: Session,
+    cancel: Arc<AtomicBool>,
+}
+
+impl core::fmt::Debug for ZenohTransport {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("ZenohTransport")
+            .field("run_id", &self.config.run_id)
+            .field("zid", &self.session.zid().to_string())
+            .finish()
+    }
+}
+
+impl ZenohTransport {
+    /// Opens a Zenoh session from `config.zenoh` (mode, listen and connect endpoints). In
+    /// peer mode this waits until every `connect` endpoint is reachable; in client mode it
+    /// fails when none is. `role` only names the process in logs.
+    pub fn open(config: TransportConfig, role: &str) -> Result<Self, TransportError> {
+        config.validate()?;
+        config.zenoh.validate()?;
+        let z = &config.zenoh;
+        let mut zc = zenoh::Config::default();
+        let json = |v: &dyn erased::Json| v.json();
+        let mode = match z.mode {
+            ZenohMode::Peer => "peer",
+            ZenohMode::Client => "client",
+        };
+        for (key, value) in [
+            ("mode", json(&mode)),
+            ("scouting/multicast/enabled", json(&z.multicast_scouting)),
+            ("connect/endpoints", json(&z.connect)),
+        ] {
+            zc.insert_json5(key, &value)
+                .map_err(|e| TransportError::Config(format!("zenoh {key} = {value}: {e}")))?;
+        }
+        if !z.listen.is_empty() {
+            let value = json(&z.listen);
+            zc.insert_json5("listen/endpoints", &value)
+                .map_err(|e| TransportError::Config(format!("zenoh listen = {value}: {e}")))?;
+        }
+        let session = zenoh::open(zc)
+            .wait()
+            .map_err(|e| zenoh_err("open session", &format!("terl/{}", config.run_id), e))?;
+        tracing::info!(
+            role,
+            zid = %session.zid(),
+            mode,
+            listen = ?z.listen,
+            connect = ?z.connect,
+            "zenoh session open"
+        );
+        Ok(Self {
+            config,
+            session,
+            cancel: Arc::default(),
+        })
+    }
+
+    pub fn config(&self) -> &TransportConfig {
+        &self.config
+    }
+
+    /// The underlying session (for tools that need Zenoh directly).
+    pub fn session(&self) -> &Session {
+        &self.session
+    }
+
+    fn key(&self, topic: crate::Topic, rest: &str) -> String {
+        format!("{}/{rest}", self.config.service_name(topic))
+    }
+
+    /// Ids of the live tokens under `prefix/*`, asked of every reachable process.
+    fn query_tokens(&self, prefix: &str) -> Result<Vec<u64>, TransportError> {
+        let key = format!("{prefix}/*");
+        let replies = self
+            .session
+            .liveliness()
+            .get(&key)
+            .timeout(QUERY_TIMEOUT)
+            .wait()
+            .map_err(|e| zenoh_err("liveliness query", &key, e))?;
+        let mut ids = vec![];
+        while let Ok(reply) = replies.recv() {
+            if let Ok(sample) = reply.result() {
+                if let Some(id) = token_id(sample.key_expr().as_str()) {
+                    if !ids.contains(&id) {
+                        ids.push(id);
+                    }
+                }
+            }
+        }
+        Ok(ids)
+    }
+
+    /// Declares the liveliness token of a new port of kind `kind` (`tx`/`rx`) after checking
+    /// that fewer than `max` exist.
+    fn claim_port(
+        &self,
+        topic: crate::Topic,
+        kind: &'static str,
+        max: usize,
+    ) -> Result<(u64, LivelinessToken), TransportError> {
+        let prefix = self.key(topic, kind);
+        let existing = self.query_tokens(&prefix)?;
+        if existing.len() >= max {
+            return Err(zenoh_err(
+                if kind == "tx" {
+                    "publisher creation"
+                } else {
+                    "subscriber creation"
+                },
+                &prefix,
+                format!(
+                    "{} {kind} ports already live, the run allows {max}",
+                    existing.len()
+                ),
+            ));
+        }
+        let id = loop {
+            let id: u64 = rand::random();
+            if !existing.contains(&id) {
+                break id;
+            }
+        };
+        let key = format!("{prefix}/{id:016x}");
+        let token = self
+            .session
+            .liveliness()
+            .declare_token(&key)
+            .wait()
+            .map_err(|e| zenoh_err("declare token", &key, e))?;
+        Ok((id, token))
+    }
+
+    /// Follows the live tokens under `prefix/*` into `peers` (id → generation) and wakes
+    /// `wake` on every change. Fills `peers` with the tokens alive now before returning.
+    fn track_tokens(
+        &self,
+        prefix: &str,
+        shared: &Arc<Shared>,
+    ) -> Result<Subscriber<()>, TransportError> {
+        let key = format!("{prefix}/*");
+        let s = Arc::clone(shared);
+        let subscriber = self
+            .session
+            .liveliness()
+            .declare_subscriber(&key)
+            .history(true)
+            .callback(move |sample| {
+                let Some(id) = token_id(sample.key_expr().as_str()) else {
+                    return;
+                };
+                let mut state = lock(&s.state);
+                match sample.kind() {
+                    SampleKind::Put => state.add_peer(id),
+                    SampleKind::Delete => {
+                        state.peers.remove(&id);
+                    }
+                }
+                drop(state);
+                s.wake.notify_all();
+            })
+            .wait()
+            .map_err(|e| zenoh_err("liveliness subscriber", &key, e))?;
+        let now = self.query_tokens(prefix)?;
+        let mut state = lock(&shared.state);
+        for id in now {
+            state.add_peer(id);
+        }
+        Ok(subscriber)
+    }
+
+    /// A sink on `M`'s topic with the config's overflow policy.
+    pub fn zenoh_sink<M: Message>(&self) -> Result<ZenohSink<M>, TransportError> {
+        self.zenoh_sink_with(self.config.overflow)
+    }
+
+    /// A sink on `M`'s topic with an explicit overflow policy. Errors when the run's
+    /// publisher limit for the topic is reached.
+    pub fn zenoh_sink_with<M: Message>(
+        &self,
+        policy: OverflowPolicy,
+    ) -> Result<ZenohSink<M>, TransportError> {
+        let topic = M::TOPIC;
+        let limits = self.config.limits(topic);
+        let (id, token) = self.claim_port(topic, "tx", limits.max_publishers)?;
+        let shared = Arc::new(Shared::default());
+        let ack_key = self.key(topic, &format!("ack/{id:016x}"));
+        let s = Arc::clone(&shared);
+        let acks = self
+            .session
+            .declare_subscriber(&ack_key)
+            .callback(move |sample| {
+                let bytes = sample.payload().to_bytes();
+                let parsed = (bytes.len() == ACK_BYTES)
+                    .then(|| {
+                        Some((
+                            read_u64(&bytes, 0)?,
+                            read_u64(&bytes, 8)?,
+                            read_u64(&bytes, 16)?,
+                        ))
+                    })
+                    .flatten();
+                let Some((receiver, epoch, consumed)) = parsed else {
+                    s.rejected.fetch_add(1, Ordering::Relaxed);
+                    return;
+                };
+                let mut state = lock(&s.state);
+                let entry = state.acks.entry(receiver).or_insert((epoch, 0));
+                if entry.0 != epoch {
+                    *entry = (epoch, consumed);
+                } else {
+                    entry.1 = entry.1.max(consumed);
+                }
+                drop(state);
+                s.wake.notify_all();
+            })
+            .wait()
+            .map_err(|e| zenoh_err("ack subscriber", &ack_key, e))?;
+        let receivers = self.track_tokens(&self.key(topic, "rx"), &shared)?;
+        Ok(ZenohSink {
+            label: self.config.service_name(topic),
+            id,
+            session: self.session.clone(),
+            policy,
+            buffer: limits.subscriber_buffer as u64,
+            block_timeout: self.config.block_timeout,
+            cancel: Arc::clone(&self.cancel),
+            shared,
+            links: HashMap::new(),
+            frame: vec![0; HEADER_BYTES + core::mem::size_of::<M>()],
+            stats: Arc::default(),
+            _token: token,
+            _acks: acks,
+            _receivers: receivers,
+            _topic: std::marker::PhantomData,
+        })
+    }
+
+    /// A source on `M`'s topic. Errors when the run's subscriber limit for the topic is
+    /// reached (one learner, one selector).
+    pub fn zenoh_source<M: Message>(&self) -> Result<ZenohSource<M>, TransportError> {
+        let topic = M::TOPIC;
+        let limits = self.config.limits(topic);
+        let (id, token) = self.claim_port(topic, "rx", limits.max_subscribers)?;
+        let shared = Arc::new(Shared::default());
+        // Credits bound what is queued to `buffer` per sender; the channel bound is a
+        // backstop against a sender that ignores them.
+        let capacity = limits.subscriber_buffer * limits.max_publishers;
+        let (tx, rx) = crossbeam_channel::bounded::<Incoming<M>>(capacity);
+        let data_key = self.key(topic, &format!("to/{id:016x}"));
+        let s = Arc::clone(&shared);
+        let data = self
+            .session
+            .declare_subscriber(&data_key)
+            .callback(move |sample| deliver(&s, &tx, &sample.payload().to_bytes()))
+            .wait()
+            .map_err(|e| zenoh_err("data subscriber", &data_key, e))?;
+        let senders = self.track_tokens(&self.key(topic, "tx"), &shared)?;
+        Ok(ZenohSource {
+            label: self.config.service_name(topic),
+            id,
+            prefix: self.config.service_name(topic),
+            session: self.session.clone(),
+            rx,
+            shared,
+            consumed: HashMap::new(),
+            ack_publishers: HashMap::new(),
+            stats: Arc::default(),
+            _token: token,
+            _data: data,
+            _senders: senders,
+        })
+    }
+}
+
+/// Decodes one frame into the source's queue, counting what cannot be used.
+fn deliver<M: Message>(shared: &Shared, tx: &Sender<Incoming<M>>, bytes: &[u8]) {
+    let body = bytes.get(HEADER_BYTES..).unwrap_or_default();
+    let (Some(sender), Some(epoch)) = (read_u64(bytes, 0), read_u64(bytes, 8)) else {
+        shared.rejected.fetch_add(1, Ordering::Relaxed);
+        return;
+    };
+    if body.len() != core::mem::size_of::<M>() {
+        shared.rejected.fetch_add(1, Ordering::Relaxed);
+        tracing::warn!(
+            got = body.len(),
+            want = core::mem::size_of::<M>(),
+            "zenoh frame of the wrong length rejected (a sender of another version?)"
+        );
+        return;
+    }
+    let mut message = M::empty();
+    bytemuck::bytes_of_mut(&mut *message).copy_from_slice(body);
+    match tx.try_send(Incoming {
+        sender,
+        epoch,
+        message,
+    }) {
+        Ok(()) => {}
+        Err(TrySendError::Full(_)) | Err(TrySendError::Disconnected(_)) => {
+            shared.rejected.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+}
+
+impl Transport for ZenohTransport {
+    fn sink<M: Message>(&self) -> Result<Box<dyn MessageSink<M>>, TransportError> {
+        Ok(Box::new(self.zenoh_sink::<M>()?))
+    }
+
+    fn source<M: Message>(&self) -> Result<Box<dyn MessageSource<M>>, TransportError> {
+        Ok(Box::new(self.zenoh_source::<M>()?))
+    }
+
+    fn cancel_blocked_sends(&self) {
+        self.cancel.store(true, Ordering::Relaxed);
+    }
+}
+
+/// State a port shares with its Zenoh callbacks.
+#[derive(Debug, Default)]
+struct Shared {
+    state: Mutex<PortState>,
+    wake: Condvar,
+    /// Frames or acks of the wrong size, or frames beyond the queue's bound.
+    rejected: AtomicU64,
+}
+
+#[derive(Debug, Default)]
+struct PortState {
+    /// Live peer ports (receivers of a sink, senders of a source) → generation, new each
+    /// time a token appears.
+    peers: HashMap<u64, u64>,
+    next_generation: u64,
+    /// Sink: receiver id → (epoch, messages it consumed in that epoch).
+    acks: HashMap<u64, (u64, u64)>,
+}
+
+impl PortState {
+    fn add_peer(&mut self, id: u64) {
+        if let std::collections::hash_map::Entry::Vacant(e) = self.peers.entry(id) {
+            self.next_generation += 1;
+            e.insert(self.next_generation);
+        }
+    }
+}
+
+/// A sink's credit account with one receiver.
+struct Link {
+    generation: u64,
+    epoch: u64,
+    sent: u64,
+    /// Zenoh knows the receiver's subscriber (a put before that would go nowhere).
+    matched: bool,
+    publisher: Publisher<'static>,
+}
+
+/// Sending end of one stream over Zenoh.
+pub struct ZenohSink<M: Message> {
+    label: String,
+    id: u64,
+    session: Session,
+    policy: OverflowPolicy,
+    buffer: u64,
+    block_timeout: Duration,
+    cancel: Arc<AtomicBool>,
+    shared: Arc<Shared>,
+    links: HashMap<u64, Link>,
+    frame: Vec<u8>,
+    stats: Arc<TransportStats>,
+    _token: LivelinessToken,
+    _acks: Subscriber<()>,
+    _receivers: Subscriber<()>,
+    _topic: std::marker::PhantomData<fn(M)>,
+}
+
+impl<M: Message> core::fmt::Debug for ZenohSink<M> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("ZenohSink")
+            .field("service", &self.label)
+            .field("id", &format_args!("{:016x}", self.id))
+            .field("policy", &self.policy)
+            .field("stats", &self.stats.snapshot())
+            .finish()
+    }
+}
+
+/// What waiting for credit at one receiver ended in.
+enum Credit {
+    Granted,
+    Gone,
+    Full,
+    GaveUp(TransportError),
+}
+
+impl<M: Message> ZenohSink<M> {
+    pub fn stats_handle(&self) -> Arc<TransportStats> {
+        Arc::clone(&self.stats)
+    }
+
+    pub fn service_name(&self) -> &str {
+        &self.label
+    }
+
+    /// Acks of the wrong size received (counted, ignored).
+    pub fn rejected(&self) -> u64 {
+        self.shared.rejected.load(Ordering::Relaxed)
+    }
+
+    fn link(&mut self, receiver: u64, generation: u64) -> Result<&mut Link, TransportError> {
+        let stale = self
+            .links
+            .get(&receiver)
+            .is_some_and(|l| l.generation != generation);
+        if stale {
+            self.links.remove(&receiver);
+        }
+        if !self.links.contains_key(&receiver) {
+            let key = format!("{}/to/{receiver:016x}", self.label);
+            let publisher = self
+                .session
+                .declare_publisher(key.clone())
+                .congestion_control(CongestionControl::Block)
+                .wait()
+                .map_err(|e| zenoh_err("declare publisher", &key, e))?;
+            self.links.insert(
+                receiver,
+                Link {
+                    generation,
+                    epoch: rand::random(),
+                    sent: 0,
+                    matched: false,
+                    publisher,
+                },
+            );
+        }
+        Ok(self.links.get_mut(&receiver).expect("inserted above"))
+    }
+
+    /// Waits until Zenoh routes this link's puts to the receiver's subscriber (its
+    /// declaration travels separately from its liveliness token). `Ok(false)`: the receiver
+    /// went away or never matched within [`MATCH_TIMEOUT`].
+    fn matched(&mut self, receiver: u64) -> Result<bool, TransportError> {
+        let start = Instant::now();
+        loop {
+            let link = self.links.get_mut(&receiver).expect("link exists");
+            if link.matched {
+                return Ok(true);
+            }
+            let status = link
+                .publisher
+                .matching_status()
+                .wait()
+                .map_err(|e| zenoh_err("matching status", &self.label, e))?;
+            if status.matching() {
+                link.matched = true;
+                return Ok(true);
+            }
+            let gone = !lock(&self.shared.state).peers.contains_key(&receiver);
+            if gone || start.elapsed() >= MATCH_TIMEOUT || self.cancel.load(Ordering::Relaxed) {
+                return Ok(false);
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+
+    /// Waits (per the policy) until `receiver` can take one more message of this link.
+    fn credit(&self, receiver: u64, epoch: u64, sent: u64, saw_full: &mut bool) -> Credit {
+        let start = Instant::now();
+        let mut state = lock(&self.shared.state);
+        loop {
+            if !state.peers.contains_key(&receiver) {
+                return Credit::Gone;
+            }
+            let acked = match state.acks.get(&receiver) {
+                Some(&(e, consumed)) if e == epoch => consumed,
+                _ => 0,
+            };
+            if sent.saturating_sub(acked) < self.buffer {
+                return Credit::Granted;
+            }
+            if !*saw_full {
+                *saw_full = true;
+                self.stats.add_full_event();
+            }
+            match self.policy {
+                OverflowPolicy::DropNewest => return Credit::Full,
+                OverflowPolicy::Block => {
+                    if self.cancel.load(Ordering::Relaxed) {
+                        return Credit::GaveUp(TransportError::Cancelled(self.label.clone()));
+                    }
+                    let left = self.block_timeout.saturating_sub(start.elapsed());
+                    if left.is_zero() {
+                        return Credit::GaveUp(TransportError::BlockTimeout {
+                            service: self.label.clone(),
+                            waited: self.block_timeout,
+                        });
+                    }
+                    state = self
+                        .shared
+                        .wake
+                        .wait_timeout(state, left.min(BLOCK_POLL))
+                        .unwrap_or_else(|e| e.into_inner())
+                        .0;
+                }
+            }
+        }
+    }
+}
+
+impl<M: Message> MessageSink<M> for ZenohSink<M> {
+    fn send(&mut self, message: &M) -> Result<SendOutcome, TransportError> {
+        let receivers: Vec<(u64, u64)> = {
+            let state = lock(&self.shared.state);
+            state.peers.iter().map(|(&id, &g)| (id, g)).collect()
+        };
+        self.links
+            .retain(|id, _| receivers.iter().any(|(r, _)| r == id));
+        self.frame[..8].copy_from_slice(&self.id.to_le_bytes());
+        self.frame[HEADER_BYTES..].copy_from_slice(bytemuck::bytes_of(message));
+        let losses = self.stats.losses();
+        // Stamp in place: the frame holds a copy of the message.
+        let body: &mut M = bytemuck::from_bytes_mut(&mut self.frame[HEADER_BYTES..]);
+        body.set_losses(losses);
+        let (mut delivered, mut dropped, mut gave_up, mut saw_full) = (0, false, None, false);
+        // Like iceoryx2: a receiver given up on does not stop delivery to the others.
+        for (receiver, generation) in receivers {
+            let (epoch, sent) = {
+                let link = self.link(receiver, generation)?;
+                (link.epoch, link.sent)
+            };
+            if !self.matched(receiver)? {
+                tracing::warn!(
+                    service = %self.label,
+                    receiver = format_args!("{receiver:016x}"),
+                    "a receiver's token is live but its subscriber never became reachable"
+                );
+                continue;
+            }
+            match self.credit(receiver, epoch, sent, &mut saw_full) {
+                Credit::Granted => {}
+                Credit::Gone => continue,
+                Credit::Full => {
+                    dropped = true;
+                    continue;
+                }
+                Credit::GaveUp(e) => {
+                    gave_up = Some(e);
+                    continue;
+                }
+            }
+            self.frame[8..HEADER_BYTES].copy_from_slice(&epoch.to_le_bytes());
+            let frame = self.frame.clone();
+            let link = self.links.get_mut(&receiver).expect("created above");
+            link.publisher
+                .put(frame)
+                .wait()
+                .map_err(|e| zenoh_err("put", &self.label, e))?;
+            link.sent += 1;
+            delivered += 1;
+        }
+        if let Some(e) = gave_up {
+            self.stats.record_given_up(message.items());
+            return Err(e);
+        }
+        let outcome = if dropped {
+            SendOutcome::Full
+        } else if delivered == 0 {
+            SendOutcome::NoReceiver
+        } else {
+            SendOutcome::Delivered
+        };
+        self.stats.record(outcome, message.items());
+        Ok(outcome)
+    }
+
+    fn receivers(&self) -> usize {
+        lock(&self.shared.state).peers.len()
+    }
+
+    fn stats(&self) -> StatsSnapshot {
+        self.stats.snapshot()
+    }
+}
+
+struct Incoming<M> {
+    sender: u64,
+    epoch: u64,
+    message: Box<M>,
+}
+
+/// Receiving end of one stream over Zenoh.
+pub struct ZenohSource<M: Message> {
+    label: String,
+    id: u64,
+    prefix: String,
+    session: Session,
+    rx: Receiver<Incoming<M>>,
+    shared: Arc<Shared>,
+    /// Sender id → (epoch, messages handed out in that epoch).
+    consumed: HashMap<u64, (u64, u64)>,
+    ack_publishers: HashMap<u64, Publisher<'static>>,
+    stats: Arc<TransportStats>,
+    _token: LivelinessToken,
+    _data: Subscriber<()>,
+    _senders: Subscriber<()>,
+}
+
+impl<M: Message> core::fmt::Debug for ZenohSource<M> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("ZenohSource")
+            .field("service", &self.label)
+            .field("id", &format_args!("{:016x}", self.id))
+            .field("stats", &self.stats.snapshot())
+            .finish()
+    }
+}
+
+impl<M: Message> ZenohSource<M> {
+    pub fn stats_handle(&self) -> Arc<TransportStats> {
+        Arc::clone(&self.stats)
+    }
+
+    /// Frames of the wrong length, or beyond the queue's bound, received (counted, dropped).
+    pub fn rejected(&self) -> u64 {
+        self.shared.rejected.load(Ordering::Relaxed)
+    }
+
+    fn take(&mut self) -> Result<Option<Box<M>>, TransportError> {
+        let incoming = match self.rx.try_recv() {
+            Ok(i) => i,
+            Err(crossbeam_channel::TryRecvError::Empty) => return Ok(None),
+            Err(crossbeam_channel::TryRecvError::Disconnected) => {
+                return Err(TransportError::Closed(self.label.clone()))
+            }
+        };
+        self.stats.add_received(1);
+        let entry = self
+            .consumed
+            .entry(incoming.sender)
+            .or_insert((incoming.epoch, 0));
+        if entry.0 != incoming.epoch {
+            *entry = (incoming.epoch, 0);
+        }
+        entry.1 += 1;
+        let consumed = entry.1;
+        if !self.ack_publishers.contains_key(&incoming.sender) {
+            let key = format!("{}/ack/{:016x}", self.prefix, incoming.sender);
+            let publisher = self
+                .session
+                .declare_publisher(key.clone())
+                .congestion_control(CongestionControl::Block)
+                .wait()
+                .map_err(|e| zenoh_err("declare publisher", &key, e))?;
+            self.ack_publishers.insert(incoming.sender, publisher);
+        }
+        let mut ack = [0u8; ACK_BYTES];
+        ack[..8].copy_from_slice(&self.id.to_le_bytes());
+        ack[8..16].copy_from_slice(&incoming.epoch.to_le_bytes());
+        ack[16..].copy_from_slice(&consumed.to_le_bytes());
+        self.ack_publishers[&incoming.sender]
+            .put(ack.to_vec())
+            .wait()
+            .map_err(|e| zenoh_err("ack", &self.label, e))?;
+        Ok(Some(incoming.message))
+    }
+}
+
+impl<M: Message> MessageSource<M> for ZenohSource<M> {
+    fn try_receive_into(&mut self, out: &mut M) -> Result<bool, TransportError> {
+        Ok(match self.take()? {
+            Some(m) => {
+                *out = *m;
+                true
+            }
+            None => false,
+        })
+    }
+
+    fn try_receive(&mut self) -> Result<Option<Box<M>>, TransportError> {
+        self.take()
+    }
+
+    fn senders(&self) -> usize {
+        lock(&self.shared.state).peers.len()
+    }
+
+    fn stats(&self) -> StatsSnapshot {
+        self.stats.snapshot()
+    }
+}
+
+/// JSON5 values of the config entries.
+mod erased {
+    pub trait Json {
+        fn json(&self) -> String;
+    }
+    impl<T: serde::Serialize> Json for T {
+        fn json(&self) -> String {
+            serde_json::to_string(self).expect("plain values serialise")
+        }
+    }
+}

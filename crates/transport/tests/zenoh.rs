@@ -1,0 +1,176 @@
+//! Real Zenoh sessions (peer mode on 127.0.0.1, TCP): the same conformance suite as shared
+//! memory and the in-memory twin, plus what only a network transport has to survive.
+
+mod common;
+
+use std::net::TcpListener;
+use std::sync::Mutex;
+use std::time::Duration;
+
+use common::*;
+use terl_transport::*;
+
+/// Opens sessions like the processes of one cluster: each listens on its own loopback port
+/// and connects to every session opened before it.
+#[derive(Default)]
+struct Mesh {
+    endpoints: Mutex<Vec<String>>,
+}
+
+fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+impl Mesh {
+    fn make(&self) -> impl Fn(&TransportConfig, &str) -> ZenohTransport + Sync + '_ {
+        move |cfg, role| {
+            let listen = format!("tcp/127.0.0.1:{}", free_port());
+            let connect = self.endpoints.lock().unwrap().clone();
+            let cfg = TransportConfig {
+                zenoh: ZenohConfig {
+                    mode: ZenohMode::Peer,
+                    listen: vec![listen.clone()],
+                    connect,
+                    multicast_scouting: false,
+                },
+                ..cfg.clone()
+            };
+            let t = ZenohTransport::open(cfg, role).unwrap();
+            self.endpoints.lock().unwrap().push(listen);
+            t
+        }
+    }
+}
+
+#[test]
+fn one_to_one() {
+    one_to_one_in_order(&Mesh::default().make(), &unique_run("one"));
+}
+
+#[test]
+fn many_publishers() {
+    many_publishers_block_zero_loss(&Mesh::default().make(), &unique_run("many"));
+}
+
+#[test]
+fn drop_newest() {
+    drop_newest_counts_drops(&Mesh::default().make(), &unique_run("drop"));
+}
+
+#[test]
+fn block_timeout() {
+    block_times_out_on_stalled_receiver(&Mesh::default().make(), &unique_run("block"));
+}
+
+#[test]
+fn block_timeouts_are_counted() {
+    block_timeouts_are_counted_and_reported(&Mesh::default().make(), &unique_run("lost"));
+}
+
+#[test]
+fn episode_timeouts_are_counted() {
+    episode_timeouts_are_counted_per_receiver(&Mesh::default().make(), &unique_run("lost-eps"));
+}
+
+#[test]
+fn cancel() {
+    cancel_unblocks_blocked_send(&Mesh::default().make(), &unique_run("cancel"));
+}
+
+#[test]
+fn back_pressure() {
+    block_applies_back_pressure(&Mesh::default().make(), &unique_run("bp"));
+}
+
+#[test]
+fn no_receiver() {
+    no_receiver_is_reported(&Mesh::default().make(), &unique_run("none"));
+}
+
+#[test]
+fn run_ids() {
+    run_ids_do_not_mix(&Mesh::default().make(), &unique_run("a"), &unique_run("b"));
+}
+
+#[test]
+fn episodes_and_selected() {
+    episodes_broadcast_and_selected_flow(&Mesh::default().make(), &unique_run("eps"));
+}
+
+#[test]
+fn limits() {
+    limits_are_enforced(&Mesh::default().make(), &unique_run("lim"));
+}
+
+/// A frame of the wrong length (another version's sender, or garbage) is rejected and
+/// counted; the stream goes on.
+#[test]
+fn malformed_frames_are_rejected_and_counted() {
+    let mesh = Mesh::default();
+    let make = mesh.make();
+    let cfg = TransportConfig::new(unique_run("bad"), 1);
+    let learner = make(&cfg, "learner");
+    let mut source = learner.zenoh_source::<TransitionBatch>().unwrap();
+    let actor = make(&cfg, "actor-0");
+    let mut sink = actor.zenoh_sink::<TransitionBatch>().unwrap();
+    sink.wait_for_receivers(1, Duration::from_secs(5)).unwrap();
+    let key = format!("{}/to/*", cfg.service_name(Topic::Transitions));
+    let rogue = make(&cfg, "rogue");
+    // The source's token follows its data subscriber's declaration on the same link: once
+    // the rogue sees the token, its puts reach the subscriber.
+    let probe = rogue.zenoh_sink::<TransitionBatch>().unwrap();
+    probe
+        .wait_for_receivers(1, Duration::from_secs(10))
+        .unwrap();
+    use zenoh::Wait;
+    for bytes in [
+        vec![],
+        vec![1u8; 7],
+        vec![0u8; 16 + 5],
+        vec![0u8; 16 + 22_561],
+    ] {
+        rogue.session().put(&key, bytes).wait().unwrap();
+    }
+    assert_eq!(sink.send(&batch(0, 0)).unwrap(), SendOutcome::Delivered);
+    let start = std::time::Instant::now();
+    let got = loop {
+        if let Some(b) = source.try_receive().unwrap() {
+            break b;
+        }
+        assert!(start.elapsed() < Duration::from_secs(10), "nothing arrived");
+        std::thread::yield_now();
+    };
+    assert_eq!(*got, *batch(0, 0));
+    eventually("4 rejected frames", || source.rejected() == 4);
+    std::thread::sleep(Duration::from_millis(100));
+    assert_eq!(source.rejected(), 4);
+    assert!(source.try_receive().unwrap().is_none());
+    assert_eq!(source.stats().received, 1);
+}
+
+/// A client-mode session without an endpoint is refused with a clear message.
+#[test]
+fn client_without_connect_is_a_config_error() {
+    let cfg = TransportConfig {
+        zenoh: ZenohConfig {
+            mode: ZenohMode::Client,
+            ..ZenohConfig::default()
+        },
+        ..TransportConfig::new(unique_run("cfg"), 1)
+    };
+    let err = ZenohTransport::open(cfg, "actor").unwrap_err();
+    assert!(err.to_string().contains("connect"), "{err}");
+    let cfg = TransportConfig {
+        zenoh: ZenohConfig {
+            connect: vec!["udp/1.2.3.4:5".into()],
+            ..ZenohConfig::default()
+        },
+        ..TransportConfig::new(unique_run("cfg"), 1)
+    };
+    let err = ZenohTransport::open(cfg, "actor").unwrap_err();
+    assert!(err.to_string().contains("tcp/<host>:<port>"), "{err}");
+}
