@@ -145,6 +145,13 @@ pub struct ClusterConfig {
     /// `algorithm = "terl"` also both critics and the planner's F and AN) must fit:
     /// [`RunConfig::check_weight_messages`] refuses the run at start-up otherwise.
     pub max_message_mib: usize,
+    /// What carries transitions and episodes: `"shm"` (iceoryx2 shared memory, every process
+    /// on one host; the default) or `"zenoh"` (TCP between hosts; see `zenoh`).
+    pub transport: terl_transport::TransportKind,
+    /// `transport = "zenoh"`: the session of every process (`mode` = `"peer"` or
+    /// `"client"`, `listen` and `connect` endpoints such as `tcp/10.0.0.1:7447`). Each
+    /// service's `--zenoh-listen`/`--zenoh-connect` replace the lists for that process.
+    pub zenoh: terl_transport::ZenohConfig,
 }
 
 /// Largest `cluster.max_message_mib`: gRPC frames a message with a 32-bit length.
@@ -166,6 +173,21 @@ impl Default for ClusterConfig {
             eval_episodes_per_task: 10,
             eval_threads: 1,
             max_message_mib: 64,
+            transport: terl_transport::TransportKind::Shm,
+            zenoh: terl_transport::ZenohConfig::default(),
+        }
+    }
+}
+
+impl RunConfig {
+    /// A process's own Zenoh endpoints (`--zenoh-listen`, `--zenoh-connect`): a non-empty
+    /// list replaces the run file's `[cluster.zenoh]` one; an empty one keeps it.
+    pub fn override_zenoh_endpoints(&mut self, listen: Vec<String>, connect: Vec<String>) {
+        if !listen.is_empty() {
+            self.cluster.zenoh.listen = listen;
+        }
+        if !connect.is_empty() {
+            self.cluster.zenoh.connect = connect;
         }
     }
 }
@@ -241,6 +263,9 @@ impl RunConfig {
             (1..=MAX_MESSAGE_MIB_LIMIT).contains(&c.max_message_mib),
             "cluster.max_message_mib must be in 1..={MAX_MESSAGE_MIB_LIMIT}"
         );
+        c.zenoh
+            .validate()
+            .with_context(|| format!("[cluster.zenoh] in {}", path.display()))?;
         cfg.ptr
             .validate()
             .with_context(|| format!("[ptr] in {}", path.display()))?;
@@ -416,6 +441,23 @@ mod tests {
         assert_eq!(cfg.envs_per_actor(), 4);
         assert!((cfg.samples_per_insert() - 0.5).abs() < 1e-12);
         assert!(cfg.rate_error_buffer(64) >= 1.0);
+        assert_eq!(cfg.cluster.transport, terl_transport::TransportKind::Shm);
+    }
+
+    #[test]
+    fn zenoh_transport_keys_parse_and_command_line_endpoints_replace_them() {
+        let text = "tasks = \"reach-v3\"\nnum_envs = 4\n[cluster]\ntransport = \"zenoh\"\n\
+                    [cluster.zenoh]\nmode = \"client\"\nconnect = [\"tcp/10.0.0.1:7447\"]\n";
+        let mut cfg: RunConfig = toml::from_str(text).unwrap();
+        assert_eq!(cfg.cluster.transport, terl_transport::TransportKind::Zenoh);
+        assert_eq!(cfg.cluster.zenoh.mode, terl_transport::ZenohMode::Client);
+        assert_eq!(cfg.cluster.zenoh.connect, ["tcp/10.0.0.1:7447"]);
+        cfg.override_zenoh_endpoints(vec![], vec!["tcp/10.0.0.2:7447".into()]);
+        assert_eq!(cfg.cluster.zenoh.connect, ["tcp/10.0.0.2:7447"]);
+        assert!(cfg.cluster.zenoh.listen.is_empty());
+        let bad = text.replace("transport = \"zenoh\"", "transport = \"carrier-pigeon\"");
+        let err = toml::from_str::<RunConfig>(&bad).unwrap_err().to_string();
+        assert!(err.contains("carrier-pigeon"), "{err}");
     }
 }
 

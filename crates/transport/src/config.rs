@@ -37,6 +37,8 @@ pub struct TransportConfig {
     pub block_timeout: Duration,
     /// Check that `/dev/shm` has room for the run before creating anything.
     pub check_shm: bool,
+    /// Which engine carries the streams (shared memory unless the run file says otherwise).
+    pub transport: TransportKind,
     /// Session settings of the Zenoh transport ([`crate::zenoh_net`]); unused by shared
     /// memory.
     pub zenoh: ZenohConfig,
@@ -112,6 +114,7 @@ impl Default for TransportConfig {
             overflow: OverflowPolicy::Block,
             block_timeout: DEFAULT_BLOCK_TIMEOUT,
             check_shm: true,
+            transport: TransportKind::Shm,
             zenoh: ZenohConfig::default(),
         }
     }

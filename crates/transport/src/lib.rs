@@ -11,6 +11,7 @@
 
 pub mod actor_to_learner;
 pub mod actor_to_selector;
+pub mod any;
 pub mod bench;
 pub mod channel;
 pub mod config;
@@ -29,6 +30,7 @@ pub const ACTION_DIM: usize = 4;
 
 pub use actor_to_learner::{flags, Transition, TransitionBatch, TRANSITIONS_PER_BATCH};
 pub use actor_to_selector::{EpisodeSummary, TrajectoryStep, MAX_EPISODE_STEPS};
+pub use any::{ActorClaim, RunTransport};
 pub use channel::{
     EpisodeSink, EpisodeSource, Message, MessageSink, MessageSource, SelectedSink, SelectedSource,
     Topic, TransitionSink, TransitionSource, Transport,
@@ -42,4 +44,4 @@ pub use flow::{
 pub use ipc::{SenderClaim, ShmSink, ShmSource, ShmTransport, StaleCleanup};
 pub use memory::MemoryTransport;
 pub use selector_to_learner::{SelectedBatch, SelectedSample, SELECTED_PER_BATCH};
-pub use zenoh_net::{ZenohSink, ZenohSource, ZenohTransport};
+pub use zenoh_net::{ZenohClaim, ZenohSink, ZenohSource, ZenohTransport};

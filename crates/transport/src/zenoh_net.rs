@@ -167,6 +167,40 @@ impl ZenohTransport {
         &self.session
     }
 
+    /// Claims `actor_id` on this run for as long as the returned [`ZenohClaim`] lives: the
+    /// liveliness token `terl/<run_id>/claims/actor-<id>`, declared after asking every
+    /// reachable process whether it holds it. A killed holder's token disappears with its
+    /// session (at once on a closed connection, after Zenoh's 10 s lease when its host
+    /// vanished). Errors with [`TransportError::IdInUse`] while a live process holds it.
+    pub fn claim_actor_id(&self, actor_id: u16) -> Result<ZenohClaim, TransportError> {
+        let key = format!("terl/{}/claims/actor-{actor_id}", self.config.run_id);
+        let replies = self
+            .session
+            .liveliness()
+            .get(&key)
+            .timeout(QUERY_TIMEOUT)
+            .wait()
+            .map_err(|e| zenoh_err("liveliness query", &key, e))?;
+        let mut held = false;
+        while let Ok(reply) = replies.recv() {
+            held |= reply.result().is_ok();
+        }
+        if held {
+            return Err(TransportError::IdInUse {
+                what: format!("actor id {actor_id}"),
+                run_id: self.config.run_id.clone(),
+                service: key,
+            });
+        }
+        let token = self
+            .session
+            .liveliness()
+            .declare_token(&key)
+            .wait()
+            .map_err(|e| zenoh_err("declare token", &key, e))?;
+        Ok(ZenohClaim { key, _token: token })
+    }
+
     fn key(&self, topic: crate::Topic, rest: &str) -> String {
         format!("{}/{rest}", self.config.service_name(topic))
     }
@@ -417,6 +451,21 @@ impl Transport for ZenohTransport {
 
     fn cancel_blocked_sends(&self) {
         self.cancel.store(true, Ordering::Relaxed);
+    }
+}
+
+/// An actor id held by this process over Zenoh (see [`ZenohTransport::claim_actor_id`]);
+/// released when dropped.
+pub struct ZenohClaim {
+    key: String,
+    _token: LivelinessToken,
+}
+
+impl core::fmt::Debug for ZenohClaim {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("ZenohClaim")
+            .field("key", &self.key)
+            .finish()
     }
 }
 

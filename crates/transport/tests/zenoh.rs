@@ -174,3 +174,52 @@ fn client_without_connect_is_a_config_error() {
     let err = ZenohTransport::open(cfg, "actor").unwrap_err();
     assert!(err.to_string().contains("tcp/<host>:<port>"), "{err}");
 }
+
+/// One actor id, one process: a second claim is refused while the first lives, and the id
+/// is free again once the holder drops it.
+#[test]
+fn a_second_actor_with_the_same_id_is_refused() {
+    let mesh = Mesh::default();
+    let make = mesh.make();
+    let cfg = TransportConfig::new(unique_run("claim"), 4);
+    let first = make(&cfg, "actor-3");
+    let claim = first.claim_actor_id(3).unwrap();
+    let second = make(&cfg, "actor-3");
+    let err = second.claim_actor_id(3).unwrap_err();
+    assert!(matches!(err, TransportError::IdInUse { .. }), "{err}");
+    assert!(err.to_string().contains(&cfg.run_id), "{err}");
+    let _other = second.claim_actor_id(1).unwrap();
+    drop(claim);
+    eventually("actor id 3 released", || second.claim_actor_id(3).is_ok());
+}
+
+/// The run file's choice opens the matching engine.
+#[test]
+fn run_transport_opens_the_configured_engine() {
+    let mesh = Mesh::default();
+    let make = mesh.make();
+    let base = TransportConfig::new(unique_run("kind"), 1);
+    let zenoh_learner = make(&base, "learner");
+    let cfg = TransportConfig {
+        transport: TransportKind::Zenoh,
+        ..zenoh_learner.config().clone()
+    };
+    let learner = RunTransport::Zenoh(zenoh_learner);
+    let actor_cfg = TransportConfig {
+        zenoh: ZenohConfig {
+            listen: vec![],
+            connect: cfg.zenoh.listen.clone(),
+            ..cfg.zenoh.clone()
+        },
+        ..cfg.clone()
+    };
+    let actor = RunTransport::open(actor_cfg, "actor-0").unwrap();
+    assert_eq!(actor.kind(), TransportKind::Zenoh);
+    let mut source = learner.source::<TransitionBatch>().unwrap();
+    let mut sink = actor.sink::<TransitionBatch>().unwrap();
+    sink.wait_for_receivers(1, Duration::from_secs(10)).unwrap();
+    assert_eq!(sink.send(&batch(0, 5)).unwrap(), SendOutcome::Delivered);
+    assert_eq!(*receive_next(source.as_mut()).unwrap(), *batch(0, 5));
+    let shm = RunTransport::open(TransportConfig::new(unique_run("kind-shm"), 1), "learner");
+    assert_eq!(shm.unwrap().kind(), TransportKind::Shm);
+}

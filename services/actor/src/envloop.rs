@@ -12,8 +12,8 @@ use terl_rl::{Policy, PolicySpec};
 use terl_runtime::{Algorithm, RunConfig};
 use terl_sim::VecEnv;
 use terl_transport::{
-    flags, EpisodeSummary, Message, MessageSink, ShmTransport, TrajectoryStep, Transition,
-    TransitionBatch, TransportConfig, TransportError, ACTION_DIM, OBS_DIM,
+    flags, EpisodeSummary, Message, MessageSink, RunTransport, TrajectoryStep, Transition,
+    TransitionBatch, Transport, TransportConfig, TransportError, ACTION_DIM, OBS_DIM,
 };
 
 use crate::{ActorConfig, Mailbox};
@@ -125,9 +125,11 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
     let transport_config = TransportConfig {
         buffer_batches: run.cluster.buffer_batches,
         block_timeout: Duration::from_secs_f64(run.cluster.block_timeout_secs),
+        transport: run.cluster.transport,
+        zenoh: run.cluster.zenoh.clone(),
         ..TransportConfig::new(config.run_id.clone(), config.num_actors)
     };
-    let transport = ShmTransport::open(transport_config, &format!("actor-{actor_id}"))?;
+    let transport = RunTransport::open(transport_config, &format!("actor-{actor_id}"))?;
     // One process per actor id and run, held until this function returns.
     let _claim = transport.claim_actor_id(actor_id)?;
     let mine = RunConfig::actor_env_tasks(
@@ -179,8 +181,8 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
     });
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
 
-    let mut transitions = transport.shm_sink::<TransitionBatch>()?;
-    let mut episodes = transport.shm_sink::<EpisodeSummary>()?;
+    let mut transitions = transport.sink::<TransitionBatch>()?;
+    let mut episodes = transport.sink::<EpisodeSummary>()?;
     tracing::info!(
         actor_id,
         tasks = ?my_names,
@@ -269,7 +271,7 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
             }
             if batch.is_full() {
                 batch.sequence = sequence;
-                if !send(&mut transitions, &batch, mailbox)? {
+                if !send(transitions.as_mut(), &batch, mailbox)? {
                     return Ok(());
                 }
                 sequence += 1;
@@ -291,7 +293,7 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
             episode.task = global_task[i];
             episode.success = u8::from(end.success);
             episode.final_obs = row(env.final_obs(), i);
-            if !send(&mut episodes, &**episode, mailbox)? {
+            if !send(episodes.as_mut(), &**episode, mailbox)? {
                 return Ok(());
             }
             **episode = EpisodeSummary::EMPTY;

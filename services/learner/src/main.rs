@@ -41,6 +41,14 @@ struct Args {
     /// no orphans (deploy/local-cluster.sh passes its own pid).
     #[arg(long)]
     parent_pid: Option<u32>,
+    /// With `[cluster] transport = "zenoh"`: a Zenoh endpoint to listen on, e.g.
+    /// `tcp/0.0.0.0:7447` (repeatable; replaces the run file's `[cluster.zenoh] listen`).
+    #[arg(long = "zenoh-listen", value_name = "ENDPOINT")]
+    zenoh_listen: Vec<String>,
+    /// With `[cluster] transport = "zenoh"`: a Zenoh endpoint to connect to, e.g. the
+    /// learner host's `tcp/10.0.0.1:7447` (repeatable; replaces `[cluster.zenoh] connect`).
+    #[arg(long = "zenoh-connect", value_name = "ENDPOINT")]
+    zenoh_connect: Vec<String>,
 }
 
 #[tokio::main]
@@ -50,7 +58,8 @@ async fn main() -> anyhow::Result<()> {
     if let Some(pid) = a.parent_pid {
         terl_runtime::exit_with_parent(pid)?;
     }
-    let run = terl_runtime::RunConfig::load(&a.config)?;
+    let mut run = terl_runtime::RunConfig::load(&a.config)?;
+    run.override_zenoh_endpoints(a.zenoh_listen, a.zenoh_connect);
     let run_dir = a
         .run_dir
         .unwrap_or_else(|| PathBuf::from("runs").join(&a.run_id));

@@ -20,8 +20,9 @@ use terl_rl::replay::MultiTaskReplay;
 use terl_rl::{Batch, Sac, SacError};
 use terl_runtime::{Algorithm, OnCheckpointError};
 use terl_transport::{
-    flags, EpisodeSummary, Message, MessageSource, RateLimiter, SelectedBatch, ShmTransport,
-    Staleness, TransitionBatch, TransportConfig, ACTION_DIM, OBS_DIM, TRANSITIONS_PER_BATCH,
+    flags, EpisodeSummary, Message, MessageSource, RateLimiter, RunTransport, SelectedBatch,
+    Staleness, TransitionBatch, Transport, TransportConfig, ACTION_DIM, OBS_DIM,
+    TRANSITIONS_PER_BATCH,
 };
 use terl_wire::{
     ActorStats, CheckpointRequest, CheckpointSaved, LearnerStatus, TaskSuccess, WeightHub, Weights,
@@ -232,14 +233,18 @@ pub(crate) fn run(
     let transport_config = TransportConfig {
         buffer_batches: run.cluster.buffer_batches,
         block_timeout: Duration::from_secs_f64(run.cluster.block_timeout_secs),
+        transport: run.cluster.transport,
+        zenoh: run.cluster.zenoh.clone(),
         ..TransportConfig::new(config.run_id.clone(), config.num_actors)
     };
-    let transport = ShmTransport::open(transport_config, "learner")?;
+    let transport = RunTransport::open(transport_config, "learner")?;
     let mut transitions: Box<dyn MessageSource<TransitionBatch>> =
-        Box::new(transport.shm_source::<TransitionBatch>()?);
+        transport.source::<TransitionBatch>()?;
     let mut staging = Staging::new(config.num_actors * run.cluster.buffer_batches);
-    let mut episodes = transport.shm_source::<EpisodeSummary>()?;
-    let mut selected = transport.shm_source::<SelectedBatch>()?;
+    let mut episodes = transport.source::<EpisodeSummary>()?;
+    let mut selected = transport.source::<SelectedBatch>()?;
+    let mut episode = EpisodeSummary::empty();
+    let mut selected_batch = SelectedBatch::empty();
     let terl = run.algorithm == Algorithm::Terl;
     let checkpoint_dir = config.run_dir.join("checkpoints");
     let resume_from = if config.resume {
@@ -364,7 +369,8 @@ pub(crate) fn run(
             limiter.record_insert(n);
             busy = true;
         }
-        while let Some(()) = episodes.try_receive_with(|e| {
+        while episodes.try_receive_into(&mut episode)? {
+            let e = &*episode;
             c.inbound.episode(e);
             if let Some(w) = c.windows.get_mut(e.task as usize) {
                 if w.len() == window_len {
@@ -372,17 +378,15 @@ pub(crate) fn run(
                 }
                 w.push_back(e.succeeded());
             }
-        })? {
             busy = true;
         }
-        while let Some(n) = selected.try_receive_with(|s| {
+        while selected.try_receive_into(&mut selected_batch)? {
+            let s = &*selected_batch;
             c.inbound.selected(s);
-            match planner.as_mut() {
+            c.selected_samples += match planner.as_mut() {
                 Some(p) => p.ingest_batch(s),
                 None => s.as_slice().len() as u64,
-            }
-        })? {
-            c.selected_samples += n;
+            };
             busy = true;
         }
 

@@ -27,9 +27,8 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use terl_runtime::Algorithm;
 use terl_transport::{
-    EpisodeSummary, LossTracker, Message, MessageSink, MessageSource, SelectedBatch,
-    SelectedSample, ShmTransport, TransportConfig, TransportError, ACTION_DIM, OBS_DIM,
-    SELECTED_PER_BATCH,
+    EpisodeSummary, LossTracker, Message, MessageSink, RunTransport, SelectedBatch, SelectedSample,
+    Transport, TransportConfig, TransportError, ACTION_DIM, OBS_DIM, SELECTED_PER_BATCH,
 };
 use terl_wire::{PriorityStats, SelectorBackend, SelectorStatus, TaskSuccess, WeightsKind};
 use tonic::Status;
@@ -280,10 +279,12 @@ fn receive_loop(config: &SelectorConfig, shared: &Shared) -> anyhow::Result<()> 
     let run = &config.run;
     let transport_config = TransportConfig {
         block_timeout: Duration::from_secs_f64(run.cluster.block_timeout_secs),
+        transport: run.cluster.transport,
+        zenoh: run.cluster.zenoh.clone(),
         ..TransportConfig::new(config.run_id.clone(), config.num_actors)
     };
-    let transport = ShmTransport::open(transport_config, "selector")?;
-    let mut episodes = transport.shm_source::<EpisodeSummary>()?;
+    let transport = RunTransport::open(transport_config, "selector")?;
+    let mut episodes = transport.source::<EpisodeSummary>()?;
     let tasks: Vec<&str> = terl_runtime::resolve_tasks(&run.tasks)?;
     let mut selecting = if run.algorithm == Algorithm::Terl {
         let mut sac = run.sac.clone();
@@ -296,7 +297,7 @@ fn receive_loop(config: &SelectorConfig, shared: &Shared) -> anyhow::Result<()> 
         tracing::info!(path = %path.display(), "writing selected samples to the TEP dataset");
         Some(Selecting {
             scorer: Scorer::new(run.ptr.clone(), &sac),
-            sink: Box::new(transport.shm_sink::<SelectedBatch>()?),
+            sink: transport.sink::<SelectedBatch>()?,
             batch: Box::new(SelectedBatch::EMPTY),
             sequence: 0,
             dataset,

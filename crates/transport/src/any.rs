@@ -1,0 +1,86 @@
+//! The transport a run file chooses (`[cluster] transport = "shm" | "zenoh"`), behind one
+//! type the services open.
+
+use std::time::Duration;
+
+use crate::channel::{Message, MessageSink, MessageSource, Transport};
+use crate::config::{TransportConfig, TransportKind};
+use crate::error::TransportError;
+use crate::ipc::{SenderClaim, ShmTransport};
+use crate::zenoh_net::{ZenohClaim, ZenohTransport};
+
+/// Shared memory or Zenoh, as `TransportConfig::transport` says.
+#[derive(Debug)]
+pub enum RunTransport {
+    Shm(ShmTransport),
+    Zenoh(ZenohTransport),
+}
+
+/// An actor id held by this process (see [`RunTransport::claim_actor_id`]).
+#[derive(Debug)]
+pub enum ActorClaim {
+    Shm(SenderClaim),
+    Zenoh(ZenohClaim),
+}
+
+impl RunTransport {
+    /// Opens this process's end of the run's streams with the engine `config.transport`
+    /// names. `role` names the process (`learner`, `selector`, `actor-3`).
+    pub fn open(config: TransportConfig, role: &str) -> Result<Self, TransportError> {
+        Ok(match config.transport {
+            TransportKind::Shm => Self::Shm(ShmTransport::open(config, role)?),
+            TransportKind::Zenoh => Self::Zenoh(ZenohTransport::open(config, role)?),
+        })
+    }
+
+    pub fn kind(&self) -> TransportKind {
+        match self {
+            Self::Shm(_) => TransportKind::Shm,
+            Self::Zenoh(_) => TransportKind::Zenoh,
+        }
+    }
+
+    /// Claims `actor_id` on this run so no two processes stream under one id; errors with
+    /// [`TransportError::IdInUse`] while another live process holds it.
+    pub fn claim_actor_id(&self, actor_id: u16) -> Result<ActorClaim, TransportError> {
+        Ok(match self {
+            Self::Shm(t) => ActorClaim::Shm(t.claim_actor_id(actor_id)?),
+            Self::Zenoh(t) => ActorClaim::Zenoh(t.claim_actor_id(actor_id)?),
+        })
+    }
+
+    /// Sleeps for `cycle`; `false` when the process should stop (shared memory: iceoryx2's
+    /// node wait; Zenoh: always `true`).
+    pub fn wait(&self, cycle: Duration) -> bool {
+        match self {
+            Self::Shm(t) => t.wait(cycle),
+            Self::Zenoh(_) => {
+                std::thread::sleep(cycle);
+                true
+            }
+        }
+    }
+}
+
+impl Transport for RunTransport {
+    fn sink<M: Message>(&self) -> Result<Box<dyn MessageSink<M>>, TransportError> {
+        match self {
+            Self::Shm(t) => t.sink(),
+            Self::Zenoh(t) => t.sink(),
+        }
+    }
+
+    fn source<M: Message>(&self) -> Result<Box<dyn MessageSource<M>>, TransportError> {
+        match self {
+            Self::Shm(t) => t.source(),
+            Self::Zenoh(t) => t.source(),
+        }
+    }
+
+    fn cancel_blocked_sends(&self) {
+        match self {
+            Self::Shm(t) => t.cancel_blocked_sends(),
+            Self::Zenoh(t) => t.cancel_blocked_sends(),
+        }
+    }
+}
