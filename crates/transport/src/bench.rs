@@ -1,4 +1,5 @@
-//! Throughput of the transition stream over shared memory, for `terl bench transport`.
+//! Throughput of the transition stream over shared memory (and over Zenoh on loopback TCP,
+//! [`throughput`]), for `terl bench transport`.
 //!
 //! `publishers` threads, each with its own iceoryx2 node (as separate actor processes
 //! would have), send full [`TransitionBatch`]es under the lossless `Block` policy into one
@@ -12,11 +13,11 @@ use std::time::{Duration, Instant};
 use serde::{Deserialize, Serialize};
 
 use crate::actor_to_learner::{Transition, TransitionBatch, TRANSITIONS_PER_BATCH};
-use crate::channel::{Message, MessageSink, MessageSource};
-use crate::config::TransportConfig;
+use crate::any::RunTransport;
+use crate::channel::{Message, Transport};
+use crate::config::{TransportConfig, TransportKind, ZenohConfig};
 use crate::error::TransportError;
 use crate::flow::OverflowPolicy;
-use crate::ipc::ShmTransport;
 use crate::OBS_DIM;
 
 /// Result of one [`shm_throughput`] run.
@@ -61,6 +62,17 @@ fn filled_batch(actor: u16) -> Box<TransitionBatch> {
 
 /// Streams transitions from `publishers` publishers into one subscriber for `seconds`.
 pub fn shm_throughput(publishers: usize, seconds: f64) -> Result<ShmBenchReport, TransportError> {
+    throughput(TransportKind::Shm, publishers, seconds)
+}
+
+/// [`shm_throughput`] over `kind`: for Zenoh, the subscriber's session listens on a free
+/// loopback TCP port and every publisher's session connects to it (peer mode), so every
+/// batch crosses TCP.
+pub fn throughput(
+    kind: TransportKind,
+    publishers: usize,
+    seconds: f64,
+) -> Result<ShmBenchReport, TransportError> {
     if publishers == 0 || !seconds.is_finite() || seconds <= 0.0 {
         return Err(TransportError::Config(
             "bench needs ≥ 1 publisher and a positive duration".into(),
@@ -75,8 +87,31 @@ pub fn shm_throughput(publishers: usize, seconds: f64) -> Result<ShmBenchReport,
         buffer_batches: 64,
         ..TransportConfig::new(format!("bench-{}-{nanos}", std::process::id()), publishers)
     };
-    let learner = ShmTransport::open(config.clone(), "bench-learner")?;
-    let mut source = learner.shm_source::<TransitionBatch>()?;
+    let (learner_config, config) = match kind {
+        TransportKind::Shm => (config.clone(), config),
+        TransportKind::Zenoh => {
+            let port = std::net::TcpListener::bind("127.0.0.1:0")
+                .and_then(|l| l.local_addr())
+                .map_err(|e| TransportError::Config(format!("no free loopback port: {e}")))?
+                .port();
+            let endpoint = format!("tcp/127.0.0.1:{port}");
+            let zenoh = |listen: Vec<String>, connect: Vec<String>| TransportConfig {
+                transport: TransportKind::Zenoh,
+                zenoh: ZenohConfig {
+                    listen,
+                    connect,
+                    ..ZenohConfig::default()
+                },
+                ..config.clone()
+            };
+            (
+                zenoh(vec![endpoint.clone()], vec![]),
+                zenoh(vec!["tcp/127.0.0.1:0".into()], vec![endpoint]),
+            )
+        }
+    };
+    let learner = RunTransport::open(learner_config, "bench-learner")?;
+    let mut source = learner.source::<TransitionBatch>()?;
 
     let stop = AtomicBool::new(false);
     let finished = AtomicU64::new(0);
@@ -90,8 +125,8 @@ pub fn shm_throughput(publishers: usize, seconds: f64) -> Result<ShmBenchReport,
             handles.push(scope.spawn(move || -> Result<(u64, u64), TransportError> {
                 let result = (|| {
                     let transport =
-                        ShmTransport::open(config.clone(), &format!("bench-actor-{actor}"))?;
-                    let sink = transport.shm_sink::<TransitionBatch>()?;
+                        RunTransport::open(config.clone(), &format!("bench-actor-{actor}"))?;
+                    let sink = transport.sink::<TransitionBatch>()?;
                     sink.wait_for_receivers(1, Duration::from_secs(10))?;
                     Ok((transport, sink))
                 })();
@@ -162,7 +197,11 @@ pub fn shm_throughput(publishers: usize, seconds: f64) -> Result<ShmBenchReport,
         let secs = elapsed.as_secs_f64();
         let per_sec = transitions as f64 / secs;
         Ok(ShmBenchReport {
-            transport: "iceoryx2".into(),
+            transport: match kind {
+                TransportKind::Shm => "iceoryx2",
+                TransportKind::Zenoh => "zenoh-tcp-loopback",
+            }
+            .into(),
             publishers,
             obs_dim: OBS_DIM,
             transitions_per_batch: TRANSITIONS_PER_BATCH,
@@ -198,6 +237,15 @@ mod tests {
             let json = serde_json::to_string(&r).unwrap();
             assert!(json.contains("\"transitions_per_sec\""));
         }
+    }
+
+    #[test]
+    fn zenoh_short_run_is_lossless_and_ordered() {
+        let r = throughput(TransportKind::Zenoh, 2, 0.3).unwrap();
+        assert_eq!(r.transport, "zenoh-tcp-loopback");
+        assert_eq!((r.lost_batches, r.out_of_order), (0, 0), "{r:?}");
+        assert!(r.batches_received > 0);
+        assert_eq!(r.batches_received, r.batches_sent, "{r:?}");
     }
 
     #[test]

@@ -28,6 +28,9 @@ pub enum BenchCommand {
         /// Seconds per measurement.
         #[arg(long, default_value_t = 3.0)]
         seconds: f64,
+        /// Also measure this transport beside shared memory: `zenoh` (loopback TCP).
+        #[arg(long, value_enum)]
+        transport: Option<BenchTransport>,
         #[arg(long)]
         json: bool,
     },
@@ -102,6 +105,12 @@ pub enum BenchCommand {
     },
 }
 
+/// A transport `terl bench transport` can measure beside shared memory.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum BenchTransport {
+    Zenoh,
+}
+
 pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
     match cmd {
         BenchCommand::Env { tasks, seconds, .. } => {
@@ -117,6 +126,7 @@ pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
         BenchCommand::Transport {
             publishers,
             seconds,
+            transport,
             ..
         } => {
             anyhow::ensure!(
@@ -128,13 +138,36 @@ pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
             let many = terl_transport::bench::shm_throughput(publishers, seconds)?;
             let grpc = terl_wire::bench::grpc_transition_stream(seconds)?;
             let best_shm = one.transitions_per_sec.min(many.transitions_per_sec);
+            let zenoh = match transport {
+                Some(BenchTransport::Zenoh) => Some((
+                    terl_transport::bench::throughput(
+                        terl_transport::TransportKind::Zenoh,
+                        1,
+                        seconds,
+                    )?,
+                    terl_transport::bench::throughput(
+                        terl_transport::TransportKind::Zenoh,
+                        publishers,
+                        seconds,
+                    )?,
+                )),
+                None => None,
+            };
+            let zenoh_ok = zenoh.as_ref().is_none_or(|(a, b)| {
+                a.lost_batches == 0
+                    && b.lost_batches == 0
+                    && a.out_of_order == 0
+                    && b.out_of_order == 0
+            });
             let report = serde_json::json!({
+                "zenoh_1_publisher": zenoh.as_ref().map(|z| &z.0),
+                "zenoh_n_publishers": zenoh.as_ref().map(|z| &z.1),
                 "shm_1_publisher": one,
                 "shm_n_publishers": many,
                 "grpc_stream": grpc,
                 "shm_over_grpc": best_shm / grpc.transitions_per_second,
                 "zero_loss": one.lost_batches == 0 && many.lost_batches == 0
-                    && one.out_of_order == 0 && many.out_of_order == 0,
+                    && one.out_of_order == 0 && many.out_of_order == 0 && zenoh_ok,
             });
             println!("{}", serde_json::to_string_pretty(&report)?);
             Ok(ExitCode::SUCCESS)

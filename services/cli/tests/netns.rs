@@ -1,0 +1,285 @@
+//! Actors on another host, for real: two network namespaces joined by a veth pair, the
+//! learner and selector in one, an actor in the other, transitions and episodes over Zenoh,
+//! weights and status over gRPC. Checks that transitions flow, weights arrive (the actor's
+//! policy version grows), status answers, and that taking the link down for a few seconds
+//! and up again is survived with what was given up counted. Needs root (`ip netns`); skips
+//! with a message where namespaces cannot be created. Everything it creates (namespaces,
+//! veths, processes) is removed by a guard, also on failure.
+
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use serde_json::Value;
+
+mod common;
+
+use common::{service_binaries, workspace};
+
+/// Namespaces and processes of one test run; removed on drop.
+struct Net {
+    namespaces: Vec<String>,
+    children: Vec<Child>,
+}
+
+impl Drop for Net {
+    fn drop(&mut self) {
+        for child in &mut self.children {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+        // Deleting a namespace deletes the veth end inside it, and with it the pair.
+        for ns in &self.namespaces {
+            let _ = Command::new("ip").args(["netns", "del", ns]).status();
+        }
+    }
+}
+
+fn ip(args: &[&str]) -> Result<(), String> {
+    let out = Command::new("ip")
+        .args(args)
+        .output()
+        .map_err(|e| format!("ip: {e}"))?;
+    if out.status.success() {
+        Ok(())
+    } else {
+        Err(format!(
+            "ip {}: {}",
+            args.join(" "),
+            String::from_utf8_lossy(&out.stderr).trim()
+        ))
+    }
+}
+
+impl Net {
+    fn spawn(&mut self, ns: &str, bin: &Path, args: &[String], log: &Path) {
+        let log = std::fs::File::create(log).unwrap();
+        let child = Command::new("ip")
+            .args(["netns", "exec", ns])
+            .arg(bin)
+            .args(args)
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(log)
+            .spawn()
+            .unwrap();
+        self.children.push(child);
+    }
+}
+
+fn wait_for_file(path: &Path) -> String {
+    let start = Instant::now();
+    loop {
+        if let Ok(text) = std::fs::read_to_string(path) {
+            if !text.trim().is_empty() {
+                return text.trim().to_string();
+            }
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "{} never appeared",
+            path.display()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+fn status(ns: &str, learner: &str, selector: &str) -> Option<Value> {
+    let out = Command::new("ip")
+        .args(["netns", "exec", ns, env!("CARGO_BIN_EXE_terl")])
+        .args([
+            "status",
+            "--json",
+            "--addr",
+            learner,
+            "--selector-addr",
+            selector,
+        ])
+        .output()
+        .ok()?;
+    out.status
+        .success()
+        .then(|| serde_json::from_slice(&out.stdout).ok())
+        .flatten()
+}
+
+fn u(v: &Value, key: &str) -> u64 {
+    v[key].as_u64().unwrap_or(0)
+}
+
+/// Polls status until `cond` holds (up to 90 s), returning that status.
+fn until(ns: &str, l: &str, s: &str, what: &str, cond: impl Fn(&Value) -> bool) -> Value {
+    let start = Instant::now();
+    loop {
+        if let Some(v) = status(ns, l, s) {
+            if cond(&v) {
+                return v;
+            }
+        }
+        assert!(start.elapsed() < Duration::from_secs(90), "never: {what}");
+        std::thread::sleep(Duration::from_millis(500));
+    }
+}
+
+#[test]
+fn actor_in_another_namespace_trains_over_zenoh_and_survives_a_link_outage() {
+    let tag = format!(
+        "{}{}",
+        std::process::id() % 100_000,
+        std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .unwrap()
+            .subsec_micros()
+            % 1000
+    );
+    let (ns_a, ns_b) = (format!("terl-a-{tag}"), format!("terl-b-{tag}"));
+    let mut net = Net {
+        namespaces: vec![],
+        children: vec![],
+    };
+    if let Err(e) = ip(&["netns", "add", &ns_a]) {
+        eprintln!("SKIPPED: network namespaces cannot be created here ({e}); needs root and `ip`");
+        return;
+    }
+    net.namespaces.push(ns_a.clone());
+    ip(&["netns", "add", &ns_b]).unwrap();
+    net.namespaces.push(ns_b.clone());
+    // veth names are at most 15 bytes.
+    let (va, vb) = (format!("tza{tag}"), format!("tzb{tag}"));
+    ip(&["link", "add", &va, "type", "veth", "peer", "name", &vb]).unwrap();
+    ip(&["link", "set", &va, "netns", &ns_a]).unwrap();
+    ip(&["link", "set", &vb, "netns", &ns_b]).unwrap();
+    let octet = 1 + (std::process::id() % 250);
+    let (addr_a, addr_b) = (format!("10.213.{octet}.1"), format!("10.213.{octet}.2"));
+    for (ns, dev, addr) in [(&ns_a, &va, &addr_a), (&ns_b, &vb, &addr_b)] {
+        ip(&["-n", ns, "addr", "add", &format!("{addr}/24"), "dev", dev]).unwrap();
+        ip(&["-n", ns, "link", "set", dev, "up"]).unwrap();
+        ip(&["-n", ns, "link", "set", "lo", "up"]).unwrap();
+    }
+
+    let bins = service_binaries();
+    let dir = tempfile::tempdir().unwrap();
+    let run_id = format!("netns-{tag}");
+    let run_dir = dir.path().join(&run_id);
+    std::fs::create_dir_all(&run_dir).unwrap();
+    // The smoke cluster over Zenoh, giving up on a full receiver after 1 s so that an
+    // outage of a few seconds is counted.
+    let smoke =
+        std::fs::read_to_string(workspace().join("deploy/configs/cluster-smoke.toml")).unwrap();
+    assert!(smoke.contains("block_timeout_secs = 10\n"));
+    let config = run_dir.join("zenoh.toml");
+    std::fs::write(
+        &config,
+        smoke.replace(
+            "block_timeout_secs = 10\n",
+            "block_timeout_secs = 1\ntransport = \"zenoh\"\n",
+        ),
+    )
+    .unwrap();
+    let common = |extra: &[&str]| -> Vec<String> {
+        let mut v: Vec<String> = [
+            "--config",
+            &config.display().to_string(),
+            "--run-id",
+            &run_id,
+            "--num-actors",
+            "1",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        v.extend(extra.iter().map(|s| s.to_string()));
+        v
+    };
+    let run_dir_s = run_dir.display().to_string();
+    let zenoh_learner = format!("tcp/{addr_a}:7447");
+    net.spawn(
+        &ns_a,
+        &bins.join("terl-learner"),
+        &common(&[
+            "--addr",
+            &format!("{addr_a}:0"),
+            "--run-dir",
+            &run_dir_s,
+            "--zenoh-listen",
+            &zenoh_learner,
+        ]),
+        &run_dir.join("learner.log"),
+    );
+    let learner = wait_for_file(&run_dir.join("learner.addr"));
+    net.spawn(
+        &ns_a,
+        &bins.join("terl-selector"),
+        &common(&[
+            "--addr",
+            &format!("{addr_a}:0"),
+            "--run-dir",
+            &run_dir_s,
+            "--learner-addr",
+            &learner,
+            "--zenoh-listen",
+            &format!("tcp/{addr_a}:7448"),
+            "--zenoh-connect",
+            &zenoh_learner,
+        ]),
+        &run_dir.join("selector.log"),
+    );
+    let selector = wait_for_file(&run_dir.join("selector.addr"));
+    net.spawn(
+        &ns_b,
+        &bins.join("terl-actor"),
+        &common(&[
+            "--actor-id",
+            "0",
+            "--learner-addr",
+            &learner,
+            "--zenoh-connect",
+            &zenoh_learner,
+        ]),
+        &run_dir.join("actor0.log"),
+    );
+
+    // Transitions flow, weights arrive (the actor acts with a published version), episodes
+    // reach the selector.
+    let before = until(
+        &ns_a,
+        &learner,
+        &selector,
+        "the remote actor's transitions, made with published weights",
+        |v| {
+            let l = &v["learner"];
+            let a = l["actors"].as_array().and_then(|a| a.first().cloned());
+            a.is_some_and(|a| u(&a, "env_steps") > 2_000 && u(&a, "policy_version") > 0)
+                && u(&v["selector"], "episodes_seen") > 0
+        },
+    );
+
+    // The link goes down for a few seconds, then up again.
+    ip(&["-n", &ns_b, "link", "set", &vb, "down"]).unwrap();
+    std::thread::sleep(Duration::from_secs(5));
+    ip(&["-n", &ns_b, "link", "set", &vb, "up"]).unwrap();
+
+    let steps_before = u(&before["learner"], "env_steps_total");
+    let after = until(
+        &ns_a,
+        &learner,
+        &selector,
+        "transitions flowing again after the outage, with its losses reported",
+        |v| {
+            let l = &v["learner"];
+            u(l, "env_steps_total") > steps_before + 2_000 && u(l, "transition_batches_dropped") > 0
+        },
+    );
+    let l = &after["learner"];
+    let actor = &l["actors"][0];
+    assert_eq!(
+        u(actor, "transition_batches_dropped"),
+        u(l, "transition_batches_dropped"),
+        "{after}"
+    );
+    assert!(u(l, "transitions_dropped") >= u(l, "transition_batches_dropped"));
+    // Every process is still alive.
+    for child in &mut net.children {
+        assert!(child.try_wait().unwrap().is_none(), "a process died");
+    }
+}
