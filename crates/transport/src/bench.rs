@@ -43,6 +43,9 @@ pub struct ShmBenchReport {
     pub gigabytes_per_sec: f64,
 }
 
+/// How long the end of a measurement waits for messages still in flight.
+const DRAIN_QUIET: Duration = Duration::from_millis(500);
+
 fn filled_batch(actor: u16) -> Box<TransitionBatch> {
     let mut batch = TransitionBatch::empty();
     batch.actor_id = actor;
@@ -178,12 +181,21 @@ pub fn throughput(
                 }
                 std::thread::yield_now();
             } else if finished.load(Ordering::Acquire) as usize == publishers {
-                // One more drain pass after the last publisher stopped.
-                while source.try_receive_into(&mut out)? {
-                    received += 1;
-                    transitions += u64::from(out.len);
+                // Drain after the last publisher stopped, until nothing more arrives for
+                // `DRAIN_QUIET` (a network transport still has messages in flight).
+                let mut last = start.elapsed();
+                let mut quiet = Instant::now();
+                while quiet.elapsed() < DRAIN_QUIET {
+                    if source.try_receive_into(&mut out)? {
+                        received += 1;
+                        transitions += u64::from(out.len);
+                        last = start.elapsed();
+                        quiet = Instant::now();
+                    } else {
+                        std::thread::yield_now();
+                    }
                 }
-                break start.elapsed();
+                break last;
             }
         };
 
