@@ -2,7 +2,7 @@
 //! the cluster splits the work. One TOML schema for `terl train` and the cluster services;
 //! the `[cluster]` section is optional, so single-process configs keep working unchanged.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
@@ -124,6 +124,28 @@ pub struct ClusterConfig {
     pub eval_episodes_per_task: usize,
     /// In-run evaluation: worker threads of the evaluator (each steps its own environments).
     pub eval_threads: usize,
+    /// File holding the control-plane token (16 to 1024 visible ASCII characters; trailing
+    /// whitespace ignored). Every gRPC call to the learner and the selector must then carry it,
+    /// the weight stream included, and every terl client sends it. The `TERL_TOKEN`
+    /// environment variable, when set, is used instead. A server bound to anything but a
+    /// loopback address refuses to start without a token. Relative paths are relative to the
+    /// working directory. The token is never logged.
+    pub token_file: Option<PathBuf>,
+    /// With a token: leave `GetStatus` of both services and `grpc.health.v1` readable without
+    /// it (monitoring without the secret). Checkpoints, weights and reflection stay closed.
+    pub status_without_token: bool,
+    /// TLS certificate chain of the learner and selector servers (PEM); with `tls_key`, the
+    /// servers speak TLS only. Needs `tls_ca` too, since the same run file configures the
+    /// clients.
+    pub tls_cert: Option<PathBuf>,
+    /// Private key of `tls_cert` (PEM). Never logged.
+    pub tls_key: Option<PathBuf>,
+    /// CA certificate(s) (PEM) the clients (actors, the selector, `terl status`) verify the
+    /// servers against; setting it makes the clients use TLS. The system's roots are not used.
+    pub tls_ca: Option<PathBuf>,
+    /// Name the clients expect in the server certificate, instead of the host they dial (e.g.
+    /// `learner.cluster` when dialling an IP address that is not in the certificate).
+    pub tls_domain: Option<String>,
 }
 
 impl Default for ClusterConfig {
@@ -140,7 +162,71 @@ impl Default for ClusterConfig {
             buffer_batches: 8,
             eval_episodes_per_task: 10,
             eval_threads: 1,
+            token_file: None,
+            status_without_token: false,
+            tls_cert: None,
+            tls_key: None,
+            tls_ca: None,
+            tls_domain: None,
         }
+    }
+}
+
+/// The value of the `TERL_TOKEN` environment variable, if set and not empty (what the service
+/// binaries pass to [`ClusterConfig::server_security`] / [`ClusterConfig::client_security`]).
+pub fn token_from_env() -> Option<String> {
+    std::env::var(terl_wire::TOKEN_ENV)
+        .ok()
+        .filter(|v| !v.is_empty())
+}
+
+impl ClusterConfig {
+    /// The control-plane token: `env_token` (the `TERL_TOKEN` value) when given, else the
+    /// content of `token_file`, else none. Errors name the source, never the value.
+    pub fn token(&self, env_token: Option<String>) -> Result<Option<terl_wire::Token>> {
+        if let Some(value) = env_token {
+            return Ok(Some(terl_wire::Token::new(value, terl_wire::TOKEN_ENV)?));
+        }
+        match &self.token_file {
+            Some(path) => Ok(Some(
+                terl_wire::Token::from_file(path).context("cluster.token_file")?,
+            )),
+            None => Ok(None),
+        }
+    }
+
+    /// What the learner's and selector's servers enforce: the token, `status_without_token`
+    /// and TLS from `tls_cert`/`tls_key` (read now; unreadable files are an error).
+    pub fn server_security(&self, env_token: Option<String>) -> Result<terl_wire::ServerSecurity> {
+        let tls = match (&self.tls_cert, &self.tls_key) {
+            (Some(cert), Some(key)) => Some(
+                terl_wire::ServerTls::from_files(cert, key)
+                    .context("cluster.tls_cert / cluster.tls_key")?,
+            ),
+            (None, None) => None,
+            _ => anyhow::bail!("cluster.tls_cert and cluster.tls_key must be set together"),
+        };
+        Ok(terl_wire::ServerSecurity {
+            token: self.token(env_token)?,
+            status_without_token: self.status_without_token,
+            tls,
+        })
+    }
+
+    /// What every client of the run sends and trusts: the token and, with `tls_ca`, TLS
+    /// verified against that CA (and `tls_domain`).
+    pub fn client_security(&self, env_token: Option<String>) -> Result<terl_wire::ClientSecurity> {
+        let tls = match &self.tls_ca {
+            Some(ca) => Some(
+                terl_wire::ClientTls::from_file(ca, self.tls_domain.clone())
+                    .context("cluster.tls_ca")?,
+            ),
+            None => None,
+        };
+        Ok(terl_wire::ClientSecurity {
+            token: self.token(env_token)?,
+            tls,
+        })
     }
 }
 
@@ -176,6 +262,15 @@ impl RunConfig {
              in-run evaluation off)"
         );
         anyhow::ensure!(c.eval_threads > 0, "cluster.eval_threads must be ≥ 1");
+        anyhow::ensure!(
+            c.tls_cert.is_some() == c.tls_key.is_some(),
+            "cluster.tls_cert and cluster.tls_key must be set together"
+        );
+        anyhow::ensure!(
+            c.tls_cert.is_none() || c.tls_ca.is_some(),
+            "cluster.tls_cert is set but cluster.tls_ca is not: the run's clients (actors, \
+             selector, terl status) need the CA to verify the TLS servers"
+        );
         cfg.ptr
             .validate()
             .with_context(|| format!("[ptr] in {}", path.display()))?;

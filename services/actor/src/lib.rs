@@ -30,6 +30,9 @@ pub struct ActorConfig {
     pub num_actors: usize,
     /// The learner's gRPC address (`host:port`).
     pub learner_addr: String,
+    /// Token and TLS trust for the learner's weight stream (default: none); the binary fills
+    /// it from `[cluster]` and `TERL_TOKEN` ([`RunConfig`]'s `cluster.client_security`).
+    pub client_security: terl_wire::ClientSecurity,
 }
 
 impl ActorConfig {
@@ -46,6 +49,7 @@ impl ActorConfig {
             actor_id,
             num_actors,
             learner_addr,
+            client_security: terl_wire::ClientSecurity::default(),
         }
     }
 }
@@ -112,6 +116,7 @@ pub async fn run(
         let mailbox = Arc::clone(&mailbox);
         tokio::spawn(terl_wire::follow_weights(
             config.learner_addr.clone(),
+            terl_wire::ClientOptions::secured(config.client_security.clone()),
             kinds,
             move |w| post(&mailbox, w),
         ))

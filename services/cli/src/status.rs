@@ -1,12 +1,15 @@
 //! `terl status`: one snapshot of a running cluster from the learner's and the selector's
 //! `GetStatus`, as a table or JSON (`--json`, for scripts and tests).
 
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use terl_wire::{LearnerStatus, SelectorStatus};
+use terl_wire::{
+    ClientOptions, ClientSecurity, ClientTls, LearnerStatus, SelectorStatus, Token,
+};
 
 #[derive(Debug, Args)]
 pub struct StatusArgs {
@@ -22,15 +25,45 @@ pub struct StatusArgs {
     /// Seconds to wait for each server.
     #[arg(long, default_value_t = 5.0)]
     pub timeout: f64,
+    /// File holding the control-plane token (the run's `cluster.token_file`); without it the
+    /// TERL_TOKEN environment variable is sent, if set.
+    #[arg(long)]
+    pub token_file: Option<PathBuf>,
+    /// CA certificate (PEM) to verify TLS servers with (the run's `cluster.tls_ca`); makes the
+    /// connection TLS.
+    #[arg(long)]
+    pub tls_ca: Option<PathBuf>,
+    /// Name expected in the servers' certificate instead of the dialled host
+    /// (`cluster.tls_domain`).
+    #[arg(long, requires = "tls_ca")]
+    pub tls_domain: Option<String>,
 }
 
-async fn learner_status(addr: &str) -> Result<LearnerStatus> {
-    let mut client = terl_wire::connect_learner(addr).await?;
+impl StatusArgs {
+    /// The token (`--token-file`, else TERL_TOKEN) and TLS trust (`--tls-ca`) to connect with.
+    pub fn client_options(&self) -> Result<ClientOptions> {
+        let token = match &self.token_file {
+            Some(path) => Some(Token::from_file(path)?),
+            None => terl_runtime::token_from_env()
+                .map(|v| Token::new(v, terl_wire::TOKEN_ENV))
+                .transpose()?,
+        };
+        let tls = self
+            .tls_ca
+            .as_deref()
+            .map(|ca| ClientTls::from_file(ca, self.tls_domain.clone()))
+            .transpose()?;
+        Ok(ClientOptions::secured(ClientSecurity { token, tls }))
+    }
+}
+
+async fn learner_status(addr: &str, options: ClientOptions) -> Result<LearnerStatus> {
+    let mut client = terl_wire::connect_learner_with(addr, options).await?;
     Ok(client.status().await?)
 }
 
-async fn selector_status(addr: &str) -> Result<SelectorStatus> {
-    let mut client = terl_wire::connect_selector(addr).await?;
+async fn selector_status(addr: &str, options: ClientOptions) -> Result<SelectorStatus> {
+    let mut client = terl_wire::connect_selector_with(addr, options).await?;
     Ok(client.status().await?)
 }
 
@@ -124,12 +157,13 @@ pub fn run(args: StatusArgs) -> Result<ExitCode> {
         .enable_all()
         .build()?;
     let timeout = Duration::from_secs_f64(args.timeout.max(0.1));
+    let options = args.client_options()?;
     runtime.block_on(async {
-        let learner = tokio::time::timeout(timeout, learner_status(&args.addr))
+        let learner = tokio::time::timeout(timeout, learner_status(&args.addr, options.clone()))
             .await
             .unwrap_or_else(|_| Err(anyhow::anyhow!("timed out")))
             .with_context(|| format!("learner at {}", args.addr))?;
-        let selector = tokio::time::timeout(timeout, selector_status(&args.selector_addr))
+        let selector = tokio::time::timeout(timeout, selector_status(&args.selector_addr, options))
             .await
             .unwrap_or_else(|_| Err(anyhow::anyhow!("timed out")))
             .with_context(|| format!("selector at {}", args.selector_addr));

@@ -105,9 +105,13 @@ pub async fn run(
     config: LearnerConfig,
     shutdown: impl Future<Output = ()> + Send,
 ) -> anyhow::Result<()> {
-    let listener = terl_wire::bind(config.addr)
+    let listener = terl_wire::bind_secured(config.addr, &config.server_security)
         .await
         .with_context(|| format!("cannot listen on {}", config.addr))?;
+    let serve_options = terl_wire::ServeOptions {
+        security: config.server_security.clone(),
+        ..terl_wire::ServeOptions::default()
+    };
     let addr = listener.local_addr()?;
     let addr_file = terl_runtime::write_addr_file(&config.run_dir, "learner", addr)?;
     tracing::info!(%addr, file = %addr_file.display(), run_id = %config.run_id, "learner listening");
@@ -144,7 +148,7 @@ pub async fn run(
             _ = done_rx.wait_for(|done| *done) => tracing::info!("trainer stopped; shutting down"),
         }
     };
-    let served = terl_wire::serve_learner(listener, backend, stop_serving).await;
+    let served = terl_wire::serve_learner_with(listener, backend, stop_serving, serve_options).await;
     shared.stop.store(true, Ordering::Relaxed);
     let trained = tokio::task::spawn_blocking(move || trainer.join())
         .await?
