@@ -225,9 +225,8 @@ impl ClientTls {
     }
 
     pub(crate) fn config(&self) -> tonic::transport::ClientTlsConfig {
-        let config = tonic::transport::ClientTlsConfig::new().ca_certificate(
-            tonic::transport::Certificate::from_pem(&self.ca_pem),
-        );
+        let config = tonic::transport::ClientTlsConfig::new()
+            .ca_certificate(tonic::transport::Certificate::from_pem(&self.ca_pem));
         match &self.domain {
             Some(d) => config.domain_name(d.clone()),
             None => config,
@@ -301,7 +300,9 @@ impl TokenInterceptor {
 impl tonic::service::Interceptor for TokenInterceptor {
     fn call(&mut self, mut request: tonic::Request<()>) -> Result<tonic::Request<()>, Status> {
         if let Some(value) = &self.0 {
-            request.metadata_mut().insert("authorization", value.clone());
+            request
+                .metadata_mut()
+                .insert("authorization", value.clone());
         }
         Ok(request)
     }
@@ -427,7 +428,12 @@ mod tests {
     #[test]
     fn only_loopback_binds_go_without_a_token() {
         let open = ServerSecurity::default();
-        for ok in ["127.0.0.1:0", "127.1.2.3:5", "[::1]:0", "[::ffff:127.0.0.1]:0"] {
+        for ok in [
+            "127.0.0.1:0",
+            "127.1.2.3:5",
+            "[::1]:0",
+            "[::ffff:127.0.0.1]:0",
+        ] {
             open.check_bind(ok.parse().unwrap()).unwrap();
         }
         for refused in ["0.0.0.0:0", "[::]:0", "10.0.0.5:50051"] {

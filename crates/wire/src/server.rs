@@ -24,10 +24,10 @@ use tonic::{Request, Response, Status};
 use tonic_health::ServingStatus;
 
 use crate::hub::{Latest, WeightHub};
-use crate::security::{AuthLayer, SecurityError, ServerSecurity};
 use crate::pb;
 use crate::pb::learner_server::{Learner, LearnerServer};
 use crate::pb::selector_server::{Selector, SelectorServer};
+use crate::security::{AuthLayer, SecurityError, ServerSecurity};
 use crate::status::{LearnerStatus, SelectorStatus};
 use crate::weights::WeightsKind;
 use crate::{DEFAULT_MAX_MESSAGE_BYTES, FILE_DESCRIPTOR_SET};

@@ -153,8 +153,14 @@ fn client(token_value: Option<&str>) -> ClientOptions {
 async fn codes(cluster: &Cluster, options: ClientOptions) -> [Code; 4] {
     let code = |r: Result<(), Status>| r.err().map_or(Code::Ok, |s| s.code());
     let learner = cluster.learner.to_string();
-    let mut l = connect_learner_with(&learner, options.clone()).await.unwrap();
-    let status = code(l.status().await.map(|s| assert_eq!(s.run_id, "secured-run")));
+    let mut l = connect_learner_with(&learner, options.clone())
+        .await
+        .unwrap();
+    let status = code(
+        l.status()
+            .await
+            .map(|s| assert_eq!(s.run_id, "secured-run")),
+    );
     let checkpoint = code(
         l.save_checkpoint(CheckpointRequest::default())
             .await
@@ -175,7 +181,11 @@ async fn codes(cluster: &Cluster, options: ClientOptions) -> [Code; 4] {
     let mut s = connect_selector_with(&cluster.selector.to_string(), options)
         .await
         .unwrap();
-    let selector = code(s.status().await.map(|s| assert_eq!(s.run_id, "secured-run")));
+    let selector = code(
+        s.status()
+            .await
+            .map(|s| assert_eq!(s.run_id, "secured-run")),
+    );
     [status, checkpoint, stream, selector]
 }
 
@@ -366,7 +376,11 @@ fn make_certificates(dir: &Path) -> (PathBuf, PathBuf, PathBuf) {
         CertificateParams::new(vec!["localhost".to_owned(), "127.0.0.1".to_owned()]).unwrap();
     let key = KeyPair::generate().unwrap();
     let cert = params.signed_by(&key, &issuer).unwrap();
-    let paths = (dir.join("ca.pem"), dir.join("cert.pem"), dir.join("key.pem"));
+    let paths = (
+        dir.join("ca.pem"),
+        dir.join("cert.pem"),
+        dir.join("key.pem"),
+    );
     std::fs::write(&paths.0, ca_cert.pem()).unwrap();
     std::fs::write(&paths.1, cert.pem()).unwrap();
     std::fs::write(&paths.2, key.serialize_pem()).unwrap();
@@ -532,7 +546,10 @@ fn the_token_appears_in_no_log_line_and_no_debug_output() {
     assert!(logs.contains("call refused"), "no refusal logged");
     for secret in [TOKEN, WRONG] {
         assert!(!logs.contains(secret), "token in the logs");
-        assert!(!debug_output.contains(secret), "token in Debug: {debug_output}");
+        assert!(
+            !debug_output.contains(secret),
+            "token in Debug: {debug_output}"
+        );
     }
     assert!(debug_output.contains("redacted"), "{debug_output}");
     // The private key is not in Debug either.

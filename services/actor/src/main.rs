@@ -32,7 +32,9 @@ async fn main() -> anyhow::Result<()> {
     terl_runtime::init_tracing();
     let a = Args::parse();
     let run = terl_runtime::RunConfig::load(&a.config)?;
-    let client_security = run.cluster.client_security(terl_runtime::token_from_env())?;
+    let client_security = run
+        .cluster
+        .client_security(terl_runtime::token_from_env())?;
     let mut config =
         terl_actor::ActorConfig::new(run, a.run_id, a.actor_id, a.num_actors, a.learner_addr);
     config.client_security = client_security;

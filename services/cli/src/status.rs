@@ -7,9 +7,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use terl_wire::{
-    ClientOptions, ClientSecurity, ClientTls, LearnerStatus, SelectorStatus, Token,
-};
+use terl_wire::{ClientOptions, ClientSecurity, ClientTls, LearnerStatus, SelectorStatus, Token};
 
 #[derive(Debug, Args)]
 pub struct StatusArgs {

@@ -148,7 +148,8 @@ pub async fn run(
             _ = done_rx.wait_for(|done| *done) => tracing::info!("trainer stopped; shutting down"),
         }
     };
-    let served = terl_wire::serve_learner_with(listener, backend, stop_serving, serve_options).await;
+    let served =
+        terl_wire::serve_learner_with(listener, backend, stop_serving, serve_options).await;
     shared.stop.store(true, Ordering::Relaxed);
     let trained = tokio::task::spawn_blocking(move || trainer.join())
         .await?

@@ -68,8 +68,7 @@ pub(crate) fn run(config: &SelectorConfig, shared: &Shared, learner_addr: &str) 
         let status = rt.block_on(async {
             tokio::time::timeout(Duration::from_secs(5), async {
                 if client.is_none() {
-                    let options =
-                        terl_wire::ClientOptions::secured(config.client_security.clone());
+                    let options = terl_wire::ClientOptions::secured(config.client_security.clone());
                     client = Some(terl_wire::connect_learner_with(learner_addr, options).await?);
                 }
                 let c = client.as_mut().expect("connected above");
