@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Runs every check a change must pass: formatting, clippy, and the whole test suite (unit,
-# parity with Python Meta-World, learning tests, integration) in release mode.
+# parity with Python Meta-World, learning tests, integration) in release mode, then a
+# 2-minute soak of the smoke cluster under injected faults (deploy/soak.sh).
 #
 #   ./deploy/test.sh            everything
 #   ./deploy/test.sh parity     only tests whose name matches "parity" (nextest filter)
@@ -24,6 +25,11 @@ if cargo nextest --version >/dev/null 2>&1; then
     cargo nextest run --workspace --release --no-fail-fast "$@"
 else
     cargo test --workspace --release --no-fail-fast -- "$@"
+fi
+
+if [ $# -eq 0 ]; then
+    say "soak: the smoke cluster for 2 minutes, an actor killed every 30 s and the learner once"
+    ./deploy/soak.sh --minutes 2 --kill-every 30 --no-build
 fi
 
 say "all checks passed in $(( $(date +%s) - start )) s"

@@ -259,7 +259,13 @@ pub struct TensorFile {
 }
 
 impl TensorFile {
-    /// Decodes safetensors bytes; tensors of dtypes other than F32/F64/I64 are an error.
+    /// Decodes safetensors bytes.
+    ///
+    /// Errors: [`NnError::Format`] for bytes that are not a file this crate reads (cut short, a
+    /// header length past the end or above safetensors' header limit, bad JSON, shapes or offsets
+    /// that do not match the data, a dtype other than F32/F64/I64, a newer format version, or a
+    /// file whose checksum key is damaged); [`NnError::Checksum`] when the content
+    /// does not match the stored checksum. Nothing is allocated beyond what `bytes` holds.
     pub fn from_bytes(bytes: &[u8]) -> Result<Self, NnError> {
         let (_, meta) = safetensors::SafeTensors::read_metadata(bytes)
             .map_err(|e| NnError::Format(e.to_string()))?;
@@ -297,14 +303,30 @@ impl TensorFile {
                 }
             }
         }
-        if let Some(stored) = metadata.get(CHECKSUM_KEY) {
-            let computed = content_checksum(tensors.values(), &metadata);
-            if *stored != computed {
-                return Err(NnError::Checksum {
-                    stored: stored.clone(),
-                    computed,
-                });
+        match metadata.get(CHECKSUM_KEY) {
+            Some(stored) => {
+                let computed = content_checksum(tensors.values(), &metadata);
+                if *stored != computed {
+                    return Err(NnError::Checksum {
+                        stored: stored.clone(),
+                        computed,
+                    });
+                }
             }
+            // Files of save_file carry both keys; only files from before checksums have neither.
+            // A versioned file without its checksum, or remains of the keys (a damaged name, two
+            // keys run together, the checksum's value under another name), is a damaged file
+            // whose content cannot be trusted unverified.
+            None if metadata.iter().any(|(k, v)| {
+                k.contains("checksum") || k.contains("format_version") || v.starts_with("crc32:")
+            }) =>
+            {
+                return Err(NnError::Format(format!(
+                    "metadata has no {CHECKSUM_KEY} but remains of it or of \
+                     {FORMAT_VERSION_KEY}: the file's header is damaged"
+                )))
+            }
+            None => {}
         }
         Ok(Self { tensors, metadata })
     }

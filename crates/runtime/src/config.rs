@@ -31,6 +31,19 @@ impl Algorithm {
     }
 }
 
+/// What the learner does when a checkpoint cannot be written (a full disk, a read-only folder):
+/// either way the error is logged with the file and counted in status
+/// (`checkpoint_failures`), and no half-written file is left under a checkpoint's name.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum OnCheckpointError {
+    /// Stop training with an error (exit code 1); the checkpoints written before are kept.
+    #[default]
+    Stop,
+    /// Keep training and try again at the next checkpoint.
+    Continue,
+}
+
 /// The run file.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -111,8 +124,11 @@ pub struct ClusterConfig {
     pub critic_publish_every_updates: u64,
     /// Seconds between periodic checkpoints (0: only at shutdown and on request).
     pub checkpoint_every_secs: f64,
-    /// Periodic checkpoints kept (older ones are deleted).
+    /// Periodic checkpoints (`checkpoints/update-*.safetensors`) kept, counting the ones earlier
+    /// processes of the same run folder wrote (older ones are deleted).
     pub keep_checkpoints: usize,
+    /// When a checkpoint cannot be written: `"stop"` (default) or `"continue"`.
+    pub on_checkpoint_error: OnCheckpointError,
     /// How long an actor's send may wait for a full learner before giving up on that batch
     /// (counted and logged), seconds.
     pub block_timeout_secs: f64,
@@ -146,7 +162,15 @@ pub struct ClusterConfig {
     /// Name the clients expect in the server certificate, instead of the host they dial (e.g.
     /// `learner.cluster` when dialling an IP address that is not in the certificate).
     pub tls_domain: Option<String>,
+    /// Largest gRPC message, MiB, of the learner's server and of the actors' and selector's
+    /// weight streams. Every weights message the run's networks produce (policy; with
+    /// `algorithm = "terl"` also both critics and the planner's F and AN) must fit:
+    /// [`RunConfig::check_weight_messages`] refuses the run at start-up otherwise.
+    pub max_message_mib: usize,
 }
+
+/// Largest `cluster.max_message_mib`: gRPC frames a message with a 32-bit length.
+pub const MAX_MESSAGE_MIB_LIMIT: usize = 4095;
 
 impl Default for ClusterConfig {
     fn default() -> Self {
@@ -158,6 +182,7 @@ impl Default for ClusterConfig {
             critic_publish_every_updates: 1000,
             checkpoint_every_secs: 300.0,
             keep_checkpoints: 3,
+            on_checkpoint_error: OnCheckpointError::Stop,
             block_timeout_secs: 30.0,
             buffer_batches: 8,
             eval_episodes_per_task: 10,
@@ -168,6 +193,7 @@ impl Default for ClusterConfig {
             tls_key: None,
             tls_ca: None,
             tls_domain: None,
+            max_message_mib: 64,
         }
     }
 }
@@ -230,6 +256,41 @@ impl ClusterConfig {
     }
 }
 
+impl ClusterConfig {
+    /// `max_message_mib` in bytes.
+    pub fn max_message_bytes(&self) -> usize {
+        self.max_message_mib << 20
+    }
+}
+
+/// Per-tensor bound on what a weights message adds besides the values: name, shape, field tags
+/// and lengths.
+const TENSOR_OVERHEAD_BYTES: u64 = 128;
+/// Bound on the message's own fields (kind, versions, tensor count).
+const MESSAGE_OVERHEAD_BYTES: u64 = 64;
+
+/// Upper bound on the encoded size of a weights message holding MLPs with these layer widths
+/// (input, hidden…, output each): 4 bytes per `f32` parameter plus a bound per tensor (weight
+/// and bias per layer). `None` if it overflows `u64`.
+fn mlp_message_bytes(nets: &[Vec<usize>]) -> Option<u64> {
+    nets.iter().try_fold(MESSAGE_OVERHEAD_BYTES, |acc, sizes| {
+        sizes.windows(2).try_fold(acc, |acc, w| {
+            let (i, o) = (w[0] as u64, w[1] as u64);
+            let params = i.checked_mul(o)?.checked_add(o)?;
+            acc.checked_add(params.checked_mul(4)?)?
+                .checked_add(2 * TENSOR_OVERHEAD_BYTES)
+        })
+    })
+}
+
+/// One MLP's layer widths: `input`, the hidden widths, `output`.
+fn widths(input: usize, hidden: &[usize], output: usize) -> Vec<usize> {
+    let mut w = vec![input];
+    w.extend_from_slice(hidden);
+    w.push(output);
+    w
+}
+
 impl RunConfig {
     /// Reads and checks a run file.
     pub fn load(path: &Path) -> Result<Self> {
@@ -271,6 +332,10 @@ impl RunConfig {
             "cluster.tls_cert is set but cluster.tls_ca is not: the run's clients (actors, \
              selector, terl status) need the CA to verify the TLS servers"
         );
+        anyhow::ensure!(
+            (1..=MAX_MESSAGE_MIB_LIMIT).contains(&c.max_message_mib),
+            "cluster.max_message_mib must be in 1..={MAX_MESSAGE_MIB_LIMIT}"
+        );
         cfg.ptr
             .validate()
             .with_context(|| format!("[ptr] in {}", path.display()))?;
@@ -282,6 +347,66 @@ impl RunConfig {
             "guidance.sigma must be in [0, 1]"
         );
         Ok(cfg)
+    }
+
+    /// Upper bounds on the encoded size, bytes, of each weights message the learner publishes
+    /// for a run of `num_tasks` tasks: `policy` (the policy MLP, `obs + tasks` inputs, two
+    /// outputs per action dimension), and with `algorithm = "terl"` `critic` (both Q networks)
+    /// and `planner` (TEP's F and AN). `u64::MAX` stands for a size that overflows.
+    pub fn weight_message_bytes(&self, num_tasks: usize) -> Vec<(&'static str, u64)> {
+        let sac = &self.sac;
+        let policy = widths(
+            sac.obs_dim.saturating_add(num_tasks),
+            &sac.policy_hidden,
+            sac.act_dim.saturating_mul(2),
+        );
+        let critic = widths(
+            sac.obs_dim
+                .saturating_add(num_tasks)
+                .saturating_add(sac.act_dim),
+            &sac.critic_hidden,
+            1,
+        );
+        // TEP's obs/act dims are set from the environment, which is the SAC's.
+        let (obs, act) = (sac.obs_dim, sac.act_dim);
+        let f = widths(
+            obs.saturating_mul(2).saturating_add(act),
+            &self.tep.f_hidden,
+            1,
+        );
+        let an = widths(obs.saturating_mul(2), &self.tep.an_hidden, act);
+        let mut out = vec![("policy", vec![policy])];
+        if self.algorithm == Algorithm::Terl {
+            out.push(("critic", vec![critic.clone(), critic]));
+            out.push(("planner", vec![f, an]));
+        }
+        out.into_iter()
+            .map(|(kind, nets)| (kind, mlp_message_bytes(&nets).unwrap_or(u64::MAX)))
+            .collect()
+    }
+
+    /// Refuses a run whose weights messages ([`Self::weight_message_bytes`]) would not fit the
+    /// gRPC message limit `[cluster] max_message_mib`: the error names the message, its size
+    /// and the run-file key with the value that would make it fit.
+    pub fn check_weight_messages(&self, num_tasks: usize) -> Result<()> {
+        let limit = self.cluster.max_message_bytes() as u64;
+        for (kind, bytes) in self.weight_message_bytes(num_tasks) {
+            if bytes > limit {
+                let need = bytes.div_ceil(1 << 20);
+                anyhow::ensure!(
+                    need <= MAX_MESSAGE_MIB_LIMIT as u64,
+                    "the run's {kind} weights message would be about {need} MiB, more than gRPC \
+                     can carry ({MAX_MESSAGE_MIB_LIMIT} MiB): use smaller networks"
+                );
+                anyhow::bail!(
+                    "the run's {kind} weights message would be about {need} MiB, over the gRPC \
+                     message limit of {} MiB: set `max_message_mib = {need}` (or more) under \
+                     [cluster] in the run file, or use smaller networks",
+                    self.cluster.max_message_mib
+                );
+            }
+        }
+        Ok(())
     }
 
     /// Environments per actor.
@@ -386,5 +511,63 @@ mod tests {
         assert_eq!(cfg.envs_per_actor(), 4);
         assert!((cfg.samples_per_insert() - 0.5).abs() < 1e-12);
         assert!(cfg.rate_error_buffer(64) >= 1.0);
+    }
+}
+
+#[cfg(test)]
+mod message_limit_tests {
+    use super::*;
+
+    fn run_file(extra: &str) -> RunConfig {
+        let text = format!("tasks = \"mt10\"\nnum_envs = 10\nalgorithm = \"terl\"\n{extra}");
+        let dir = std::env::temp_dir().join(format!("terl-msg-limit-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join(format!("{:x}.toml", extra.len()));
+        std::fs::write(&path, text).unwrap();
+        let cfg = RunConfig::load(&path);
+        std::fs::remove_file(&path).unwrap();
+        cfg.unwrap()
+    }
+
+    #[test]
+    fn weights_larger_than_the_message_limit_are_refused_naming_the_key() {
+        // The paper-size networks fit the default limit with room to spare.
+        let paper =
+            run_file("[sac]\npolicy_hidden = [400, 400, 400]\ncritic_hidden = [400, 400, 400]\n");
+        paper.check_weight_messages(10).unwrap();
+        let sizes = paper.weight_message_bytes(10);
+        assert_eq!(
+            sizes.iter().map(|s| s.0).collect::<Vec<_>>(),
+            ["policy", "critic", "planner"]
+        );
+        // The policy: (39 + 10)·400 + 400 + 2·(400·400 + 400) + 400·8 + 8 parameters.
+        let params = 49 * 400 + 400 + 2 * (400 * 400 + 400) + 400 * 8 + 8;
+        let policy = sizes[0].1;
+        assert!(
+            policy >= 4 * params && policy <= 4 * params + 2048,
+            "{policy}"
+        );
+
+        // 3×4096 critics: two of them, about 2 × 33.8 M parameters, 258 MiB.
+        let big = run_file("[sac]\ncritic_hidden = [4096, 4096, 4096]\n");
+        let e = big.check_weight_messages(10).unwrap_err().to_string();
+        assert!(
+            e.contains("critic") && e.contains("max_message_mib = 258") && e.contains("[cluster]"),
+            "{e}"
+        );
+        // Raising the key as the error says makes the same run acceptable.
+        let raised = run_file(
+            "[sac]\ncritic_hidden = [4096, 4096, 4096]\n[cluster]\nmax_message_mib = 258\n",
+        );
+        raised.check_weight_messages(10).unwrap();
+        // MTSAC publishes only the policy: the big critics do not count.
+        let mut mtsac = big.clone();
+        mtsac.algorithm = Algorithm::Mtsac;
+        mtsac.check_weight_messages(10).unwrap();
+        // Sizes that overflow are refused too, not wrapped around.
+        let mut huge = paper.clone();
+        huge.sac.policy_hidden = vec![usize::MAX, usize::MAX];
+        let e = huge.check_weight_messages(10).unwrap_err().to_string();
+        assert!(e.contains("smaller networks"), "{e}");
     }
 }

@@ -250,7 +250,68 @@ fn thread_cpu_seconds() -> Option<f64> {
 /// Errors: [`EvalError::Shape`] when the policy does not take Meta-World's 39-value observation
 /// and 4-value action or a one-hot index is outside its task count; [`EvalError::Settings`] for
 /// no tasks or zero episodes; simulation and policy errors as they happen.
+///
+/// Builds its environments for this one call; a caller that evaluates repeatedly in one process
+/// should keep an [`EvalEnvs`] and call [`evaluate_policy_with`] instead.
 pub fn evaluate_policy(
+    policy: &Policy,
+    tasks: &[EvalTask],
+    settings: &EvalSettings,
+    on_episodes: &(dyn Fn(usize) + Sync),
+    cancel: Option<&AtomicBool>,
+) -> Result<EvalSummary, EvalError> {
+    evaluate_policy_with(
+        &EvalEnvs::default(),
+        policy,
+        tasks,
+        settings,
+        on_episodes,
+        cancel,
+    )
+}
+
+/// Environments kept between evaluations: one set per worker thread, each a pool of
+/// [`Env`]s per task, reused by every later [`evaluate_policy_with`] call that is given it.
+///
+/// Building MuJoCo environments anew for every evaluation (up to [`BATCH`] per task and worker)
+/// and freeing them afterwards leaves the allocator's heap fragmented, so a process that
+/// evaluates periodically (the cluster's in-run evaluator) grows by hundreds of MB per
+/// evaluation; with the environments kept, memory stays at one evaluation's footprint.
+/// Results do not depend on reuse: every episode starts with a full reset to its goal variation.
+#[derive(Debug, Default)]
+pub struct EvalEnvs {
+    /// Idle worker sets; a worker takes one (or starts an empty one) and puts it back.
+    sets: Mutex<Vec<HashMap<&'static str, Vec<Env>>>>,
+    /// Environments built over the life of this value.
+    built: AtomicUsize,
+}
+
+impl EvalEnvs {
+    /// Environments built so far (with reuse, at most `threads × tasks × BATCH` in total).
+    pub fn built(&self) -> usize {
+        self.built.load(Ordering::Relaxed)
+    }
+
+    fn take(&self) -> HashMap<&'static str, Vec<Env>> {
+        self.sets
+            .lock()
+            .ok()
+            .and_then(|mut s| s.pop())
+            .unwrap_or_default()
+    }
+
+    fn give_back(&self, set: HashMap<&'static str, Vec<Env>>) {
+        if let Ok(mut s) = self.sets.lock() {
+            s.push(set);
+        }
+    }
+}
+
+/// [`evaluate_policy`] with environments taken from and returned to `envs` (built only where
+/// `envs` has too few for a task), so repeated evaluations do not rebuild them. Same results
+/// and errors as [`evaluate_policy`].
+pub fn evaluate_policy_with(
+    envs: &EvalEnvs,
     policy: &Policy,
     tasks: &[EvalTask],
     settings: &EvalSettings,
@@ -311,7 +372,7 @@ pub fn evaluate_policy(
     let worker = || {
         let cpu_start = thread_cpu_seconds();
         let mut pol = policy.with_max_batch(BATCH);
-        let mut envs: HashMap<&'static str, Vec<Env>> = HashMap::new();
+        let mut set = envs.take();
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
         loop {
             if first_error.lock().map(|e| e.is_some()).unwrap_or(true) {
@@ -322,7 +383,8 @@ pub fn evaluate_policy(
                 break;
             };
             let task = &tasks[t];
-            let pool = envs.entry(task.name).or_default();
+            let pool = set.entry(task.name).or_default();
+            let had = pool.len();
             let got = run_chunk(
                 &mut pol,
                 pool,
@@ -332,6 +394,7 @@ pub fn evaluate_policy(
                 &mut rng,
                 cancel,
             );
+            envs.built.fetch_add(pool.len() - had, Ordering::Relaxed);
             match got {
                 Ok(eps) => {
                     on_episodes(eps.len());
@@ -351,6 +414,7 @@ pub fn evaluate_policy(
                 }
             }
         }
+        envs.give_back(set);
         if let Ok(mut c) = cpu.lock() {
             *c = match (*c, cpu_start, thread_cpu_seconds()) {
                 (Some(sum), Some(a), Some(b)) => Some(sum + (b - a)),
@@ -768,5 +832,67 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("allowed"), "{e}");
+    }
+
+    /// Resident set size of this process in bytes (Linux `/proc/self/statm`).
+    fn rss_bytes() -> u64 {
+        let statm = std::fs::read_to_string("/proc/self/statm").unwrap();
+        let pages: u64 = statm.split_whitespace().nth(1).unwrap().parse().unwrap();
+        pages * 4096
+    }
+
+    fn four_tasks() -> Vec<EvalTask> {
+        let names = ["reach-v3", "push-v3", "pick-place-v3", "door-open-v3"];
+        plan_tasks(&names, &names, UnseenTaskEncoding::Uniform)
+    }
+
+    #[test]
+    fn kept_environments_are_built_once_and_give_the_same_results() {
+        let tasks = four_tasks();
+        let s = EvalSettings {
+            episodes_per_task: 10,
+            variation_seed: 5,
+            threads: 1,
+        };
+        let p = policy(tasks.len());
+        let fresh = evaluate_policy(&p, &tasks, &s, &|_| {}, None).unwrap();
+        let envs = EvalEnvs::default();
+        let first = evaluate_policy_with(&envs, &p, &tasks, &s, &|_| {}, None).unwrap();
+        assert_eq!(envs.built(), tasks.len() * BATCH);
+        let second = evaluate_policy_with(&envs, &p, &tasks, &s, &|_| {}, None).unwrap();
+        assert_eq!(envs.built(), tasks.len() * BATCH, "environments rebuilt");
+        for r in [&first, &second] {
+            assert_eq!(r.tasks, fresh.tasks);
+            assert_eq!(r.mean_return, fresh.mean_return);
+            assert_eq!(r.eval_env_steps, fresh.eval_env_steps);
+        }
+    }
+
+    #[test]
+    fn repeated_evaluations_stay_near_the_first_evaluations_footprint() {
+        // The in-run evaluator evaluates every few minutes for days: memory after many
+        // evaluations must stay near what the first one needed, not grow with each.
+        let tasks = four_tasks();
+        let s = EvalSettings {
+            episodes_per_task: 10,
+            variation_seed: 0,
+            threads: 1,
+        };
+        let p = policy(tasks.len());
+        let envs = EvalEnvs::default();
+        let before = rss_bytes();
+        evaluate_policy_with(&envs, &p, &tasks, &s, &|_| {}, None).unwrap();
+        let after_first = rss_bytes();
+        let footprint = after_first.saturating_sub(before).max(1);
+        for _ in 0..4 {
+            evaluate_policy_with(&envs, &p, &tasks, &s, &|_| {}, None).unwrap();
+        }
+        let growth = rss_bytes().saturating_sub(after_first);
+        eprintln!("first evaluation: {footprint} bytes; 4 more: +{growth} bytes");
+        assert!(
+            growth <= footprint / 2,
+            "4 more evaluations grew the resident set by {growth} bytes; the first \
+             evaluation's footprint was {footprint} bytes"
+        );
     }
 }

@@ -11,7 +11,7 @@ mod config;
 pub mod eval;
 mod metaworld_vec;
 
-pub use config::{token_from_env, Algorithm, ClusterConfig, RunConfig};
+pub use config::{token_from_env, Algorithm, ClusterConfig, OnCheckpointError, RunConfig};
 pub use metaworld_vec::MetaWorldVec;
 
 /// What a cluster service (learner or selector) needs to start.
@@ -37,6 +37,9 @@ pub struct ServiceConfig {
     /// Token and TLS trust of this service's clients (the selector's learner subscription);
     /// [`ClusterConfig::client_security`].
     pub client_security: terl_wire::ClientSecurity,
+    /// Continue the run in `run_dir` from its newest intact checkpoint (learner), or from its
+    /// logs (selector) instead of starting fresh.
+    pub resume: bool,
 }
 
 impl ServiceConfig {
@@ -57,6 +60,7 @@ impl ServiceConfig {
             tep_datasets: Vec::new(),
             server_security: terl_wire::ServerSecurity::default(),
             client_security: terl_wire::ClientSecurity::default(),
+            resume: false,
         }
     }
 }
@@ -114,6 +118,30 @@ pub fn write_addr_file(
         .with_context(|| format!("cannot write {}", tmp.display()))?;
     std::fs::rename(&tmp, &path).with_context(|| format!("cannot write {}", path.display()))?;
     Ok(path)
+}
+
+/// `--parent-pid PID` of the service binaries: the process gets SIGTERM when its parent (the
+/// launcher) dies, even by `kill -9`, and so stops cleanly (final checkpoint, shared memory
+/// released) instead of living on as an orphan. Linux only (`prctl(PR_SET_PDEATHSIG)`); elsewhere
+/// a no-op with a warning.
+///
+/// # Errors
+/// The parent is not `parent` any more (it died before this call: the process must not start),
+/// or the kernel refused the setting.
+pub fn exit_with_parent(parent: u32) -> anyhow::Result<()> {
+    #[cfg(target_os = "linux")]
+    {
+        nix::sys::prctl::set_pdeathsig(nix::sys::signal::Signal::SIGTERM)
+            .map_err(|e| anyhow::anyhow!("cannot ask for SIGTERM on the launcher's exit: {e}"))?;
+        let now = std::os::unix::process::parent_id();
+        anyhow::ensure!(
+            now == parent,
+            "the launcher (pid {parent}) is gone (parent is now {now}); not starting"
+        );
+    }
+    #[cfg(not(target_os = "linux"))]
+    tracing::warn!(parent, "--parent-pid has no effect on this platform");
+    Ok(())
 }
 
 /// Initialises `tracing` for a service binary: `RUST_LOG` or `info`, to stderr (colours only on

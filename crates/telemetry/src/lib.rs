@@ -29,9 +29,24 @@
 //! prefix: complete chunks, possibly followed by a partial chunk, and no summary or footer.
 //! [`read_tep_dataset`] reads the file front to back with the mcap crate's linear reader, checking
 //! every chunk's CRC before using it; where the file ends early or stops making sense it keeps
-//! everything before that point and reports [`TepDataset::truncated`] instead of failing. Data the
-//! process had flushed survives a kill; surviving a power loss additionally needs the file synced,
-//! which [`TepDatasetWriter::finish`] does.
+//! everything before that point and reports [`TepDataset::truncated`], with the reason in
+//! [`TepDataset::truncation`], instead of failing. Data the process had flushed survives a kill;
+//! surviving a power loss additionally needs the file synced, which [`TepDatasetWriter::finish`]
+//! does.
+//!
+//! # Damaged files
+//!
+//! Every length in the file is bounded by what is there before anything is allocated: the
+//! reader reads the file as it is when reading begins, refuses any record or chunk that claims
+//! more bytes than that (a damaged length), grows its buffer only by bytes really read, and
+//! checks the strings of header, schema and channel records against their record before
+//! parsing them. A damaged length, a flipped byte in a chunk (its CRC no longer matches) or a
+//! cut anywhere therefore ends the read at that point with the messages before it kept and
+//! `truncated` set, never a crash; records the reader does not need (indexes, attachments,
+//! metadata) are skipped unparsed. Damage that would otherwise drop a chunk silently (its opcode
+//! turned into another record's) shows in files of our writer as a gap in the message numbers,
+//! an opcode the writer never writes, or fewer messages than the file's statistics count, and
+//! ends or marks the read the same way.
 
 mod log;
 mod records;
@@ -108,12 +123,8 @@ pub enum TelemetryError {
         #[source]
         source: mcap::McapError,
     },
-    #[error("{path} is not an MCAP file ({source})")]
-    NotMcap {
-        path: PathBuf,
-        #[source]
-        source: mcap::McapError,
-    },
+    #[error("{path} is not an MCAP file ({reason})")]
+    NotMcap { path: PathBuf, reason: String },
     #[error("{path} has no channel on topic {topic} (not a {what}){}",
         if *truncated { "; the file is also truncated" } else { "" })]
     NoChannel {

@@ -130,11 +130,22 @@ pub struct Logged<R> {
     pub records: Vec<R>,
     /// Messages that did not decode or failed validation (skipped).
     pub rejected: u64,
-    /// The writer was killed: `records` is what was flushed before.
+    /// Reading stopped before the end of a complete file (its writer was killed, the file was
+    /// cut, or it is damaged): `records` is what came before that point.
     pub truncated: bool,
+    /// Why reading stopped, in words (a cut, a record claiming more bytes than the file has, a
+    /// chunk whose CRC does not match, …): `Some` exactly when `truncated` is set.
+    pub truncation: Option<String>,
 }
 
 /// Reads every record of type `R` from its channel in the MCAP file at `path`.
+///
+/// Records that do not decode or validate are counted in [`Logged::rejected`] and skipped. A file
+/// that ends early or is damaged part-way (a cut, a damaged record length, a flipped byte in a
+/// chunk) yields the records before that point with [`Logged::truncated`] set and the reason in
+/// [`Logged::truncation`]; no length read from the file is trusted beyond the file's size.
+/// Errors: the file cannot be read, is not MCAP, has no channel of `R`, or that channel's schema
+/// or encoding is wrong.
 pub fn read_log<R: LogRecord>(path: impl AsRef<Path>) -> Result<Logged<R>> {
     let read = read_channel(path.as_ref(), R::CHANNEL, |bytes| {
         R::Proto::decode(bytes)
@@ -144,7 +155,8 @@ pub fn read_log<R: LogRecord>(path: impl AsRef<Path>) -> Result<Logged<R>> {
     Ok(Logged {
         records: read.items,
         rejected: read.rejected,
-        truncated: read.truncated,
+        truncated: read.stopped.is_some(),
+        truncation: read.stopped,
     })
 }
 
@@ -201,6 +213,7 @@ mod tests {
             length: 500,
             policy_version: 9,
             guided_steps: 7,
+            missed_before: 2,
         };
         e.write(&ep, 5).unwrap();
         drop(e);

@@ -93,9 +93,11 @@ pub struct TepDataset {
     pub samples: Vec<TepSample>,
     /// Messages on [`TEP_TOPIC`] that did not decode or failed validation (skipped).
     pub rejected: u64,
-    /// The file ended early or has a damaged tail (its writer was killed): `samples` holds what
-    /// was complete before that point.
+    /// The file ended early or is damaged part-way (its writer was killed, the file was cut, a
+    /// record length or a chunk is damaged): `samples` holds what was complete before that point.
     pub truncated: bool,
+    /// Why reading stopped, in words: `Some` exactly when `truncated` is set.
+    pub truncation: Option<String>,
 }
 
 /// Reads every sample on [`TEP_TOPIC`] of the MCAP file at `path`.
@@ -103,7 +105,10 @@ pub struct TepDataset {
 /// The file is read front to back (see the crate docs): messages are decoded with prost and
 /// validated with `TryFrom<pb::TepSample>`; invalid ones are counted in
 /// [`TepDataset::rejected`] and skipped with one warning. A file that ends early or breaks off
-/// (a killed writer) yields its complete chunks with [`TepDataset::truncated`] set. Errors: the
+/// (a killed writer) or is damaged part-way (a damaged record length, a flipped byte in a chunk)
+/// yields the complete chunks before that point with [`TepDataset::truncated`] set and the
+/// reason in [`TepDataset::truncation`]; no length read from the file is trusted beyond the
+/// file's size, so damage never makes the reader allocate more than the file holds. Errors: the
 /// file cannot be read, is not MCAP, has no [`TEP_TOPIC`] channel, or that channel's schema or
 /// encoding is not `terl.v1.TepSample` / protobuf.
 pub fn read_tep_dataset(path: impl AsRef<Path>) -> Result<TepDataset> {
@@ -115,7 +120,8 @@ pub fn read_tep_dataset(path: impl AsRef<Path>) -> Result<TepDataset> {
     Ok(TepDataset {
         samples: read.items,
         rejected: read.rejected,
-        truncated: read.truncated,
+        truncated: read.stopped.is_some(),
+        truncation: read.stopped,
     })
 }
 

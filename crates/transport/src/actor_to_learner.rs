@@ -7,6 +7,7 @@
 
 use iceoryx2::prelude::*;
 
+use crate::flow::Losses;
 use crate::{ACTION_DIM, OBS_DIM};
 
 /// Transitions in one [`TransitionBatch`]: 64 × 352 B ≈ 22 KiB per shared-memory sample.
@@ -88,13 +89,17 @@ pub struct TransitionBatch {
     /// Actor that sent the batch (also in each transition; here for cheap routing/metrics).
     pub actor_id: u16,
     pub reserved: u16,
-    /// Per-publisher sequence number, starting at 0 and incremented per batch, so a receiver
-    /// can detect gaps and reordering.
+    /// Per-publisher sequence number, starting at 0 and incremented per batch (also for
+    /// batches that were not delivered), so a receiver can detect gaps and reordering.
     pub sequence: u64,
+    /// The sender's cumulative losses before this batch: batches (`messages`) and transitions
+    /// (`items`) its earlier sends gave up on because the receiver stayed full. Stamped by the
+    /// transport on send (see [`crate::flow`]).
+    pub losses: Losses,
     pub transitions: [Transition; TRANSITIONS_PER_BATCH],
 }
 
-const _: () = assert!(core::mem::size_of::<TransitionBatch>() == 16 + 352 * TRANSITIONS_PER_BATCH);
+const _: () = assert!(core::mem::size_of::<TransitionBatch>() == 32 + 352 * TRANSITIONS_PER_BATCH);
 
 impl TransitionBatch {
     pub const EMPTY: TransitionBatch = TransitionBatch {
@@ -102,6 +107,7 @@ impl TransitionBatch {
         actor_id: 0,
         reserved: 0,
         sequence: 0,
+        losses: Losses::ZERO,
         transitions: [Transition::ZERO; TRANSITIONS_PER_BATCH],
     };
 
@@ -132,7 +138,8 @@ impl TransitionBatch {
 }
 
 impl PartialEq for TransitionBatch {
-    /// Equal when header and the valid transitions match (ignores stale tail entries).
+    /// Equal when header and the valid transitions match (ignores stale tail entries and the
+    /// loss stamp, which the transport sets).
     fn eq(&self, other: &Self) -> bool {
         self.len == other.len
             && self.actor_id == other.actor_id

@@ -3,6 +3,7 @@
 
 use iceoryx2::prelude::*;
 
+use crate::flow::Losses;
 use crate::{ACTION_DIM, OBS_DIM};
 
 /// Meta-World episodes are 500 steps; the trajectory array holds one full episode.
@@ -33,8 +34,13 @@ impl TrajectoryStep {
 pub struct EpisodeSummary {
     /// Policy version the episode started with (actors may pick up new weights mid-episode).
     pub policy_version: u64,
-    /// Per-actor episode counter, starting at 0.
+    /// Per-actor episode counter, starting at 0 (also incremented for episodes that were not
+    /// delivered, so a receiver sees the gap).
     pub episode_index: u64,
+    /// The actor's cumulative losses before this episode: episodes (`messages` = `items`) its
+    /// earlier sends gave up on because a receiver (selector or learner) stayed full. Stamped
+    /// by the transport on send (see [`crate::flow`]).
+    pub losses: Losses,
     /// Sum of rewards.
     pub episode_return: f32,
     /// Number of steps taken (≥ `trajectory_len`; equal unless the trajectory was cut).
@@ -57,13 +63,14 @@ pub struct EpisodeSummary {
 
 const _: () = assert!(
     core::mem::size_of::<EpisodeSummary>()
-        == 40 + 4 * OBS_DIM + 4 + MAX_EPISODE_STEPS * core::mem::size_of::<TrajectoryStep>()
+        == 56 + 4 * OBS_DIM + 4 + MAX_EPISODE_STEPS * core::mem::size_of::<TrajectoryStep>()
 );
 
 impl EpisodeSummary {
     pub const EMPTY: EpisodeSummary = EpisodeSummary {
         policy_version: 0,
         episode_index: 0,
+        losses: Losses::ZERO,
         episode_return: 0.0,
         length: 0,
         trajectory_len: 0,
@@ -101,7 +108,8 @@ impl EpisodeSummary {
 }
 
 impl PartialEq for EpisodeSummary {
-    /// Equal when summary fields and the valid steps match.
+    /// Equal when summary fields and the valid steps match (the loss stamp, which the
+    /// transport sets, is ignored).
     fn eq(&self, other: &Self) -> bool {
         self.policy_version == other.policy_version
             && self.episode_index == other.episode_index

@@ -13,7 +13,7 @@ use iceoryx2::prelude::ZeroCopySend;
 use crate::actor_to_learner::TransitionBatch;
 use crate::actor_to_selector::EpisodeSummary;
 use crate::error::TransportError;
-use crate::flow::{SendOutcome, StatsSnapshot};
+use crate::flow::{Losses, SendOutcome, StatsSnapshot};
 use crate::selector_to_learner::SelectedBatch;
 
 /// The three streams of a run.
@@ -46,12 +46,29 @@ pub trait Message: ZeroCopySend + Copy + Debug + Send + 'static {
     const TOPIC: Topic;
     /// A valid all-zero value, heap allocated (messages are tens to hundreds of KiB).
     fn empty() -> Box<Self>;
+    /// Items the message carries, for loss counts: transitions of a batch, 1 per episode,
+    /// selected samples of a batch.
+    fn items(&self) -> u64;
+    /// The sender's cumulative losses stamped on the message (see [`crate::flow`]).
+    fn losses(&self) -> Losses;
+    /// Stamps the sender's cumulative losses; the sinks do this on every send, so whatever the
+    /// caller put there is overwritten.
+    fn set_losses(&mut self, losses: Losses);
 }
 
 impl Message for TransitionBatch {
     const TOPIC: Topic = Topic::Transitions;
     fn empty() -> Box<Self> {
         Box::new(TransitionBatch::EMPTY)
+    }
+    fn items(&self) -> u64 {
+        self.as_slice().len() as u64
+    }
+    fn losses(&self) -> Losses {
+        self.losses
+    }
+    fn set_losses(&mut self, losses: Losses) {
+        self.losses = losses;
     }
 }
 
@@ -60,6 +77,15 @@ impl Message for EpisodeSummary {
     fn empty() -> Box<Self> {
         Box::new(EpisodeSummary::EMPTY)
     }
+    fn items(&self) -> u64 {
+        1
+    }
+    fn losses(&self) -> Losses {
+        self.losses
+    }
+    fn set_losses(&mut self, losses: Losses) {
+        self.losses = losses;
+    }
 }
 
 impl Message for SelectedBatch {
@@ -67,13 +93,25 @@ impl Message for SelectedBatch {
     fn empty() -> Box<Self> {
         Box::new(SelectedBatch::EMPTY)
     }
+    fn items(&self) -> u64 {
+        self.as_slice().len() as u64
+    }
+    fn losses(&self) -> Losses {
+        self.losses
+    }
+    fn set_losses(&mut self, losses: Losses) {
+        self.losses = losses;
+    }
 }
 
 /// The sending end of one stream.
 pub trait MessageSink<M: Message>: Send + Debug {
     /// Delivers `message` to every connected receiver, following the sink's
     /// [`OverflowPolicy`](crate::OverflowPolicy) when one is full. Never loses a message
-    /// without saying so: see [`SendOutcome`].
+    /// without saying so: see [`SendOutcome`]. What is delivered is `message` stamped with
+    /// this sink's cumulative [`Losses`] before the send (the `losses` field is overwritten).
+    /// A message given up on (`Full`, `BlockTimeout`, `Cancelled`) is counted in
+    /// `dropped`/`dropped_items` and in the stamp of the next message.
     fn send(&mut self, message: &M) -> Result<SendOutcome, TransportError>;
 
     /// Number of receivers currently connected.

@@ -33,6 +33,15 @@ pub enum TransportError {
          and draining?); the message was not delivered"
     )]
     BlockTimeout { service: String, waited: Duration },
+    #[error(
+        "{what} is already streaming to run {run_id}: another live process holds {service}. \
+         Stop that process first, or start this one with an id no running process uses"
+    )]
+    IdInUse {
+        what: String,
+        run_id: String,
+        service: String,
+    },
     #[error("timed out after {after:?} waiting for {what}")]
     Timeout { what: String, after: Duration },
     #[error(

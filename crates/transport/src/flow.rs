@@ -13,10 +13,28 @@
 //!    the message is dropped. Either way the event is counted in [`TransportStats`]; nothing is
 //!    ever overwritten or lost without a count (iceoryx2's "safe overflow", which silently
 //!    replaces the oldest sample, is switched off).
+//! 4. A `Block` send that is still waiting after the block timeout (the receiver stopped or
+//!    stalled) gives up with `TransportError::BlockTimeout`; the message is dropped and counted
+//!    in `dropped`/`dropped_items` exactly like a `DropNewest` drop.
+//!
+//! ## How a receiver learns what it lost
+//!
+//! A sender's counters alone would leave the loss visible only in the sender's own log. So the
+//! transport **stamps every message it sends with its sink's cumulative [`Losses`]** (messages
+//! and items given up on before this one: [`Message::set_losses`](crate::Message)). The first
+//! message that gets through after an outage tells the receiver exactly how many messages, and
+//! how many transitions/episodes/samples inside them, never reached it. A [`LossTracker`] on the
+//! receiving side folds the stamps of every sender (keyed by sender id, e.g. the actor id) into
+//! per-sender and total counts that survive sender restarts, and also counts gaps in each
+//! sender's sequence numbers: messages *this* receiver never got, which on a stream with two
+//! receivers (episodes: selector and learner) is the receiver's own share of the loss.
+//! Losses after the last delivered message are reported with the next one; a sender that never
+//! gets a message through again reports them only in its own log.
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
+use iceoryx2::prelude::ZeroCopySend;
 use serde::{Deserialize, Serialize};
 
 /// What a sink does when a receiver's buffer is full.
@@ -51,6 +69,7 @@ pub struct TransportStats {
     sent: AtomicU64,
     received: AtomicU64,
     dropped: AtomicU64,
+    dropped_items: AtomicU64,
     full_events: AtomicU64,
     no_receiver: AtomicU64,
 }
@@ -62,8 +81,13 @@ pub struct StatsSnapshot {
     pub sent: u64,
     /// Messages taken out of a source.
     pub received: u64,
-    /// Messages a `DropNewest` policy dropped because a receiver was full.
+    /// Messages not delivered to a receiver because it was full: dropped at once by
+    /// `DropNewest`, or given up on by a `Block` send after the block timeout
+    /// (`TransportError::BlockTimeout`) or on shutdown (`TransportError::Cancelled`).
     pub dropped: u64,
+    /// Items inside the `dropped` messages ([`Message::items`](crate::Message::items):
+    /// transitions of a batch, 1 per episode, selected samples of a batch).
+    pub dropped_items: u64,
     /// Sends that found a receiver's buffer full (whether they then blocked or dropped).
     pub full_events: u64,
     /// Sends that found no receiver connected (message reached nobody).
@@ -76,6 +100,7 @@ impl TransportStats {
             sent: self.sent.load(Ordering::Relaxed),
             received: self.received.load(Ordering::Relaxed),
             dropped: self.dropped.load(Ordering::Relaxed),
+            dropped_items: self.dropped_items.load(Ordering::Relaxed),
             full_events: self.full_events.load(Ordering::Relaxed),
             no_receiver: self.no_receiver.load(Ordering::Relaxed),
         }
@@ -89,14 +114,153 @@ impl TransportStats {
         self.full_events.fetch_add(1, Ordering::Relaxed);
     }
 
-    /// Records the outcome of one send.
-    pub(crate) fn record(&self, outcome: SendOutcome) {
+    /// Records the outcome of one send of a message holding `items` items.
+    pub(crate) fn record(&self, outcome: SendOutcome, items: u64) {
         let counter = match outcome {
             SendOutcome::Delivered => &self.sent,
-            SendOutcome::Full => &self.dropped,
+            SendOutcome::Full => {
+                self.dropped_items.fetch_add(items, Ordering::Relaxed);
+                &self.dropped
+            }
             SendOutcome::NoReceiver => &self.no_receiver,
         };
         counter.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Records a send that gave up on a full receiver with an error (block timeout or
+    /// cancellation): the message of `items` items is dropped.
+    pub(crate) fn record_given_up(&self, items: u64) {
+        self.dropped.fetch_add(1, Ordering::Relaxed);
+        self.dropped_items.fetch_add(items, Ordering::Relaxed);
+    }
+
+    /// What the next message sent should be stamped with.
+    pub fn losses(&self) -> Losses {
+        Losses {
+            messages: self.dropped.load(Ordering::Relaxed),
+            items: self.dropped_items.load(Ordering::Relaxed),
+        }
+    }
+}
+
+/// A sender's cumulative losses on one stream, stamped by the transport on every message the
+/// sender's sink sends (see the module docs): messages (and the items inside them) that the
+/// sink gave up on because a receiver stayed full — `StatsSnapshot::dropped` and
+/// `dropped_items` at the moment of sending. Counted since the sink was created, so a restarted
+/// sender starts again at zero ([`LossTracker`] handles that). 16 bytes of plain data.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend, Serialize, Deserialize)]
+#[repr(C)]
+pub struct Losses {
+    /// Messages not delivered to at least one receiver.
+    pub messages: u64,
+    /// Items (transitions, episodes, selected samples) inside those messages.
+    pub items: u64,
+}
+
+const _: () = assert!(core::mem::size_of::<Losses>() == 16);
+
+impl Losses {
+    pub const ZERO: Losses = Losses {
+        messages: 0,
+        items: 0,
+    };
+
+    fn saturating_add(self, other: Losses) -> Losses {
+        Losses {
+            messages: self.messages.saturating_add(other.messages),
+            items: self.items.saturating_add(other.items),
+        }
+    }
+
+    /// True when either count is below `other`'s (a cumulative count went backwards).
+    fn below(self, other: Losses) -> bool {
+        self.messages < other.messages || self.items < other.items
+    }
+}
+
+/// What a receiver knows about one sender's losses (see [`LossTracker`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SenderLosses {
+    /// Losses the sender reported (its stamps), summed over its restarts.
+    pub reported: Losses,
+    /// Messages this receiver never got: gaps in the sender's sequence numbers, counted from
+    /// the first message received of each sender lifetime.
+    pub missed: u64,
+    /// Sender restarts seen (sequence number or stamp went backwards).
+    pub restarts: u64,
+}
+
+/// Receiver-side loss accounting over many senders, from the [`Losses`] stamp and the
+/// per-sender sequence number of every message received.
+///
+/// Per sender: the stamp is cumulative over one sender lifetime, so the latest stamp is the
+/// lifetime's total; when the sequence number or the stamp goes backwards the sender has
+/// restarted (a new process counts from zero) and the previous lifetime's total is kept.
+/// A gap in the sequence numbers (`sequence > previous + 1`) is `sequence − previous − 1`
+/// messages this receiver never got. Senders must number their messages 0, 1, 2, … per
+/// lifetime, counting messages that were not delivered too (as the actors do).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct LossTracker {
+    senders: std::collections::BTreeMap<u16, Tracked>,
+}
+
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct Tracked {
+    /// Totals of earlier lifetimes plus gaps so far.
+    base: SenderLosses,
+    /// The current lifetime's latest stamp.
+    stamp: Losses,
+    last_sequence: Option<u64>,
+}
+
+impl LossTracker {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Records one received message of `sender` with its `sequence` number and `stamp`.
+    /// Returns the gap before it (messages of this sender missed just before this one).
+    pub fn observe(&mut self, sender: u16, sequence: u64, stamp: Losses) -> u64 {
+        let t = self.senders.entry(sender).or_default();
+        let mut gap = 0;
+        match t.last_sequence {
+            Some(last) if sequence <= last || stamp.below(t.stamp) => {
+                // A new lifetime of this sender: keep the old one's total.
+                t.base.reported = t.base.reported.saturating_add(t.stamp);
+                t.base.restarts += 1;
+            }
+            Some(last) => gap = sequence - last - 1,
+            None => {}
+        }
+        t.base.missed = t.base.missed.saturating_add(gap);
+        t.stamp = stamp;
+        t.last_sequence = Some(sequence);
+        gap
+    }
+
+    /// Everything known about `sender` (zero when nothing was received from it).
+    pub fn sender(&self, sender: u16) -> SenderLosses {
+        self.senders
+            .get(&sender)
+            .map_or_else(SenderLosses::default, |t| SenderLosses {
+                reported: t.base.reported.saturating_add(t.stamp),
+                ..t.base
+            })
+    }
+
+    /// Per sender, in sender id order.
+    pub fn senders(&self) -> impl Iterator<Item = (u16, SenderLosses)> + '_ {
+        self.senders.keys().map(|&id| (id, self.sender(id)))
+    }
+
+    /// Sum over senders.
+    pub fn total(&self) -> SenderLosses {
+        self.senders()
+            .fold(SenderLosses::default(), |acc, (_, s)| SenderLosses {
+                reported: acc.reported.saturating_add(s.reported),
+                missed: acc.missed.saturating_add(s.missed),
+                restarts: acc.restarts + s.restarts,
+            })
     }
 }
 
@@ -331,16 +495,50 @@ mod tests {
     #[test]
     fn stats_count_each_outcome() {
         let stats = TransportStats::default();
-        stats.record(SendOutcome::Delivered);
-        stats.record(SendOutcome::Delivered);
-        stats.record(SendOutcome::Full);
-        stats.record(SendOutcome::NoReceiver);
+        stats.record(SendOutcome::Delivered, 64);
+        stats.record(SendOutcome::Delivered, 64);
+        stats.record(SendOutcome::Full, 7);
+        stats.record(SendOutcome::NoReceiver, 64);
+        stats.record_given_up(3);
         stats.add_full_event();
         stats.add_received(5);
         let s = stats.snapshot();
         assert_eq!(
             (s.sent, s.dropped, s.no_receiver, s.full_events, s.received),
-            (2, 1, 1, 1, 5)
+            (2, 2, 1, 1, 5)
         );
+        assert_eq!(s.dropped_items, 10);
+        assert_eq!(
+            stats.losses(),
+            Losses {
+                messages: 2,
+                items: 10
+            }
+        );
+    }
+
+    fn losses(messages: u64, items: u64) -> Losses {
+        Losses { messages, items }
+    }
+
+    #[test]
+    fn tracker_counts_stamps_gaps_and_restarts() {
+        let mut t = LossTracker::new();
+        assert_eq!(t.observe(0, 0, Losses::ZERO), 0);
+        assert_eq!(t.observe(0, 1, Losses::ZERO), 0);
+        // Sequences 2..=4 timed out; the actor says so on sequence 5.
+        assert_eq!(t.observe(0, 5, losses(3, 192)), 3);
+        assert_eq!(t.observe(1, 0, Losses::ZERO), 0);
+        let a = t.sender(0);
+        assert_eq!((a.reported, a.missed, a.restarts), (losses(3, 192), 3, 0));
+        // Actor 0 restarts: sequence and stamp start again; the first lifetime is kept.
+        assert_eq!(t.observe(0, 0, Losses::ZERO), 0);
+        assert_eq!(t.observe(0, 2, losses(1, 64)), 1);
+        let a = t.sender(0);
+        assert_eq!((a.reported, a.missed, a.restarts), (losses(4, 256), 4, 1));
+        let total = t.total();
+        assert_eq!((total.reported, total.missed), (losses(4, 256), 4));
+        assert_eq!(t.sender(9), SenderLosses::default());
+        assert_eq!(t.senders().count(), 2);
     }
 }

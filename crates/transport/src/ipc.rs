@@ -15,11 +15,14 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use iceoryx2::port::notifier::{Notifier, NotifierCreateError};
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::port::{BackpressureAction, BackpressureInfo, SendError};
 use iceoryx2::prelude::*;
+use iceoryx2::service::builder::event::{EventOpenError, EventOpenOrCreateError};
+use iceoryx2::service::port_factory::event::PortFactory as EventFactory;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
 use serde::{Deserialize, Serialize};
 
@@ -127,6 +130,54 @@ impl ShmTransport {
         StaleCleanup {
             cleaned: state.cleanups,
             failed: state.failed_cleanups,
+        }
+    }
+
+    /// Claims `actor_id` on this run for as long as the returned [`SenderClaim`] lives, so two
+    /// actor processes never stream under one id (their sequence numbers and loss stamps
+    /// would mix, and each would take the other's share of the tasks twice).
+    ///
+    /// The claim is the only notifier port of the iceoryx2 event service
+    /// `terl/<run_id>/claims/actor-<id>` — the same mechanism that keeps a run to one learner
+    /// (its transition subscriber is the only one the service allows). A killed holder's port
+    /// is removed by the dead-node cleanup of the next [`ShmTransport::open`], so a restarted
+    /// actor gets its id back. Errors with [`TransportError::IdInUse`] while another live
+    /// process holds the id.
+    pub fn claim_actor_id(&self, actor_id: u16) -> Result<SenderClaim, TransportError> {
+        let label = format!("terl/{}/claims/actor-{actor_id}", self.config.run_id);
+        let name: ServiceName = label
+            .as_str()
+            .try_into()
+            .map_err(|e| ipc_err("service name", &label, e))?;
+        let in_use = || TransportError::IdInUse {
+            what: format!("actor id {actor_id}"),
+            run_id: self.config.run_id.clone(),
+            service: label.clone(),
+        };
+        let factory = match self
+            .node
+            .service_builder(&name)
+            .event()
+            .max_notifiers(1)
+            .max_listeners(1)
+            .max_nodes(CLAIM_MAX_NODES)
+            .open_or_create()
+        {
+            Ok(f) => f,
+            Err(EventOpenOrCreateError::EventOpenError(
+                EventOpenError::ExceedsMaxNumberOfNodes,
+            )) => return Err(in_use()),
+            Err(e) => return Err(ipc_err("open_or_create claim", &label, e)),
+        };
+        match factory.notifier_builder().create() {
+            Ok(notifier) => Ok(SenderClaim {
+                label,
+                _notifier: notifier,
+                _factory: factory,
+                _node: Arc::clone(&self.node),
+            }),
+            Err(NotifierCreateError::ExceedsMaxSupportedNotifiers) => Err(in_use()),
+            Err(e) => Err(ipc_err("claim", &label, e)),
         }
     }
 
@@ -256,6 +307,27 @@ impl Transport for ShmTransport {
     }
 }
 
+/// Nodes that may open a claim service at once: the holder plus processes trying (and
+/// failing) to claim the same id.
+const CLAIM_MAX_NODES: usize = 16;
+
+/// An actor id held by this process (see [`ShmTransport::claim_actor_id`]); released when
+/// dropped, or by the dead-node cleanup when the process is killed.
+pub struct SenderClaim {
+    label: String,
+    _notifier: Notifier<ShmService>,
+    _factory: EventFactory<ShmService>,
+    _node: Arc<Node<ShmService>>,
+}
+
+impl core::fmt::Debug for SenderClaim {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("SenderClaim")
+            .field("service", &self.label)
+            .finish()
+    }
+}
+
 /// Publisher side of one stream over shared memory.
 pub struct ShmSink<M: Message> {
     label: String,
@@ -286,6 +358,13 @@ impl<M: Message> core::fmt::Debug for ShmSink<M> {
 const UNATTACHED_RETRY: Duration = Duration::from_micros(200);
 
 impl<M: Message> ShmSink<M> {
+    /// A `Block` send gives up on a full receiver: the message is dropped and counted (and
+    /// reported in the stamp of the next message).
+    fn give_up(&self, message: &M) -> TransportError {
+        self.stats.record_given_up(message.items());
+        self.block_timeout_error()
+    }
+
     fn block_timeout_error(&self) -> TransportError {
         if self.cancel.load(Ordering::Relaxed) {
             return TransportError::Cancelled(self.label.clone());
@@ -316,12 +395,14 @@ impl<M: Message> MessageSink<M> for ShmSink<M> {
                 .publisher
                 .loan_uninit()
                 .map_err(|e| ipc_err("loan", &self.label, e))?;
-            let result = sample.write_payload(*message).send();
+            let mut sample = sample.write_payload(*message);
+            sample.payload_mut().set_losses(self.stats.losses());
+            let result = sample.send();
             // The handler runs when an attached receiver is full.
             let handler_saw_full = self.full_hits.load(Ordering::Relaxed) != hits_before;
             let delivered = match result {
                 Ok(n) => n,
-                Err(SendError::UnableToDeliver) => return Err(self.block_timeout_error()),
+                Err(SendError::UnableToDeliver) => return Err(self.give_up(message)),
                 Err(e) => return Err(ipc_err("send", &self.label, e)),
             };
             // A subscriber attaches its end of the queue on its first receive; until then
@@ -339,7 +420,7 @@ impl<M: Message> MessageSink<M> for ShmSink<M> {
                         if start.elapsed() >= self.block_timeout
                             || self.cancel.load(Ordering::Relaxed) =>
                     {
-                        return Err(self.block_timeout_error())
+                        return Err(self.give_up(message))
                     }
                     OverflowPolicy::Block => {
                         std::thread::sleep(UNATTACHED_RETRY);
@@ -353,7 +434,7 @@ impl<M: Message> MessageSink<M> for ShmSink<M> {
             } else {
                 SendOutcome::Delivered
             };
-            self.stats.record(outcome);
+            self.stats.record(outcome, message.items());
             return Ok(outcome);
         }
     }

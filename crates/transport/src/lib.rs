@@ -5,8 +5,9 @@
 //! [`actor_to_learner`], [`actor_to_selector`], [`selector_to_learner`]), never serialised.
 //! Everything above this crate talks to the narrow seam in [`channel`]; [`ipc`] implements
 //! it over iceoryx2 shared memory and [`memory`] in-process for tests. [`flow`] documents
-//! and implements flow control: explicit overflow policies, counted drops, and the
-//! learner's update-to-data rate limiter.
+//! and implements flow control: explicit overflow policies, counted drops (stamped on the
+//! next message, so receivers learn what never reached them), and the learner's
+//! update-to-data rate limiter.
 
 pub mod actor_to_learner;
 pub mod actor_to_selector;
@@ -34,9 +35,9 @@ pub use channel::{
 pub use config::{ServiceLimits, TransportConfig};
 pub use error::TransportError;
 pub use flow::{
-    OverflowPolicy, RateLimiter, RateLimiterError, SendOutcome, Staleness, StatsSnapshot,
-    TransportStats,
+    LossTracker, Losses, OverflowPolicy, RateLimiter, RateLimiterError, SendOutcome, SenderLosses,
+    Staleness, StatsSnapshot, TransportStats,
 };
-pub use ipc::{ShmSink, ShmSource, ShmTransport, StaleCleanup};
+pub use ipc::{SenderClaim, ShmSink, ShmSource, ShmTransport, StaleCleanup};
 pub use memory::MemoryTransport;
 pub use selector_to_learner::{SelectedBatch, SelectedSample, SELECTED_PER_BATCH};

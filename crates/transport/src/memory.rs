@@ -217,22 +217,31 @@ impl<M: Message> MessageSink<M> for MemorySink<M> {
         let senders = self.subscriber_senders();
         let mut delivered = 0;
         let mut dropped = false;
+        let mut stamped = *message;
+        stamped.set_losses(self.stats.losses());
+        // Like iceoryx2: a receiver given up on does not stop delivery to the others.
+        let mut gave_up = None;
         for tx in senders {
-            match tx.try_send(Box::new(*message)) {
+            match tx.try_send(Box::new(stamped)) {
                 Ok(()) => delivered += 1,
                 Err(TrySendError::Disconnected(_)) => {}
                 Err(TrySendError::Full(boxed)) => {
                     self.stats.add_full_event();
                     match self.policy {
                         OverflowPolicy::DropNewest => dropped = true,
-                        OverflowPolicy::Block => {
-                            if self.block_until_sent(&tx, boxed)? {
-                                delivered += 1;
-                            }
-                        }
+                        OverflowPolicy::Block => match self.block_until_sent(&tx, boxed) {
+                            Ok(true) => delivered += 1,
+                            Ok(false) => {}
+                            Err(e) => gave_up = Some(e),
+                        },
                     }
                 }
             }
+        }
+        if let Some(e) = gave_up {
+            // Dropped for a full receiver: counted, and reported in the next message's stamp.
+            self.stats.record_given_up(message.items());
+            return Err(e);
         }
         let outcome = if dropped {
             SendOutcome::Full
@@ -241,7 +250,7 @@ impl<M: Message> MessageSink<M> for MemorySink<M> {
         } else {
             SendOutcome::Delivered
         };
-        self.stats.record(outcome);
+        self.stats.record(outcome, message.items());
         Ok(outcome)
     }
 

@@ -3,6 +3,7 @@
 
 use iceoryx2::prelude::*;
 
+use crate::flow::Losses;
 use crate::{ACTION_DIM, OBS_DIM};
 
 /// PTR scores and forwards transitions in batches of 512 (paper IV.A).
@@ -49,18 +50,23 @@ impl SelectedSample {
 pub struct SelectedBatch {
     pub len: u32,
     pub reserved: u32,
-    /// Selector-side sequence number, incremented per batch.
+    /// Selector-side sequence number, incremented per batch (also for batches that were not
+    /// delivered).
     pub sequence: u64,
+    /// The selector's cumulative losses before this batch: batches (`messages`) and samples
+    /// (`items`) not delivered because the learner stayed full. Stamped by the transport.
+    pub losses: Losses,
     pub samples: [SelectedSample; SELECTED_PER_BATCH],
 }
 
-const _: () = assert!(core::mem::size_of::<SelectedBatch>() == 16 + 352 * SELECTED_PER_BATCH);
+const _: () = assert!(core::mem::size_of::<SelectedBatch>() == 32 + 352 * SELECTED_PER_BATCH);
 
 impl SelectedBatch {
     pub const EMPTY: SelectedBatch = SelectedBatch {
         len: 0,
         reserved: 0,
         sequence: 0,
+        losses: Losses::ZERO,
         samples: [SelectedSample::ZERO; SELECTED_PER_BATCH],
     };
 

@@ -31,6 +31,16 @@ fn block_timeout() {
 }
 
 #[test]
+fn block_timeouts_are_counted() {
+    block_timeouts_are_counted_and_reported(&on(&MemoryBus::default()), "lost");
+}
+
+#[test]
+fn episode_timeouts_are_counted() {
+    episode_timeouts_are_counted_per_receiver(&on(&MemoryBus::default()), "lost-eps");
+}
+
+#[test]
 fn cancel() {
     cancel_unblocks_blocked_send(&on(&MemoryBus::default()), "cancel");
 }

@@ -34,6 +34,39 @@ fn block_timeout() {
 }
 
 #[test]
+fn block_timeouts_are_counted() {
+    block_timeouts_are_counted_and_reported(&shm, &unique_run("lost"));
+}
+
+#[test]
+fn episode_timeouts_are_counted() {
+    episode_timeouts_are_counted_per_receiver(&shm, &unique_run("lost-eps"));
+}
+
+#[test]
+fn a_second_actor_with_the_same_id_is_refused() {
+    let cfg = TransportConfig::new(unique_run("claim"), 4);
+    let first = shm(&cfg, "actor-3");
+    let claim = first.claim_actor_id(3).unwrap();
+    let second = shm(&cfg, "actor-3");
+    let err = second.claim_actor_id(3).unwrap_err();
+    assert!(
+        matches!(err, terl_transport::TransportError::IdInUse { .. }),
+        "{err}"
+    );
+    let msg = err.to_string();
+    assert!(
+        msg.contains("actor id 3 is already streaming to run") && msg.contains(&cfg.run_id),
+        "{msg}"
+    );
+    // Other ids are free; a released id can be claimed again.
+    let _other = second.claim_actor_id(1).unwrap();
+    drop(claim);
+    let _again = second.claim_actor_id(3).unwrap();
+    assert!(first.claim_actor_id(3).is_err());
+}
+
+#[test]
 fn cancel() {
     cancel_unblocks_blocked_send(&shm, &unique_run("cancel"));
 }
@@ -66,8 +99,8 @@ fn limits() {
 const CHILD_RUN_ENV: &str = "TERL_TRANSPORT_TEST_CHILD_RUN";
 
 /// Not a test on its own: when started by `stale_resources_of_killed_process_are_cleaned`
-/// it plays a learner that takes the only transition-subscriber slot, then waits to be
-/// killed.
+/// it plays a learner that takes the only transition-subscriber slot (and an actor that holds
+/// actor id 0), then waits to be killed.
 #[test]
 fn stale_child_entry() {
     let Ok(run) = std::env::var(CHILD_RUN_ENV) else {
@@ -76,6 +109,7 @@ fn stale_child_entry() {
     let t = shm(&TransportConfig::new(run, 1), "doomed-learner");
     let _source = t.shm_source::<TransitionBatch>().unwrap();
     let _sink = t.shm_sink::<TransitionBatch>().unwrap();
+    let _claim = t.claim_actor_id(0).unwrap();
     println!("READY");
     std::thread::sleep(Duration::from_secs(120));
 }
@@ -103,9 +137,10 @@ fn stale_resources_of_killed_process_are_cleaned() {
         .any(|line| line.contains("READY"));
     assert!(ready, "child did not come up");
 
-    // While the child lives, its subscriber holds the only slot.
+    // While the child lives, its subscriber holds the only slot, and it holds actor id 0.
     let probe = shm(&cfg, "probe");
     assert!(probe.shm_source::<TransitionBatch>().is_err());
+    assert!(probe.claim_actor_id(0).is_err());
     drop(probe);
 
     // kill -9: no destructor runs, the child's shared memory stays behind.
@@ -118,6 +153,9 @@ fn stale_resources_of_killed_process_are_cleaned() {
         .shm_source::<TransitionBatch>()
         .expect("stale subscriber of the killed process was not cleaned up");
     eprintln!("cleanup at start: {:?}", restarted.stale_cleanup());
+    let _claim = restarted
+        .claim_actor_id(0)
+        .expect("the killed process's actor id was not released");
     let mut sink = restarted.shm_sink::<TransitionBatch>().unwrap();
     assert_eq!(
         sink_send(&mut sink, 3),

@@ -222,18 +222,25 @@ impl SelectorClient {
 }
 
 /// Follows the learner's weight stream for `kinds` forever: connects, hands every version to
-/// `sink`, and reconnects after a failure or when the learner goes away (every 500 ms; the
-/// first wait and every stream error are logged once). For the actors and the selector, which
-/// must keep working while the learner restarts. Cancel by dropping/aborting the future.
-/// `options` carries the token and TLS trust; a refused token (`UNAUTHENTICATED`) is logged
-/// and retried like any other failure.
-pub async fn follow_weights(
+/// `sink`, and reconnects after a failure or when the learner goes away (waiting 0.25 s, doubled
+/// up to 5 s while it stays away; the first wait and every stream error are logged once). For
+/// the actors and the selector, which must keep working while the learner restarts. Cancel by
+/// dropping/aborting the future.
+pub async fn follow_weights(addr: String, kinds: Vec<WeightsKind>, sink: impl FnMut(Weights)) {
+    follow_weights_with(addr, kinds, ClientOptions::default(), sink).await
+}
+
+/// [`follow_weights`] with explicit client options: a message limit matching the learner's,
+/// the token and TLS trust. A refused call (e.g. `UNAUTHENTICATED` for a wrong token) is logged
+/// once per status code and retried like any other failure.
+pub async fn follow_weights_with(
     addr: String,
-    options: ClientOptions,
     kinds: Vec<WeightsKind>,
+    options: ClientOptions,
     mut sink: impl FnMut(Weights),
 ) {
     let mut logged_wait = false;
+    let mut backoff = FOLLOW_BACKOFF_MIN;
     // A refusal (e.g. a wrong token) repeats every retry: log each distinct code once.
     let mut logged_refusal = None;
     loop {
@@ -243,6 +250,7 @@ pub async fn follow_weights(
                     tracing::info!(%addr, ?kinds, "following the learner's weights");
                     logged_wait = false;
                     logged_refusal = None;
+                    backoff = FOLLOW_BACKOFF_MIN;
                     while let Some(item) = futures_util::StreamExt::next(&mut stream).await {
                         match item {
                             Ok(weights) => sink(weights),
@@ -255,7 +263,7 @@ pub async fn follow_weights(
                 }
                 Err(status) => {
                     if logged_refusal != Some(status.code()) {
-                        tracing::warn!(%status, "WatchWeights refused; retrying every 500 ms");
+                        tracing::warn!(%status, "WatchWeights refused; retrying with back-off");
                         logged_refusal = Some(status.code());
                     }
                 }
@@ -267,6 +275,12 @@ pub async fn follow_weights(
                 }
             }
         }
-        tokio::time::sleep(std::time::Duration::from_millis(500)).await;
+        tokio::time::sleep(backoff).await;
+        backoff = (backoff * 2).min(FOLLOW_BACKOFF_MAX);
     }
 }
+
+/// [`follow_weights`]' wait before reconnecting: doubled after each failed attempt from the
+/// first to the last, and back to the first once a stream is open.
+const FOLLOW_BACKOFF_MIN: std::time::Duration = std::time::Duration::from_millis(250);
+const FOLLOW_BACKOFF_MAX: std::time::Duration = std::time::Duration::from_secs(5);

@@ -122,6 +122,9 @@ pub struct EpisodeSummary {
     pub length: u32,
     pub policy_version: u64,
     pub guided_steps: u32,
+    /// Episodes of this actor the log's writer never received just before this one (a gap in
+    /// `episode_index`); 0 normally.
+    pub missed_before: u64,
 }
 
 impl TryFrom<pb::EpisodeSummary> for EpisodeSummary {
@@ -151,6 +154,7 @@ impl TryFrom<pb::EpisodeSummary> for EpisodeSummary {
             length: m.length,
             policy_version: m.policy_version,
             guided_steps: m.guided_steps,
+            missed_before: m.missed_before,
         })
     }
 }
@@ -166,6 +170,7 @@ impl From<EpisodeSummary> for pb::EpisodeSummary {
             length: d.length,
             policy_version: d.policy_version,
             guided_steps: d.guided_steps,
+            missed_before: d.missed_before,
         }
     }
 }

@@ -22,7 +22,7 @@ pub struct TaskSuccess {
 }
 
 /// What one actor has delivered, as the learner sees it.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize)]
 pub struct ActorStats {
     pub actor_id: u32,
     pub env_steps: u64,
@@ -30,6 +30,13 @@ pub struct ActorStats {
     /// Policy version of the actor's latest transitions.
     pub policy_version: u64,
     pub seconds_since_seen: f64,
+    /// Transition batches (and transitions in them) that never reached the learner: the
+    /// actor's send gave up on a full learner after `block_timeout_secs`. Cumulative over the
+    /// actor's restarts; reported by the actor on its next delivered batch.
+    pub transition_batches_dropped: u64,
+    pub transitions_dropped: u64,
+    /// Finished episodes the actor could not deliver to every receiver (selector, learner).
+    pub episodes_dropped: u64,
 }
 
 /// Training progress of the learner (`Learner.GetStatus`).
@@ -68,6 +75,20 @@ pub struct LearnerStatus {
     /// Mean predicted distance `F(s_t, s', a_t)` to the hindsight goal over the last window, in
     /// env steps (≥ 0).
     pub tep_goal_distance_mean: f64,
+    /// Sums over [`ActorStats`]: transition batches / transitions that never reached the
+    /// learner, episodes not delivered to every receiver.
+    pub transition_batches_dropped: u64,
+    pub transitions_dropped: u64,
+    pub episodes_dropped: u64,
+    /// Selected batches / samples the selector could not deliver (learner stayed full).
+    pub selected_batches_dropped: u64,
+    pub selected_samples_dropped: u64,
+    /// The checkpoint a resumed learner continued from (empty: a fresh start).
+    pub resumed_from: String,
+    /// That checkpoint's update count (0: a fresh start).
+    pub resumed_at_update: u64,
+    /// Checkpoints that could not be written since this learner started.
+    pub checkpoint_failures: u64,
 }
 
 /// Statistics of PTR priorities.
@@ -94,6 +115,10 @@ pub struct SelectorStatus {
     pub last_eval: Option<EvalResult>,
     /// Evaluations finished since the selector started.
     pub evaluations: u64,
+    /// Episodes the actors report they could not deliver to every receiver, summed.
+    pub episodes_dropped: u64,
+    /// Episodes this selector never received (gaps in each actor's episode indices).
+    pub episodes_missed: u64,
 }
 
 /// One task's part of an [`EvalResult`].
@@ -301,6 +326,9 @@ impl TryFrom<pb::ActorStats> for ActorStats {
                 &format!("actors[{id}].seconds_since_seen"),
                 m.seconds_since_seen,
             )?,
+            transition_batches_dropped: m.transition_batches_dropped,
+            transitions_dropped: m.transitions_dropped,
+            episodes_dropped: m.episodes_dropped,
         })
     }
 }
@@ -313,6 +341,9 @@ impl From<ActorStats> for pb::ActorStats {
             env_steps_per_second: d.env_steps_per_second,
             policy_version: d.policy_version,
             seconds_since_seen: d.seconds_since_seen,
+            transition_batches_dropped: d.transition_batches_dropped,
+            transitions_dropped: d.transitions_dropped,
+            episodes_dropped: d.episodes_dropped,
         }
     }
 }
@@ -364,6 +395,14 @@ impl TryFrom<pb::LearnerStatus> for LearnerStatus {
                 "tep_goal_distance_mean",
                 m.tep_goal_distance_mean,
             )?,
+            transition_batches_dropped: m.transition_batches_dropped,
+            transitions_dropped: m.transitions_dropped,
+            episodes_dropped: m.episodes_dropped,
+            selected_batches_dropped: m.selected_batches_dropped,
+            selected_samples_dropped: m.selected_samples_dropped,
+            resumed_from: m.resumed_from,
+            resumed_at_update: m.resumed_at_update,
+            checkpoint_failures: m.checkpoint_failures,
         })
     }
 }
@@ -395,6 +434,14 @@ impl From<LearnerStatus> for pb::LearnerStatus {
             guided_steps: d.guided_steps,
             tep_target_mean: d.tep_target_mean,
             tep_goal_distance_mean: d.tep_goal_distance_mean,
+            transition_batches_dropped: d.transition_batches_dropped,
+            transitions_dropped: d.transitions_dropped,
+            episodes_dropped: d.episodes_dropped,
+            selected_batches_dropped: d.selected_batches_dropped,
+            selected_samples_dropped: d.selected_samples_dropped,
+            resumed_from: d.resumed_from,
+            resumed_at_update: d.resumed_at_update,
+            checkpoint_failures: d.checkpoint_failures,
         }
     }
 }
@@ -449,6 +496,8 @@ impl TryFrom<pb::SelectorStatus> for SelectorStatus {
             critic_version: m.critic_version,
             last_eval: m.last_eval.map(EvalResult::try_from).transpose()?,
             evaluations: m.evaluations,
+            episodes_dropped: m.episodes_dropped,
+            episodes_missed: m.episodes_missed,
         })
     }
 }
@@ -465,6 +514,8 @@ impl From<SelectorStatus> for pb::SelectorStatus {
             critic_version: d.critic_version,
             last_eval: d.last_eval.map(Into::into),
             evaluations: d.evaluations,
+            episodes_dropped: d.episodes_dropped,
+            episodes_missed: d.episodes_missed,
         }
     }
 }

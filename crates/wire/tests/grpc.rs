@@ -35,6 +35,9 @@ fn learner_status() -> LearnerStatus {
             env_steps_per_second: 1900.0,
             policy_version: 7,
             seconds_since_seen: 0.1,
+            transition_batches_dropped: 3,
+            transitions_dropped: 192,
+            episodes_dropped: 2,
         }],
         replay_size: 50_000,
         replay_capacity: 1_000_000,
@@ -59,6 +62,14 @@ fn learner_status() -> LearnerStatus {
         guided_steps: 99,
         tep_target_mean: 14.5,
         tep_goal_distance_mean: 13.25,
+        transition_batches_dropped: 3,
+        transitions_dropped: 192,
+        episodes_dropped: 2,
+        selected_batches_dropped: 1,
+        selected_samples_dropped: 512,
+        resumed_from: "runs/test/checkpoints/update-0000000100.safetensors".into(),
+        resumed_at_update: 100,
+        checkpoint_failures: 1,
     }
 }
 
@@ -108,6 +119,8 @@ impl SelectorBackend for TestSelector {
                 selection_threshold: 0.7,
             },
             critic_version: 3,
+            episodes_dropped: 2,
+            episodes_missed: 1,
             ..Default::default()
         })
     }

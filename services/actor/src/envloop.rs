@@ -26,8 +26,10 @@ const LOG_EVERY: Duration = Duration::from_secs(10);
 const PEER_GONE_GRACE: Duration = Duration::from_secs(2);
 
 /// Sends `message`; returns whether the loop should go on. A send that timed out on a full
-/// receiver is logged and counted by the transport (the learner paused longer than the block
-/// timeout), not fatal. Any other failure is fatal unless this actor's own shutdown follows
+/// receiver (a receiver stopped or stalled for longer than the block timeout) is not fatal:
+/// the transport drops the message, counts it (`dropped`/`dropped_items` of the sink's stats)
+/// and stamps the cumulative counts on every later message, so the learner and the selector
+/// learn about it from the next message that gets through; here it is logged. Any other failure is fatal unless this actor's own shutdown follows
 /// within a moment: on Ctrl-C the learner and selector get the signal too and may close their
 /// side first, which is a clean stop, not an error.
 fn send<M: Message>(
@@ -38,7 +40,12 @@ fn send<M: Message>(
     match sink.send(message) {
         Ok(_) => Ok(true),
         Err(e @ TransportError::BlockTimeout { .. }) => {
-            tracing::warn!("{e}");
+            let lost = sink.stats();
+            tracing::warn!(
+                dropped = lost.dropped,
+                dropped_items = lost.dropped_items,
+                "{e}; dropped and counted (totals of this stream so far)"
+            );
             Ok(true)
         }
         Err(e) => {
@@ -115,6 +122,14 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
     let run = &config.run;
     let actor_id = u16::try_from(config.actor_id).context("actor id above 65535")?;
     let tasks = terl_runtime::resolve_tasks(&run.tasks)?;
+    let transport_config = TransportConfig {
+        buffer_batches: run.cluster.buffer_batches,
+        block_timeout: Duration::from_secs_f64(run.cluster.block_timeout_secs),
+        ..TransportConfig::new(config.run_id.clone(), config.num_actors)
+    };
+    let transport = ShmTransport::open(transport_config, &format!("actor-{actor_id}"))?;
+    // One process per actor id and run, held until this function returns.
+    let _claim = transport.claim_actor_id(actor_id)?;
     let mine = RunConfig::actor_env_tasks(
         tasks.len(),
         config.actor_id,
@@ -164,12 +179,6 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
     });
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
 
-    let transport_config = TransportConfig {
-        buffer_batches: run.cluster.buffer_batches,
-        block_timeout: Duration::from_secs_f64(run.cluster.block_timeout_secs),
-        ..TransportConfig::new(config.run_id.clone(), config.num_actors)
-    };
-    let transport = ShmTransport::open(transport_config, &format!("actor-{actor_id}"))?;
     let mut transitions = transport.shm_sink::<TransitionBatch>()?;
     let mut episodes = transport.shm_sink::<EpisodeSummary>()?;
     tracing::info!(
@@ -308,6 +317,7 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
                 unstable_steps_dropped = unstable_steps,
                 planner_version = guide.as_ref().map_or(0, |g| g.planner().version()),
                 transitions = ?transitions.stats(),
+                episode_sends = ?episodes.stats(),
                 "progress"
             );
             (log_at, log_steps) = (Instant::now(), steps);
@@ -318,6 +328,9 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
         env_steps = steps,
         env_steps_per_second = format!("{:.0}", steps as f64 / start.elapsed().as_secs_f64()),
         policy_version = policy.version,
+        transition_batches_dropped = transitions.stats().dropped,
+        transitions_dropped = transitions.stats().dropped_items,
+        episodes_dropped = episodes.stats().dropped,
         "actor stopped"
     );
     Ok(())

@@ -8,6 +8,13 @@
 //! the previous step's did, it executes the Action Network's action with probability `σ^N`;
 //! such transitions carry the `GUIDED` flag (the learner reports the rate per task).
 //!
+//! An actor claims its id on the run at start-up (see
+//! `terl_transport::ShmTransport::claim_actor_id`): a second process with an id that is already
+//! streaming is refused with an error naming the id and the run. A send that times out on a
+//! full receiver (`[cluster] block_timeout_secs`) drops that batch or episode; the transport
+//! counts it and stamps the running totals on the next message, so the learner and the selector
+//! report it.
+//!
 //! The environment loop is CPU-bound and runs on its own thread; the weight stream is a tokio
 //! task that reconnects when the learner goes away and hands the newest version to the loop
 //! through one-slot mailboxes (latest wins: the loop never waits for weights).
@@ -114,10 +121,14 @@ pub async fn run(
     };
     let follower = {
         let mailbox = Arc::clone(&mailbox);
-        tokio::spawn(terl_wire::follow_weights(
+        let options = terl_wire::ClientOptions {
+            max_message_bytes: config.run.cluster.max_message_bytes(),
+            security: config.client_security.clone(),
+        };
+        tokio::spawn(terl_wire::follow_weights_with(
             config.learner_addr.clone(),
-            terl_wire::ClientOptions::secured(config.client_security.clone()),
             kinds,
+            options,
             move |w| post(&mailbox, w),
         ))
     };

@@ -25,12 +25,19 @@ struct Args {
     /// The learner's gRPC address (weights stream).
     #[arg(long, default_value = terl_wire::DEFAULT_LEARNER_ADDR)]
     learner_addr: String,
+    /// Stop (as on SIGTERM) when the process with this pid, the launcher, exits or is killed:
+    /// no orphans (deploy/local-cluster.sh passes its own pid).
+    #[arg(long)]
+    parent_pid: Option<u32>,
 }
 
 #[tokio::main(flavor = "current_thread")]
 async fn main() -> anyhow::Result<()> {
     terl_runtime::init_tracing();
     let a = Args::parse();
+    if let Some(pid) = a.parent_pid {
+        terl_runtime::exit_with_parent(pid)?;
+    }
     let run = terl_runtime::RunConfig::load(&a.config)?;
     let client_security = run
         .cluster

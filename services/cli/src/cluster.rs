@@ -1,6 +1,7 @@
 //! `terl cluster up|down`: the local cluster from the CLI. `up` runs `deploy/local-cluster.sh`
-//! (one launcher, so the script and the CLI cannot drift apart); `down` sends SIGTERM to the
-//! running launcher (`runs/.cluster.pid`), which stops and waits for every process.
+//! (one launcher, so the script and the CLI cannot drift apart); `down [RUN_ID]` sends SIGTERM to
+//! that run's launcher (`runs/<id>/launcher.pid`, or `runs/.cluster.pid` for the last one
+//! started), which stops and waits for every process of its run.
 
 use std::path::PathBuf;
 use std::process::{Command, ExitCode};
@@ -22,8 +23,15 @@ pub enum ClusterCommand {
         #[arg(last = true)]
         rest: Vec<String>,
     },
-    /// Stop the running local cluster.
-    Down,
+    /// Stop a running local cluster: the run RUN_ID (its launcher's `runs/<id>/launcher.pid`),
+    /// or without it the cluster started last (`runs/.cluster.pid`). Other runs are not touched.
+    Down {
+        /// Run id of the cluster to stop.
+        run_id: Option<String>,
+        /// Folder of run folders.
+        #[arg(long, default_value = "runs")]
+        runs_root: std::path::PathBuf,
+    },
 }
 
 pub fn run(cmd: ClusterCommand) -> Result<ExitCode> {
@@ -49,14 +57,32 @@ pub fn run(cmd: ClusterCommand) -> Result<ExitCode> {
                 ExitCode::FAILURE
             })
         }
-        ClusterCommand::Down => {
-            let pid_file = "runs/.cluster.pid";
-            let pid = std::fs::read_to_string(pid_file)
+        ClusterCommand::Down { run_id, runs_root } => {
+            let pid_file = match &run_id {
+                Some(id) => {
+                    anyhow::ensure!(
+                        !id.is_empty() && !id.contains('/') && id != "." && id != "..",
+                        "bad run id {id:?}"
+                    );
+                    runs_root.join(id).join("launcher.pid")
+                }
+                None => runs_root.join(".cluster.pid"),
+            };
+            let pid_file = pid_file.display().to_string();
+            let pid = std::fs::read_to_string(&pid_file)
                 .with_context(|| format!("no running cluster ({pid_file} not found)"))?;
             let pid = pid.trim();
             anyhow::ensure!(
                 !pid.is_empty() && pid.chars().all(|c| c.is_ascii_digit()),
                 "bad pid {pid:?} in {pid_file}"
+            );
+            // A launcher killed with SIGKILL leaves its pid file; the pid may since belong to
+            // an unrelated process, which must not be signalled.
+            let cmdline = std::fs::read(format!("/proc/{pid}/cmdline")).unwrap_or_default();
+            anyhow::ensure!(
+                String::from_utf8_lossy(&cmdline).contains("local-cluster.sh"),
+                "no running cluster launcher has pid {pid} (stale {pid_file}: the launcher was \
+                 killed); its services stop by themselves when it dies"
             );
             let ok = Command::new("kill")
                 .args(["-TERM", pid])

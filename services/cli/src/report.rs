@@ -329,36 +329,61 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
 }
 
 /// Every record of the run's `<kind>.mcap` log and its restarted segments (`<kind>.2.mcap`,
-/// …), in order, and the segments whose writer was stopped (read up to their last flush).
+/// …), in order, and the segments read only in part (a stopped writer, a cut or damage), each
+/// with the reason and the number of records kept from it.
 pub(crate) fn read_run_log<R: terl_telemetry::LogRecord>(
     run_dir: &Path,
     kind: &str,
-) -> Result<(Vec<R>, Vec<PathBuf>)> {
+) -> Result<(Vec<R>, Vec<CutLog>)> {
     let (mut records, mut cut) = (Vec::new(), Vec::new());
     for f in terl_telemetry::existing_paths(run_dir, kind) {
         let log = terl_telemetry::read_log::<R>(&f)
             .with_context(|| format!("reading {}", f.display()))?;
-        if log.truncated {
-            cut.push(f);
+        if let Some(reason) = log.truncation {
+            cut.push(CutLog {
+                path: f,
+                reason,
+                kept: log.records.len(),
+            });
         }
         records.extend(log.records);
     }
     Ok((records, cut))
 }
 
+/// A log segment read only in part.
+#[derive(Debug)]
+pub(crate) struct CutLog {
+    pub(crate) path: PathBuf,
+    /// Why reading stopped (from the reader).
+    pub(crate) reason: String,
+    /// Records kept from before that point.
+    pub(crate) kept: usize,
+}
+
+impl std::fmt::Display for CutLog {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "note: {} is read only in part: {}; using the {} records before that point",
+            self.path.display(),
+            self.reason,
+            self.kept
+        )
+    }
+}
+
 /// `report.md` and `learning-curves.svg` of one cluster run's training episodes.
 fn training_report(run_dir: &Path, out: &Path, window: usize, print: bool) -> Result<()> {
-    let (episodes, cut) = read_run_log::<EpisodeSummary>(run_dir, "episodes")?;
-    for f in cut {
-        eprintln!(
-            "note: {} ends early (its writer was stopped); using what was flushed",
-            f.display()
-        );
-    }
-    let (metrics, _) = read_run_log::<Metric>(run_dir, "metrics")?;
+    let (episodes, cut_episodes) = read_run_log::<EpisodeSummary>(run_dir, "episodes")?;
+    let (metrics, cut_metrics) = read_run_log::<Metric>(run_dir, "metrics")?;
     let rows = task_rows(&episodes, window);
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    // A cut eval.mcap is noted by results::load_run, which reads it for every run folder.
     let (evals, _) = read_run_log::<terl_wire::EvalResult>(run_dir, "eval")?;
+    for c in cut_episodes.iter().chain(&cut_metrics) {
+        eprintln!("{c}");
+    }
     let mut md = markdown(run_dir, &rows, window, &metrics);
     md.push_str(&eval_markdown(&evals));
     let md_path = out.join("report.md");
@@ -387,6 +412,7 @@ mod tests {
             length: 500,
             policy_version: 1,
             guided_steps: guided,
+            missed_before: 0,
         }
     }
 

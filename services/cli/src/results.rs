@@ -91,7 +91,10 @@ pub fn load_run(dir: &Path) -> Result<RunEval> {
             cfg.eval_envs_per_task * cfg.train.eval_episodes_per_env,
         )?);
     }
-    let (evals, _) = crate::report::read_run_log::<terl_wire::EvalResult>(dir, "eval")?;
+    let (evals, cut) = crate::report::read_run_log::<terl_wire::EvalResult>(dir, "eval")?;
+    for c in cut {
+        eprintln!("{c}");
+    }
     points.extend(evals.iter().map(|e| {
         let by_name: BTreeMap<&str, f64> = e
             .tasks

@@ -11,12 +11,13 @@ use terl_wire::{ClientOptions, ClientSecurity, ClientTls, LearnerStatus, Selecto
 
 #[derive(Debug, Args)]
 pub struct StatusArgs {
-    /// Learner gRPC address.
-    #[arg(long, default_value = terl_wire::DEFAULT_LEARNER_ADDR)]
-    pub addr: String,
-    /// Selector gRPC address.
-    #[arg(long, default_value = terl_wire::DEFAULT_SELECTOR_ADDR)]
-    pub selector_addr: String,
+    /// Learner gRPC address. Without it (and without --run): the cluster the launcher started
+    /// last (`runs/.cluster.run`), else 127.0.0.1:50051.
+    #[arg(long)]
+    pub addr: Option<String>,
+    /// Selector gRPC address (same default rule; else 127.0.0.1:50052).
+    #[arg(long)]
+    pub selector_addr: Option<String>,
     /// Print JSON ({"learner": ..., "selector": ... or null}).
     #[arg(long)]
     pub json: bool,
@@ -35,6 +36,84 @@ pub struct StatusArgs {
     /// (`cluster.tls_domain`).
     #[arg(long, requires = "tls_ca")]
     pub tls_domain: Option<String>,
+    /// A launcher's run folder (runs/<id>): the addresses come from its learner.addr and
+    /// selector.addr, and the launcher's processes (alive or not) and restarts are shown too.
+    #[arg(long, value_name = "RUN_DIR")]
+    pub run: Option<std::path::PathBuf>,
+}
+
+/// One process of a launcher's run (`runs/<id>/pids`).
+#[derive(Debug, serde::Serialize)]
+struct Process {
+    role: String,
+    pid: u32,
+    alive: bool,
+}
+
+/// What the launcher's files say about a run's processes.
+#[derive(Debug, Default, serde::Serialize)]
+struct Launcher {
+    processes: Vec<Process>,
+    /// `restart=<time> role=<role> exit_code=<code>` lines of `cluster.txt`, in order.
+    restarts: Vec<String>,
+    resumed: Vec<String>,
+}
+
+fn read_launcher(run: &std::path::Path) -> Launcher {
+    let processes = std::fs::read_to_string(run.join("pids"))
+        .unwrap_or_default()
+        .lines()
+        .filter_map(|l| {
+            let (role, pid) = l.split_once(' ')?;
+            let pid: u32 = pid.trim().parse().ok()?;
+            let alive = std::fs::read_to_string(format!("/proc/{pid}/cmdline"))
+                .is_ok_and(|c| c.contains("terl-"));
+            Some(Process {
+                role: role.to_string(),
+                pid,
+                alive,
+            })
+        })
+        .collect();
+    let info = std::fs::read_to_string(run.join("cluster.txt")).unwrap_or_default();
+    let pick = |prefix: &str| -> Vec<String> {
+        info.lines()
+            .filter_map(|l| l.strip_prefix(prefix))
+            .map(str::to_string)
+            .collect()
+    };
+    Launcher {
+        processes,
+        restarts: pick("restart="),
+        resumed: pick("resumed="),
+    }
+}
+
+fn print_launcher(l: &Launcher) {
+    let procs: Vec<String> = l
+        .processes
+        .iter()
+        .map(|p| {
+            format!(
+                "{} {} ({})",
+                p.role,
+                p.pid,
+                if p.alive { "alive" } else { "gone" }
+            )
+        })
+        .collect();
+    println!(
+        "processes {}  restarts {}{}",
+        procs.join("  "),
+        l.restarts.len(),
+        l.resumed
+            .last()
+            .map(|r| format!("  resumed by the launcher at {r}"))
+            .unwrap_or_default()
+    );
+    for r in l.restarts.iter().rev().take(5).rev() {
+        println!("restarted {r}");
+    }
 }
 
 impl StatusArgs {
@@ -77,12 +156,30 @@ fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyho
         l.policy_version, l.replay_size, l.replay_capacity, l.staleness_mean, l.staleness_max,
         l.rejected_batches
     );
-    for a in &l.actors {
+    if !l.resumed_from.is_empty() {
         println!(
-            "actor {:<3} env steps {:>10} ({:>6.0}/s)  acts with policy v{}  last seen {:.1}s ago",
-            a.actor_id, a.env_steps, a.env_steps_per_second, a.policy_version, a.seconds_since_seen
+            "resumed   from {} (update {}); replay refilled since then",
+            l.resumed_from, l.resumed_at_update
         );
     }
+    if l.checkpoint_failures > 0 {
+        println!(
+            "WARNING   {} checkpoint(s) could not be written (see the learner's log)",
+            l.checkpoint_failures
+        );
+    }
+    for a in &l.actors {
+        println!(
+            "actor {:<3} env steps {:>10} ({:>6.0}/s)  acts with policy v{}  last seen {:.1}s ago  dropped: {} transitions ({} batches), {} episodes",
+            a.actor_id, a.env_steps, a.env_steps_per_second, a.policy_version, a.seconds_since_seen,
+            a.transitions_dropped, a.transition_batches_dropped, a.episodes_dropped
+        );
+    }
+    println!(
+        "dropped   {} transitions ({} batches) never reached the learner, {} episodes not delivered to every receiver, {} selected samples ({} batches) (a receiver stayed full for longer than cluster.block_timeout_secs)",
+        l.transitions_dropped, l.transition_batches_dropped, l.episodes_dropped,
+        l.selected_samples_dropped, l.selected_batches_dropped
+    );
     let tasks: Vec<String> = l
         .task_success
         .iter()
@@ -115,8 +212,10 @@ fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyho
                 .map(|t| format!("{} {} ({})", t.task, percent(t.success_rate), t.episodes))
                 .collect();
             println!(
-                "selector  episodes {}  selected {}  [{}]",
+                "selector  episodes {} (never received {}, dropped by actors {})  selected {}  [{}]",
                 s.episodes_seen,
+                s.episodes_missed,
+                s.episodes_dropped,
                 s.selected_samples,
                 tasks.join("  ")
             );
@@ -150,29 +249,76 @@ fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyho
     }
 }
 
+/// The run folder of the cluster the launcher started last in `runs/`, if it is still running.
+fn last_started_run() -> Option<std::path::PathBuf> {
+    let dir = std::fs::read_to_string("runs/.cluster.run").ok()?;
+    let dir = std::path::PathBuf::from(dir.trim());
+    dir.join("learner.addr").is_file().then_some(dir)
+}
+
 pub fn run(args: StatusArgs) -> Result<ExitCode> {
+    let run_dir = match (&args.run, &args.addr) {
+        (Some(dir), _) => Some(dir.clone()),
+        (None, None) => last_started_run(),
+        (None, Some(_)) => None,
+    };
+    let read = |dir: &std::path::Path, name: &str| -> Result<String> {
+        let path = dir.join(format!("{name}.addr"));
+        Ok(std::fs::read_to_string(&path)
+            .with_context(|| {
+                format!(
+                    "{} not found: is {} the folder of a running cluster?",
+                    path.display(),
+                    dir.display()
+                )
+            })?
+            .trim()
+            .to_string())
+    };
+    let (addr, selector_addr, launcher) = match &run_dir {
+        Some(dir) => (
+            args.addr.clone().map_or_else(|| read(dir, "learner"), Ok)?,
+            args.selector_addr
+                .clone()
+                .map_or_else(|| read(dir, "selector"), Ok)?,
+            Some(read_launcher(dir)),
+        ),
+        None => (
+            args.addr
+                .clone()
+                .unwrap_or_else(|| terl_wire::DEFAULT_LEARNER_ADDR.to_string()),
+            args.selector_addr
+                .clone()
+                .unwrap_or_else(|| terl_wire::DEFAULT_SELECTOR_ADDR.to_string()),
+            None,
+        ),
+    };
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
     let timeout = Duration::from_secs_f64(args.timeout.max(0.1));
     let options = args.client_options()?;
     runtime.block_on(async {
-        let learner = tokio::time::timeout(timeout, learner_status(&args.addr, options.clone()))
+        let learner = tokio::time::timeout(timeout, learner_status(&addr, options.clone()))
             .await
             .unwrap_or_else(|_| Err(anyhow::anyhow!("timed out")))
-            .with_context(|| format!("learner at {}", args.addr))?;
-        let selector = tokio::time::timeout(timeout, selector_status(&args.selector_addr, options))
+            .with_context(|| format!("learner at {addr}"))?;
+        let selector = tokio::time::timeout(timeout, selector_status(&selector_addr, options))
             .await
             .unwrap_or_else(|_| Err(anyhow::anyhow!("timed out")))
-            .with_context(|| format!("selector at {}", args.selector_addr));
+            .with_context(|| format!("selector at {selector_addr}"));
         if args.json {
             let value = serde_json::json!({
                 "learner": learner,
                 "selector": selector.as_ref().ok(),
+                "launcher": launcher,
             });
             println!("{}", serde_json::to_string(&value)?);
         } else {
             print_table(&learner, selector.as_ref());
+            if let Some(l) = &launcher {
+                print_launcher(l);
+            }
         }
         Ok(ExitCode::SUCCESS)
     })

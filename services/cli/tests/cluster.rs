@@ -584,6 +584,14 @@ fn terl_cluster_selects_trains_the_planner_and_guides() {
     );
 }
 
+/// Whether these tests run against release binaries (the launcher runs `target/release`).
+fn release_build() -> bool {
+    Path::new(env!("CARGO_BIN_EXE_terl"))
+        .parent()
+        .and_then(Path::file_name)
+        .is_some_and(|n| n == "release")
+}
+
 /// The README's launcher on a run with a training budget: the learner stops by itself at
 /// `train.total_env_steps`, and `deploy/local-cluster.sh` then stops the cluster and exits 0.
 #[test]
@@ -591,11 +599,7 @@ fn launcher_stops_the_cluster_at_the_training_budget() {
     let shm_before = shm_files();
     service_binaries();
     let root = workspace();
-    let release = Path::new(env!("CARGO_BIN_EXE_terl"))
-        .parent()
-        .and_then(Path::file_name)
-        .is_some_and(|n| n == "release");
-    if !release {
+    if !release_build() {
         eprintln!("the launcher runs target/release binaries; run this test with --release");
         return;
     }
@@ -654,5 +658,255 @@ fn launcher_stops_the_cluster_at_the_training_budget() {
     assert!(
         leftover.is_empty(),
         "shared-memory files left: {leftover:?}"
+    );
+}
+
+fn read_pids(run_dir: &Path) -> Vec<(String, u32)> {
+    std::fs::read_to_string(run_dir.join("pids"))
+        .unwrap_or_default()
+        .lines()
+        .filter_map(|l| {
+            let (role, pid) = l.split_once(' ')?;
+            Some((role.to_string(), pid.trim().parse().ok()?))
+        })
+        .collect()
+}
+
+fn alive(pid: u32) -> bool {
+    Path::new(&format!("/proc/{pid}")).exists()
+        && !std::fs::read_to_string(format!("/proc/{pid}/stat"))
+            .unwrap_or_default()
+            .contains(") Z ")
+}
+
+fn wait_until(what: &str, limit: Duration, mut ok: impl FnMut() -> bool) {
+    let start = Instant::now();
+    while !ok() {
+        assert!(start.elapsed() < limit, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(200));
+    }
+}
+
+fn launcher(root: &Path, args: &[&str], log: &Path) -> Child {
+    Command::new(root.join("deploy/local-cluster.sh"))
+        .current_dir(root)
+        .args(args)
+        .arg("--no-build")
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(log).unwrap())
+        .spawn()
+        .unwrap()
+}
+
+/// Faults injected into a launcher-run cluster, each survived: the learner killed with
+/// SIGKILL is restarted and resumes from its last checkpoint (status says from which, the
+/// update counter continues from it); the launcher itself killed with SIGKILL leaves no
+/// orphan (the services follow its pid); `--resume` then continues the run, skipping a
+/// newest checkpoint that was damaged for the previous one, the selector rebuilding its
+/// windows from the episode logs; SIGTERM is reported as an interruption, not as the budget.
+#[test]
+fn killed_learner_is_restarted_and_runs_resume_past_a_damaged_checkpoint() {
+    service_binaries();
+    let root = workspace();
+    if !release_build() {
+        eprintln!("the launcher runs target/release binaries; run this test with --release");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(root.join("deploy/configs/cluster-smoke.toml")).unwrap();
+    assert!(text.contains("checkpoint_every_secs = 5"));
+    let config = dir.path().join("resume.toml");
+    std::fs::write(
+        &config,
+        text.replace("checkpoint_every_secs = 5", "checkpoint_every_secs = 1"),
+    )
+    .unwrap();
+    let runs = dir.path().join("runs");
+    let run_id = format!("it-resume-{}", std::process::id());
+    let run_dir = runs.join(&run_id);
+    let limit = Duration::from_secs(90);
+    let mut first = launcher(
+        &root,
+        &[
+            "--config",
+            config.to_str().unwrap(),
+            "--actors",
+            "1",
+            "--run-id",
+            &run_id,
+            "--runs-root",
+            runs.to_str().unwrap(),
+            "--learner-addr",
+            "127.0.0.1:0",
+            "--selector-addr",
+            "127.0.0.1:0",
+            "--restarts",
+            "2",
+            "--restart-backoff",
+            "1",
+        ],
+        &dir.path().join("first.log"),
+    );
+    let learner_addr = wait_for_file(&run_dir.join("learner.addr"));
+    let selector_addr = wait_for_file(&run_dir.join("selector.addr"));
+    let checkpoints = run_dir.join("checkpoints");
+    let periodic = || -> Vec<PathBuf> {
+        let mut v: Vec<PathBuf> = std::fs::read_dir(&checkpoints)
+            .map(|d| d.filter_map(|e| e.ok()).map(|e| e.path()).collect())
+            .unwrap_or_default();
+        v.retain(|p| {
+            p.file_name()
+                .is_some_and(|n| n.to_string_lossy().starts_with("update-"))
+        });
+        v.sort();
+        v
+    };
+    // Training has gone on long enough for a checkpoint with updates in it.
+    wait_until("a periodic checkpoint after some updates", limit, || {
+        periodic().last().is_some_and(|p| {
+            !p.to_string_lossy()
+                .ends_with("update-0000000000.safetensors")
+        }) && status(&learner_addr, &selector_addr)
+            .is_some_and(|s| u(&s, &["learner", "updates"]) > 0)
+    });
+    let pids = read_pids(&run_dir);
+    let learner = pids.iter().find(|(r, _)| r == "learner").unwrap().1;
+    let newest_before_kill = periodic().last().unwrap().clone();
+    let steps_at: u64 = newest_before_kill
+        .file_stem()
+        .unwrap()
+        .to_string_lossy()
+        .trim_start_matches("update-")
+        .parse()
+        .unwrap();
+    Command::new("kill")
+        .args(["-9", &learner.to_string()])
+        .status()
+        .unwrap();
+
+    // The launcher restarts it with --resume on the same address.
+    let mut resumed = Value::Null;
+    wait_until(
+        "the restarted learner to report its resume",
+        limit,
+        || match status(&learner_addr, &selector_addr) {
+            Some(s)
+                if !s["learner"]["resumed_from"]
+                    .as_str()
+                    .unwrap_or("")
+                    .is_empty() =>
+            {
+                resumed = s;
+                true
+            }
+            _ => false,
+        },
+    );
+    let at = u(&resumed, &["learner", "resumed_at_update"]);
+    assert!(
+        at >= steps_at && at > 0,
+        "resumed at update {at}, newest checkpoint before the kill had {steps_at}"
+    );
+    assert!(u(&resumed, &["learner", "updates"]) >= at);
+    let new_learner = read_pids(&run_dir)
+        .into_iter()
+        .find(|(r, _)| r == "learner")
+        .unwrap()
+        .1;
+    assert_ne!(new_learner, learner);
+    let cluster_txt = std::fs::read_to_string(run_dir.join("cluster.txt")).unwrap();
+    assert!(
+        cluster_txt.contains("role=learner exit_code=137"),
+        "{cluster_txt}"
+    );
+    // `terl status --run` shows the launcher's processes (alive) and the restart.
+    let out = Command::new(env!("CARGO_BIN_EXE_terl"))
+        .args(["status", "--json", "--run", run_dir.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let restarts = v["launcher"]["restarts"].as_array().unwrap();
+    assert_eq!(restarts.len(), 1, "{v}");
+    assert!(restarts[0].as_str().unwrap().contains("role=learner"));
+    let procs = v["launcher"]["processes"].as_array().unwrap();
+    assert_eq!(procs.len(), 3);
+    assert!(procs.iter().all(|p| p["alive"] == true), "{v}");
+    // Updates continue past the checkpoint once the replay buffer has refilled.
+    wait_until("updates past the resume point", limit, || {
+        status(&learner_addr, &selector_addr)
+            .is_some_and(|s| u(&s, &["learner", "updates"]) > at + 50)
+    });
+
+    // SIGKILL the launcher: every service it started stops by itself.
+    let services: Vec<u32> = read_pids(&run_dir).into_iter().map(|(_, p)| p).collect();
+    assert_eq!(services.len(), 3, "learner, selector, one actor");
+    first.kill().unwrap();
+    first.wait().unwrap();
+    wait_until("the services of a killed launcher to exit", limit, || {
+        services.iter().all(|&p| !alive(p))
+    });
+
+    // Damage the newest checkpoint (it is final.safetensors, written on SIGTERM).
+    let mut newest: Vec<PathBuf> = std::fs::read_dir(&checkpoints)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|e| e == "safetensors"))
+        .filter(|p| !p.to_string_lossy().ends_with("planner.safetensors"))
+        .collect();
+    newest.sort_by_key(|p| std::fs::metadata(p).unwrap().modified().unwrap());
+    let damaged = newest.last().unwrap().clone();
+    let mut bytes = std::fs::read(&damaged).unwrap();
+    let n = bytes.len();
+    bytes[n - 5] ^= 0x55;
+    std::fs::write(&damaged, &bytes).unwrap();
+
+    let _ = std::fs::remove_file(run_dir.join("learner.addr"));
+    let _ = std::fs::remove_file(run_dir.join("selector.addr"));
+    let mut second = launcher(
+        &root,
+        &["--resume", run_dir.to_str().unwrap(), "--restarts", "0"],
+        &dir.path().join("second.log"),
+    );
+    let learner_addr = wait_for_file(&run_dir.join("learner.addr"));
+    let selector_addr = wait_for_file(&run_dir.join("selector.addr"));
+    wait_until("the resumed run's status", limit, || {
+        status(&learner_addr, &selector_addr).is_some_and(|s| {
+            let from = s["learner"]["resumed_from"]
+                .as_str()
+                .unwrap_or("")
+                .to_string();
+            resumed = s;
+            !from.is_empty()
+        })
+    });
+    let from = resumed["learner"]["resumed_from"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    assert_ne!(
+        Path::new(&from),
+        damaged,
+        "resumed from the damaged checkpoint"
+    );
+    let learner_log = std::fs::read_to_string(run_dir.join("learner.log")).unwrap();
+    assert!(
+        learner_log.contains("damaged") && learner_log.contains(&*damaged.to_string_lossy()),
+        "no log line about the damaged checkpoint"
+    );
+    let selector_log = std::fs::read_to_string(run_dir.join("selector.log")).unwrap();
+    assert!(selector_log.contains("resumed the success windows"));
+    assert!(run_dir.join("metrics.2.mcap").exists() || run_dir.join("metrics.3.mcap").exists());
+
+    Command::new("kill")
+        .args(["-TERM", &second.id().to_string()])
+        .status()
+        .unwrap();
+    let code = second.wait().unwrap();
+    let log = std::fs::read_to_string(dir.path().join("second.log")).unwrap();
+    assert_eq!(code.code(), Some(143), "{log}");
+    assert!(
+        log.contains("interrupted") && !log.contains("total_env_steps reached"),
+        "{log}"
     );
 }

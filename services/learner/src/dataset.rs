@@ -81,6 +81,13 @@ pub(crate) fn load_into(
             to_selected(s, tasks, id)
         })
         .collect();
+    if let Some(reason) = &data.truncation {
+        tracing::warn!(
+            path = %path.display(),
+            kept = data.samples.len(),
+            "the TEP dataset is read only in part: {reason}; using the samples before that point"
+        );
+    }
     let other_tasks = data.samples.len() - converted.len();
     let accepted = planner.ingest(&converted);
     tracing::info!(
@@ -150,6 +157,50 @@ mod tests {
         let mut planner = PlannerTrainer::new(TepConfig::default(), 1, 1).unwrap();
         let e = load_all(&[a], &["reach-v3"], &mut planner).unwrap_err();
         assert!(format!("{e:#}").contains("a.mcap"), "{e:#}");
+    }
+
+    #[test]
+    fn a_damaged_record_length_loads_the_samples_before_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("tep-dataset.mcap");
+        let mut w = TepDatasetWriter::create(&path).unwrap();
+        let sample = |trajectory_id: u64, step: u32| TepSample {
+            task: "door-open-v3".into(),
+            trajectory_id,
+            step,
+            priority: 1.0,
+            obs: [step as f32 * 0.01; terl_transport::OBS_DIM],
+            next_obs: [0.5; terl_transport::OBS_DIM],
+            goal_obs: None,
+            action: [0.1; terl_transport::ACTION_DIM],
+        };
+        // Two trajectories of 25 steps, flushed apart: one chunk each (after the schema chunk).
+        for trajectory_id in [3, 4] {
+            for step in 0..25 {
+                w.write(&sample(trajectory_id, step), u64::from(step))
+                    .unwrap();
+            }
+            w.flush().unwrap();
+        }
+        w.finish().unwrap();
+        // Damage the length of the third top-level chunk (the second trajectory's) to 4.6 EB.
+        let mut bytes = std::fs::read(&path).unwrap();
+        let (mut at, mut chunks) = (8usize, 0);
+        loop {
+            let len = u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap()) as usize;
+            chunks += usize::from(bytes[at] == 0x06);
+            if chunks == 3 {
+                break;
+            }
+            at += 9 + len;
+        }
+        bytes[at + 1..at + 9].copy_from_slice(&(4u64 << 60).to_le_bytes());
+        std::fs::write(&path, &bytes).unwrap();
+
+        let tasks = ["door-open-v3"];
+        let mut planner = PlannerTrainer::new(TepConfig::default(), tasks.len(), 1).unwrap();
+        load_all(&[path], &tasks, &mut planner).unwrap();
+        assert_eq!(planner.buffer_len(), 25);
     }
 
     #[test]

@@ -8,13 +8,19 @@
 //! updates, publishes the planner (and, for the selector's PTR scoring, the critics) on the
 //! same weight stream, and reports TEP losses and the guidance rate per task.
 //!
+//! Transitions, episodes and selections that senders could not deliver (the learner stalled
+//! longer than `[cluster] block_timeout_secs`) are reported in the status and the metrics log
+//! from the loss stamps on what does arrive (see `losses`).
+//!
 //! Two halves: the training loop ([`trainer`]) is CPU-bound and runs on its own thread; the
 //! gRPC server runs on the tokio runtime of the caller. They share a status snapshot the
 //! trainer refreshes a few times a second, the [`WeightHub`], and a checkpoint-request channel.
 //! `run` returns when `shutdown` completes (or the trainer fails), after the trainer thread has
 //! written its final checkpoint and dropped its shared-memory node.
 
+mod checkpoint;
 mod dataset;
+mod losses;
 mod metrics;
 mod planner;
 mod trainer;
@@ -105,10 +111,16 @@ pub async fn run(
     config: LearnerConfig,
     shutdown: impl Future<Output = ()> + Send,
 ) -> anyhow::Result<()> {
+    // Weights that would not fit a gRPC message fail here, naming the run-file key, rather than
+    // at the first publication after minutes of training.
+    let num_tasks = terl_runtime::resolve_tasks(&config.run.tasks)?.len();
+    config.run.check_weight_messages(num_tasks)?;
+    let max_message_bytes = config.run.cluster.max_message_bytes();
     let listener = terl_wire::bind_secured(config.addr, &config.server_security)
         .await
         .with_context(|| format!("cannot listen on {}", config.addr))?;
     let serve_options = terl_wire::ServeOptions {
+        max_message_bytes,
         security: config.server_security.clone(),
         ..terl_wire::ServeOptions::default()
     };
@@ -124,7 +136,7 @@ pub async fn run(
         }),
         stop: AtomicBool::new(false),
     });
-    let hub = WeightHub::new();
+    let hub = WeightHub::with_max_message_bytes(max_message_bytes);
     let (checkpoint_tx, checkpoint_rx) = mpsc::channel();
     let (done_tx, mut done_rx) = tokio::sync::watch::channel(false);
     let trainer = {
@@ -156,4 +168,63 @@ pub async fn run(
         .map_err(|_| anyhow::anyhow!("trainer thread panicked"))?;
     served.context("gRPC server")?;
     trained
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Networks whose weights would not fit a gRPC message stop the learner before it listens
+    /// or allocates them, naming the run-file key that raises the limit; the encoded size of a
+    /// real policy message stays within the bound the check uses.
+    #[test]
+    fn weights_over_the_message_limit_are_refused_at_start_up() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.toml");
+        std::fs::write(
+            &path,
+            "tasks = \"mt10\"\nnum_envs = 10\n[sac]\npolicy_hidden = [4096, 4096, 4096]\n",
+        )
+        .unwrap();
+        let run_config = terl_runtime::RunConfig::load(&path).unwrap();
+        let config = LearnerConfig::new(
+            run_config,
+            format!("msg-limit-{}", std::process::id()),
+            "127.0.0.1:0".parse().unwrap(),
+            1,
+            dir.path().join("run"),
+        );
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        let e = rt
+            .block_on(super::run(config, std::future::pending()))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("policy weights message") && e.contains("max_message_mib = 129"),
+            "{e}"
+        );
+        assert!(!dir.path().join("run").join("learner.addr").exists());
+
+        // The bound against a real message of a small policy.
+        let mut sac_config = terl_rl::SacConfig {
+            num_tasks: 10,
+            policy_hidden: vec![64, 32],
+            ..terl_rl::SacConfig::default()
+        };
+        sac_config.batch_size = 8;
+        let sac = terl_rl::Sac::<f32>::new(sac_config.clone()).unwrap();
+        let weights =
+            to_weights(terl_wire::WeightsKind::Policy, 1, 0, sac.policy_tensors()).unwrap();
+        let encoded = prost::Message::encoded_len(&terl_wire::pb::WeightsUpdate::from(&weights));
+        let mut cfg = terl_runtime::RunConfig::load(&path).unwrap();
+        cfg.sac = sac_config;
+        let bound = cfg.weight_message_bytes(10)[0].1;
+        assert!(
+            encoded as u64 <= bound && bound < encoded as u64 + 2048,
+            "encoded {encoded}, bound {bound}"
+        );
+    }
 }

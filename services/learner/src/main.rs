@@ -30,12 +30,26 @@ struct Args {
     /// `runs/<id>/tep-dataset.mcap`); repeat the flag to load several, in order.
     #[arg(long)]
     tep_dataset: Vec<PathBuf>,
+    /// Continue the run in the run folder from its newest intact checkpoint (networks, targets,
+    /// optimisers, per-task α, counters, generators, planner; the TEP buffer from the run's
+    /// tep-dataset files). Damaged checkpoints are skipped with a warning; a run without any
+    /// checkpoint starts fresh. The replay buffer refills with warmup_env_steps fresh
+    /// transitions before updates continue.
+    #[arg(long)]
+    resume: bool,
+    /// Stop (as on SIGTERM) when the process with this pid, the launcher, exits or is killed:
+    /// no orphans (deploy/local-cluster.sh passes its own pid).
+    #[arg(long)]
+    parent_pid: Option<u32>,
 }
 
 #[tokio::main]
 async fn main() -> anyhow::Result<()> {
     terl_runtime::init_tracing();
     let a = Args::parse();
+    if let Some(pid) = a.parent_pid {
+        terl_runtime::exit_with_parent(pid)?;
+    }
     let run = terl_runtime::RunConfig::load(&a.config)?;
     let run_dir = a
         .run_dir
@@ -46,5 +60,6 @@ async fn main() -> anyhow::Result<()> {
         .run
         .cluster
         .server_security(terl_runtime::token_from_env())?;
+    config.resume = a.resume;
     terl_learner::run(config, terl_runtime::shutdown_signal()).await
 }

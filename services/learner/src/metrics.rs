@@ -1,7 +1,12 @@
 //! The learner's metrics log, `runs/<id>/metrics.mcap` (`terl.v1.Metric` on `/metrics`): one
 //! sample of every metric per status window, flushed at once so a killed learner keeps its
 //! history. cleanrl-style names: `charts/…`, `losses/…`, `replay/…`, `tep/…`,
-//! `success_rate/<task>`, `guidance/rate/<task>`. TERL runs add `tep/target_mean` (mean
+//! `success_rate/<task>`, `guidance/rate/<task>`, and what senders report they could not
+//! deliver (cumulative counts, see `crate::losses`): `transport/transition_batches_dropped`,
+//! `transport/transitions_dropped`, `transport/episodes_dropped`,
+//! `transport/selected_samples_dropped`, and per actor
+//! `transport/transitions_dropped/actor-<id>` and `transport/episodes_dropped/actor-<id>`.
+//! TERL runs add `tep/target_mean` (mean
 //! bootstrapped target `1 + F̃`, ≥ 1) and `tep/goal_distance_mean` (mean `F(s_t, s', a_t)`).
 
 use std::path::Path;
@@ -64,6 +69,34 @@ impl MetricsLog {
                 status.rejected_batches as f64,
             ),
         ];
+        out.extend([
+            (
+                "transport/transition_batches_dropped".into(),
+                status.transition_batches_dropped as f64,
+            ),
+            (
+                "transport/transitions_dropped".into(),
+                status.transitions_dropped as f64,
+            ),
+            (
+                "transport/episodes_dropped".into(),
+                status.episodes_dropped as f64,
+            ),
+            (
+                "transport/selected_samples_dropped".into(),
+                status.selected_samples_dropped as f64,
+            ),
+        ]);
+        for a in &status.actors {
+            out.push((
+                format!("transport/transitions_dropped/actor-{}", a.actor_id),
+                a.transitions_dropped as f64,
+            ));
+            out.push((
+                format!("transport/episodes_dropped/actor-{}", a.actor_id),
+                a.episodes_dropped as f64,
+            ));
+        }
         let s = std::mem::take(&mut self.sums);
         if s.n > 0 {
             let n = s.n as f64;

@@ -2,14 +2,21 @@
 //! samples (and optionally a dataset from an earlier run), TEP updates interleaved with SAC
 //! updates, planner weights for the weight stream, planner checkpoints.
 
+use std::collections::BTreeMap;
+#[cfg(test)]
 use std::path::Path;
 
+use anyhow::Context;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+#[cfg(test)]
 use terl_nn::tensors::save_file;
+use terl_nn::tensors::{Tensor, TensorFile};
 use terl_rl::{SacError, Tep, TepBatch, TepBuffer, TepConfig};
 use terl_transport::{SelectedBatch, SelectedSample, ACTION_DIM, OBS_DIM};
 use terl_wire::{Weights, WeightsKind};
+
+use crate::checkpoint::{PlannerState, RngState};
 
 /// TEP updates per trainer round at most (one update at the paper's size takes a while on a
 /// CPU; transitions and status must not wait for a long catch-up).
@@ -212,9 +219,10 @@ impl PlannerTrainer {
         self.published_version
     }
 
-    /// Writes F, AN and both targets as a safetensors file (the learner's checkpointer makes
-    /// the write atomic).
-    pub(crate) fn save(&self, path: &Path) -> anyhow::Result<()> {
+    /// F, AN and both targets with the config and update count in the metadata: the content
+    /// of `checkpoints/planner.safetensors` (for tools; resuming uses
+    /// [`PlannerTrainer::checkpoint_tensors`] inside the learner checkpoint).
+    pub(crate) fn tool_file(&self) -> anyhow::Result<(Vec<Tensor>, BTreeMap<String, String>)> {
         let mut tensors = Vec::new();
         self.tep.f_net().export("tep_f", &mut tensors);
         self.tep.an_net().export("tep_an", &mut tensors);
@@ -222,7 +230,7 @@ impl PlannerTrainer {
         self.tep
             .an_target_net()
             .export("tep_an_target", &mut tensors);
-        let mut meta = std::collections::BTreeMap::new();
+        let mut meta = BTreeMap::new();
         meta.insert("format".to_string(), "pt".to_string());
         meta.insert(
             "terl.tep_config".to_string(),
@@ -232,7 +240,54 @@ impl PlannerTrainer {
             "terl.tep_updates".to_string(),
             self.tep.updates().to_string(),
         );
+        Ok((tensors, meta))
+    }
+
+    /// Writes [`PlannerTrainer::tool_file`] to `path` (atomically and durably).
+    #[cfg(test)]
+    pub(crate) fn save(&self, path: &Path) -> anyhow::Result<()> {
+        let (tensors, meta) = self.tool_file()?;
         save_file(path, &tensors, &meta)?;
+        Ok(())
+    }
+
+    /// Everything of the planner a resumed run needs in tensors: networks, targets,
+    /// optimisers, counters ([`terl_rl::Tep::checkpoint_tensors`]).
+    pub(crate) fn checkpoint_tensors(&self) -> Vec<Tensor> {
+        self.tep.checkpoint_tensors()
+    }
+
+    /// The rest of the planner trainer's state (sampler, counters, interleaving offset). The TEP
+    /// buffer is not in it: a resumed learner reloads it from the run's dataset files.
+    pub(crate) fn state(&self) -> PlannerState {
+        PlannerState {
+            sac_offset: self.sac_offset,
+            selected: self.selected,
+            rejected: self.rejected,
+            failed_updates: self.failed_updates,
+            published_version: self.published_version,
+            rng: RngState::of(&self.rng),
+        }
+    }
+
+    /// Restores what [`PlannerTrainer::checkpoint_tensors`] and [`PlannerTrainer::state`]
+    /// saved. On error nothing is changed. The published version starts again from 0, so the
+    /// restored planner goes out with the next publication.
+    pub(crate) fn restore(
+        &mut self,
+        file: &TensorFile,
+        state: &PlannerState,
+    ) -> anyhow::Result<()> {
+        let rng = state.rng.restore()?;
+        self.tep
+            .restore_checkpoint(file)
+            .context("the checkpoint's planner does not fit this run's [tep] networks")?;
+        self.rng = rng;
+        self.sac_offset = state.sac_offset;
+        self.selected = state.selected;
+        self.rejected = state.rejected;
+        self.failed_updates = state.failed_updates;
+        self.published_version = 0;
         Ok(())
     }
 }

@@ -8,7 +8,7 @@
 //! count at publication, so a transition's staleness is "updates behind" directly.
 
 use std::collections::{BTreeMap, VecDeque};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::atomic::Ordering;
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
@@ -18,7 +18,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use terl_rl::replay::MultiTaskReplay;
 use terl_rl::{Batch, Sac, SacError};
-use terl_runtime::Algorithm;
+use terl_runtime::{Algorithm, OnCheckpointError};
 use terl_transport::{
     flags, EpisodeSummary, Message, MessageSource, RateLimiter, SelectedBatch, ShmTransport,
     Staleness, TransitionBatch, TransportConfig, ACTION_DIM, OBS_DIM, TRANSITIONS_PER_BATCH,
@@ -28,6 +28,7 @@ use terl_wire::{
     WeightsKind,
 };
 
+use crate::checkpoint::{self, Checkpointer, LearnerState, RngState, Snapshot};
 use crate::metrics::MetricsLog;
 use crate::planner::PlannerTrainer;
 use crate::{LearnerConfig, Shared};
@@ -78,6 +79,11 @@ struct Counters {
     /// Per task, the guided share of the last completed window.
     guidance_shown: Vec<f64>,
     guided_steps: u64,
+    /// Loss stamps of everything received (status: `*_dropped`).
+    inbound: crate::losses::Inbound,
+    checkpoint_failures: u64,
+    /// The checkpoint this learner resumed from and its update count.
+    resumed: Option<(PathBuf, u64)>,
 }
 
 /// Batches taken out of shared memory and not yet in replay, one queue per actor.
@@ -157,6 +163,7 @@ fn ingest(
     replay: &mut MultiTaskReplay,
     c: &mut Counters,
 ) -> u64 {
+    c.inbound.batch(batch);
     let ts = batch.as_slice();
     let valid = ts.iter().all(|t| {
         (t.task as usize) < num_tasks
@@ -207,53 +214,6 @@ fn sac_weights(sac: &Sac<f32>, kind: WeightsKind, version: u64) -> anyhow::Resul
     crate::to_weights(kind, version, sac.updates(), tensors)
 }
 
-struct Checkpointer {
-    dir: PathBuf,
-    keep: usize,
-    periodic: VecDeque<PathBuf>,
-}
-
-impl Checkpointer {
-    /// Writes `<name>.safetensors` through `save` into a temporary name and renames it, so a
-    /// reader never sees half a file.
-    fn atomic(
-        &self,
-        name: &str,
-        save: impl FnOnce(&Path) -> anyhow::Result<()>,
-    ) -> anyhow::Result<PathBuf> {
-        let path = self.dir.join(format!("{name}.safetensors"));
-        let tmp = self.dir.join(format!(".{name}.safetensors.tmp"));
-        save(&tmp).with_context(|| format!("writing {}", tmp.display()))?;
-        std::fs::rename(&tmp, &path).with_context(|| format!("renaming to {}", path.display()))?;
-        Ok(path)
-    }
-
-    fn write(&self, sac: &Sac<f32>, name: &str) -> anyhow::Result<PathBuf> {
-        self.atomic(name, |tmp| Ok(sac.save_checkpoint(tmp)?))
-    }
-
-    /// The planner's checkpoint (one file, replaced each time).
-    fn planner(&self, planner: Option<&PlannerTrainer>) -> anyhow::Result<()> {
-        if let Some(p) = planner {
-            self.atomic("planner", |tmp| p.save(tmp))?;
-        }
-        Ok(())
-    }
-
-    fn periodic(&mut self, sac: &Sac<f32>) -> anyhow::Result<PathBuf> {
-        let path = self.write(sac, &format!("update-{:010}", sac.updates()))?;
-        if self.periodic.back() != Some(&path) {
-            self.periodic.push_back(path.clone());
-        }
-        while self.periodic.len() > self.keep.max(1) {
-            if let Some(old) = self.periodic.pop_front() {
-                let _ = std::fs::remove_file(old);
-            }
-        }
-        Ok(path)
-    }
-}
-
 pub(crate) fn run(
     config: &LearnerConfig,
     shared: &Shared,
@@ -281,9 +241,28 @@ pub(crate) fn run(
     let mut episodes = transport.shm_source::<EpisodeSummary>()?;
     let mut selected = transport.shm_source::<SelectedBatch>()?;
     let terl = run.algorithm == Algorithm::Terl;
+    let checkpoint_dir = config.run_dir.join("checkpoints");
+    let resume_from = if config.resume {
+        let found = checkpoint::newest_intact(&checkpoint_dir)?;
+        if found.is_none() {
+            tracing::warn!(dir = %checkpoint_dir.display(), "--resume: the run has no checkpoint yet; starting fresh");
+        }
+        found
+    } else {
+        None
+    };
     let mut planner = if terl {
         let mut p = PlannerTrainer::new(run.tep.clone(), nt, run.train.seed)?;
-        crate::dataset::load_all(&config.tep_datasets, &tasks, &mut p)?;
+        let mut datasets = config.tep_datasets.clone();
+        if resume_from.is_some() {
+            // The TEP buffer is not in the checkpoint: the run's own dataset holds every
+            // selected sample it received (one file per selector start).
+            datasets.extend(terl_telemetry::existing_paths(
+                &config.run_dir,
+                "tep-dataset",
+            ));
+        }
+        crate::dataset::load_all(&datasets, &tasks, &mut p)?;
         Some(p)
     } else {
         None
@@ -300,14 +279,7 @@ pub(crate) fn run(
     let mut batch = Batch::with_capacity(sac_config.batch_size, OBS_DIM, ACTION_DIM);
     let mut rng = ChaCha8Rng::seed_from_u64(run.train.seed ^ 0x1ea7_7e55);
     let mut metrics = MetricsLog::create(&config.run_dir)?;
-    let checkpoint_dir = config.run_dir.join("checkpoints");
-    std::fs::create_dir_all(&checkpoint_dir)
-        .with_context(|| format!("cannot create {}", checkpoint_dir.display()))?;
-    let mut checkpointer = Checkpointer {
-        dir: checkpoint_dir,
-        keep: run.cluster.keep_checkpoints,
-        periodic: VecDeque::new(),
-    };
+    let mut checkpointer = Checkpointer::open(checkpoint_dir, run.cluster.keep_checkpoints)?;
     let checkpoint_every = (run.cluster.checkpoint_every_secs > 0.0)
         .then(|| Duration::from_secs_f64(run.cluster.checkpoint_every_secs));
     let mut last_checkpoint = Instant::now();
@@ -331,7 +303,35 @@ pub(crate) fn run(
         guidance_window: vec![(0, 0); nt],
         guidance_shown: vec![0.0; nt],
         guided_steps: 0,
+        inbound: crate::losses::Inbound::default(),
+        checkpoint_failures: 0,
+        resumed: None,
     };
+    if let Some(found) = resume_from {
+        check_compatible(&found, &tasks, run.algorithm)?;
+        restore(
+            found,
+            &mut sac,
+            planner.as_mut(),
+            &mut rng,
+            &mut c,
+            window_len,
+        )?;
+        // Actors and the selector get the restored networks at once (updates only continue
+        // once the replay buffer holds `warmup_env_steps` fresh transitions).
+        let version = sac.updates();
+        hub.publish(&sac_weights(&sac, WeightsKind::Policy, version)?)?;
+        c.policy_version = version;
+        if terl {
+            hub.publish(&sac_weights(&sac, WeightsKind::Critic, version)?)?;
+            c.critic_version = version;
+        }
+        if let Some(p) = planner.as_mut() {
+            if let Some(w) = p.weights_to_publish()? {
+                hub.publish(&w)?;
+            }
+        }
+    }
     let mut last_status = start - STATUS_EVERY;
     let mut last_log = start;
     tracing::info!(
@@ -365,6 +365,7 @@ pub(crate) fn run(
             busy = true;
         }
         while let Some(()) = episodes.try_receive_with(|e| {
+            c.inbound.episode(e);
             if let Some(w) = c.windows.get_mut(e.task as usize) {
                 if w.len() == window_len {
                     w.pop_front();
@@ -374,9 +375,12 @@ pub(crate) fn run(
         })? {
             busy = true;
         }
-        while let Some(n) = selected.try_receive_with(|s| match planner.as_mut() {
-            Some(p) => p.ingest_batch(s),
-            None => s.as_slice().len() as u64,
+        while let Some(n) = selected.try_receive_with(|s| {
+            c.inbound.selected(s);
+            match planner.as_mut() {
+                Some(p) => p.ingest_batch(s),
+                None => s.as_slice().len() as u64,
+            }
         })? {
             c.selected_samples += n;
             busy = true;
@@ -430,21 +434,50 @@ pub(crate) fn run(
                 Some(label) => format!("{label}-update-{:010}", sac.updates()),
                 None => format!("requested-update-{:010}", sac.updates()),
             };
-            let answer = checkpointer
-                .write(&sac, &name)
-                .map(|path| CheckpointSaved {
-                    path: path.display().to_string(),
-                    learner_update: sac.updates(),
-                    policy_version: c.policy_version,
-                })
-                .map_err(|e| format!("{e:#}"));
+            let answer = Snapshot::new(
+                &sac,
+                planner.as_ref().map(PlannerTrainer::checkpoint_tensors),
+                &learner_state(&tasks, run.algorithm, &c, &rng, planner.as_ref()),
+            )
+            .and_then(|snapshot| checkpointer.write(&name, &snapshot))
+            .map(|path| CheckpointSaved {
+                path: path.display().to_string(),
+                learner_update: sac.updates(),
+                policy_version: c.policy_version,
+            })
+            .map_err(|e| format!("{e:#}"));
             let _ = job.reply.send(answer);
         }
         if checkpoint_every.is_some_and(|every| last_checkpoint.elapsed() >= every) {
             last_checkpoint = Instant::now();
-            let path = checkpointer.periodic(&sac)?;
-            checkpointer.planner(planner.as_ref())?;
-            tracing::info!(path = %path.display(), updates = sac.updates(), "checkpoint");
+            let written = Snapshot::new(
+                &sac,
+                planner.as_ref().map(PlannerTrainer::checkpoint_tensors),
+                &learner_state(&tasks, run.algorithm, &c, &rng, planner.as_ref()),
+            )
+            .and_then(|snapshot| checkpointer.periodic(sac.updates(), &snapshot))
+            .and_then(|path| {
+                if let Some(p) = &planner {
+                    let (tensors, meta) = p.tool_file()?;
+                    checkpointer.planner(tensors, &meta)?;
+                }
+                Ok(path)
+            });
+            match written {
+                Ok(path) => {
+                    tracing::info!(path = %path.display(), updates = sac.updates(), "checkpoint")
+                }
+                Err(e) => {
+                    c.checkpoint_failures += 1;
+                    tracing::error!(failures = c.checkpoint_failures, "{e:#}");
+                    if run.cluster.on_checkpoint_error == OnCheckpointError::Stop {
+                        return Err(e).context(
+                            "stopping: a checkpoint could not be written \
+                             (cluster.on_checkpoint_error = \"stop\"; \"continue\" keeps training)",
+                        );
+                    }
+                }
+            }
         }
 
         let now = Instant::now();
@@ -457,6 +490,7 @@ pub(crate) fn run(
                 }
             }
             let mut status = snapshot(config, &tasks, &c, &sac, &replay, capacity, now);
+            c.inbound.fill(&mut status);
             status.algorithm = run.algorithm.as_str().to_string();
             if let Some(p) = &planner {
                 status.tep_updates = p.updates();
@@ -499,9 +533,120 @@ pub(crate) fn run(
     }
 
     metrics.finish()?;
-    let path = checkpointer.write(&sac, "final")?;
-    checkpointer.planner(planner.as_ref())?;
+    let snapshot = Snapshot::new(
+        &sac,
+        planner.as_ref().map(PlannerTrainer::checkpoint_tensors),
+        &learner_state(&tasks, run.algorithm, &c, &rng, planner.as_ref()),
+    )?;
+    let path = checkpointer.write("final", &snapshot)?;
+    if let Some(p) = &planner {
+        let (tensors, meta) = p.tool_file()?;
+        checkpointer.planner(tensors, &meta)?;
+    }
     tracing::info!(path = %path.display(), updates = sac.updates(), env_steps = c.env_steps, "trainer stopped; final checkpoint written");
+    Ok(())
+}
+
+/// The learner's counters for a checkpoint.
+fn learner_state(
+    tasks: &[&str],
+    algorithm: Algorithm,
+    c: &Counters,
+    rng: &ChaCha8Rng,
+    planner: Option<&PlannerTrainer>,
+) -> LearnerState {
+    LearnerState {
+        tasks: tasks.iter().map(|t| (*t).to_string()).collect(),
+        algorithm: algorithm.as_str().to_string(),
+        env_steps: c.env_steps,
+        policy_version: c.policy_version,
+        critic_version: c.critic_version,
+        selected_samples: c.selected_samples,
+        guided_steps: c.guided_steps,
+        failed_updates: c.failed_updates,
+        rejected_batches: c.rejected_batches,
+        success_windows: c
+            .windows
+            .iter()
+            .map(|w| w.iter().map(|&s| if s { '1' } else { '0' }).collect())
+            .collect(),
+        sampler: RngState::of(rng),
+        planner: planner.map(PlannerTrainer::state),
+    }
+}
+
+/// Refuses a checkpoint of another task list or algorithm.
+fn check_compatible(
+    found: &checkpoint::Found,
+    tasks: &[&str],
+    algorithm: Algorithm,
+) -> anyhow::Result<()> {
+    let state = &found.state;
+    let path = found.path.display().to_string();
+    anyhow::ensure!(
+        state
+            .tasks
+            .iter()
+            .map(String::as_str)
+            .eq(tasks.iter().copied()),
+        "cannot resume from {path}: it was trained on the tasks {:?}, the run file names {:?}",
+        state.tasks,
+        tasks
+    );
+    anyhow::ensure!(
+        state.algorithm == algorithm.as_str(),
+        "cannot resume from {path}: it is a checkpoint of an algorithm = \"{}\" run, the run file says \"{}\"",
+        state.algorithm,
+        algorithm.as_str()
+    );
+    Ok(())
+}
+
+/// Restores a found checkpoint into the freshly built learner, or fails with nothing half
+/// restored that matters (the process then exits).
+fn restore(
+    found: checkpoint::Found,
+    sac: &mut Sac<f32>,
+    planner: Option<&mut PlannerTrainer>,
+    rng: &mut ChaCha8Rng,
+    c: &mut Counters,
+    window_len: usize,
+) -> anyhow::Result<()> {
+    let state = &found.state;
+    let path = found.path.display().to_string();
+    let sampler = state.sampler.restore()?;
+    sac.restore_checkpoint(&found.file).with_context(|| {
+        format!("cannot resume from {path}: it does not fit this run's [sac] networks")
+    })?;
+    if let Some(p) = planner {
+        let ps = state
+            .planner
+            .as_ref()
+            .with_context(|| format!("cannot resume from {path}: it holds no planner state"))?;
+        p.restore(&found.file, ps)
+            .with_context(|| format!("cannot resume from {path}"))?;
+    }
+    *rng = sampler;
+    c.env_steps = state.env_steps;
+    c.policy_version = state.policy_version;
+    c.critic_version = state.critic_version;
+    c.selected_samples = state.selected_samples;
+    c.guided_steps = state.guided_steps;
+    c.failed_updates = state.failed_updates;
+    c.rejected_batches = state.rejected_batches;
+    for (w, saved) in c.windows.iter_mut().zip(&state.success_windows) {
+        // A window of another length in the run file keeps the newest episodes.
+        let skip = saved.chars().count().saturating_sub(window_len);
+        w.clear();
+        w.extend(saved.chars().skip(skip).map(|ch| ch == '1'));
+    }
+    c.resumed = Some((found.path.clone(), found.updates));
+    tracing::info!(
+        checkpoint = %path,
+        updates = found.updates,
+        env_steps = state.env_steps,
+        "resumed; the replay buffer refills with warmup_env_steps fresh transitions before updates continue"
+    );
     Ok(())
 }
 
@@ -558,6 +703,7 @@ fn snapshot(
                 env_steps_per_second: t.steps_per_second,
                 policy_version: t.policy_version,
                 seconds_since_seen: t.last_seen.map_or(0.0, |s| (now - s).as_secs_f64()),
+                ..ActorStats::default()
             })
             .collect(),
         replay_size: replay.total_len() as u64,
@@ -583,6 +729,13 @@ fn snapshot(
         policy_version: c.policy_version,
         selected_samples: c.selected_samples,
         guided_steps: c.guided_steps,
+        resumed_from: c
+            .resumed
+            .as_ref()
+            .map(|(p, _)| p.display().to_string())
+            .unwrap_or_default(),
+        resumed_at_update: c.resumed.as_ref().map_or(0, |(_, u)| *u),
+        checkpoint_failures: c.checkpoint_failures,
         ..LearnerStatus::default()
     }
 }

@@ -10,12 +10,16 @@
 //! the time (it receives one summary per finished episode), so an evaluator thread there costs
 //! no extra process, connection or launcher step. Its CPU time competes with the actors on a
 //! small machine, so the episodes per task and the threads are config values (default 10
-//! episodes, 1 thread) and every evaluation logs its wall and CPU seconds.
+//! episodes, 1 thread) and every evaluation logs its wall and CPU seconds. The thread keeps its
+//! environments ([`EvalEnvs`]) between evaluations, so the selector's memory stays at one
+//! evaluation's footprint over a long run.
 
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
-use terl_runtime::eval::{evaluate_policy, plan_tasks, EvalSettings, UnseenTaskEncoding};
+use terl_runtime::eval::{
+    evaluate_policy_with, plan_tasks, EvalEnvs, EvalSettings, UnseenTaskEncoding,
+};
 use terl_wire::{EvalResult, TaskEval};
 
 use crate::{SelectorConfig, Shared};
@@ -61,6 +65,9 @@ pub(crate) fn run(config: &SelectorConfig, shared: &Shared, learner_addr: &str) 
         threads = settings.threads,
         "evaluator started"
     );
+    // Built on the first evaluation and kept for the life of the thread: rebuilding the MuJoCo
+    // environments for every evaluation grew the process by hundreds of MB each time.
+    let envs = EvalEnvs::default();
     let mut client = None;
     let mut next = every;
     while !shared.stop.load(Ordering::Relaxed) {
@@ -97,8 +104,14 @@ pub(crate) fn run(config: &SelectorConfig, shared: &Shared, learner_addr: &str) 
             continue;
         }
         next = (env_steps / every + 1) * every;
-        let summary = match evaluate_policy(&policy, &plan, &settings, &|_| {}, Some(&shared.stop))
-        {
+        let summary = match evaluate_policy_with(
+            &envs,
+            &policy,
+            &plan,
+            &settings,
+            &|_| {},
+            Some(&shared.stop),
+        ) {
             Ok(s) => s,
             Err(terl_runtime::eval::EvalError::Cancelled) => break,
             Err(e) => {

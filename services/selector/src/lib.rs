@@ -8,6 +8,12 @@
 //! dataset (`runs/<id>/tep-dataset.mcap`, flushed after every delivery, so a killed selector
 //! loses at most the selection it was writing).
 //!
+//! Episodes that never arrive are counted, not silently lost: an actor whose send times out
+//! on a full receiver stamps its running count on its next episode (the selector's status
+//! shows the sum as `episodes_dropped`), and gaps in each actor's episode indices are the
+//! episodes this selector itself never received (`episodes_missed`, and `missed_before` on the
+//! next record of that actor in `episodes.mcap`).
+//!
 //! With `train.eval_every_env_steps > 0` and the learner's address, its [`evaluator`] thread
 //! evaluates the latest policy version deterministically on every task at that interval
 //! (`runs/<id>/eval.mcap`, and the last result in `GetStatus`).
@@ -21,8 +27,9 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use terl_runtime::Algorithm;
 use terl_transport::{
-    EpisodeSummary, Message, MessageSink, MessageSource, SelectedBatch, SelectedSample,
-    ShmTransport, TransportConfig, TransportError, ACTION_DIM, OBS_DIM, SELECTED_PER_BATCH,
+    EpisodeSummary, LossTracker, Message, MessageSink, MessageSource, SelectedBatch,
+    SelectedSample, ShmTransport, TransportConfig, TransportError, ACTION_DIM, OBS_DIM,
+    SELECTED_PER_BATCH,
 };
 use terl_wire::{PriorityStats, SelectorBackend, SelectorStatus, TaskSuccess, WeightsKind};
 use tonic::Status;
@@ -54,6 +61,11 @@ pub struct EpisodeStats {
     episodes_seen: u64,
     /// Episodes naming a task outside the run's task list (a misconfigured actor).
     rejected: u64,
+    /// Episodes the actors report they could not deliver to every receiver (their loss
+    /// stamps, summed over actors and actor restarts).
+    episodes_dropped: u64,
+    /// Episodes this selector never received: gaps in each actor's episode indices.
+    episodes_missed: u64,
 }
 
 impl EpisodeStats {
@@ -65,7 +77,16 @@ impl EpisodeStats {
             per_task,
             episodes_seen: 0,
             rejected: 0,
+            episodes_dropped: 0,
+            episodes_missed: 0,
         }
+    }
+
+    /// Takes the loss counts of the episode stream from the receive loop's tracker.
+    pub fn set_losses(&mut self, tracker: &LossTracker) {
+        let total = tracker.total();
+        self.episodes_dropped = total.reported.messages;
+        self.episodes_missed = total.missed;
     }
 
     /// Records one finished episode.
@@ -173,6 +194,8 @@ impl SelectorBackend for Backend {
             critic_version: selection.critic_version,
             last_eval,
             evaluations,
+            episodes_dropped: stats.episodes_dropped,
+            episodes_missed: stats.episodes_missed,
         })
     }
 }
@@ -281,11 +304,28 @@ fn receive_loop(config: &SelectorConfig, shared: &Shared) -> anyhow::Result<()> 
     } else {
         None
     };
+    if config.resume {
+        let mut stats = shared
+            .stats
+            .lock()
+            .map_err(|_| anyhow::anyhow!("episode statistics lock poisoned"))?;
+        resume_from_logs(
+            &config.run_dir,
+            &tasks,
+            &mut stats,
+            selecting.as_mut().map(|s| &mut s.scorer),
+        )?;
+    }
     let episode_path = terl_telemetry::fresh_path(&config.run_dir, "episodes");
     let mut episode_log = terl_telemetry::EpisodeLogWriter::create(&episode_path)
         .with_context(|| format!("cannot create the episode log {}", episode_path.display()))?;
     let mut last_flush = Instant::now();
     let mut last_log = Instant::now();
+    // Episodes that never arrived: the actors' loss stamps and gaps in their episode indices
+    // (an actor's send gave up on this selector, or on the learner, after the block timeout).
+    let mut losses = LossTracker::new();
+    let mut missed_logged = 0;
+    let mut gaps: Vec<u64> = Vec::new();
     let mut received: Vec<Box<EpisodeSummary>> = Vec::new();
     let mut spare: Vec<Box<EpisodeSummary>> = Vec::new();
     while !shared.stop.load(Ordering::Relaxed) {
@@ -305,7 +345,23 @@ fn receive_loop(config: &SelectorConfig, shared: &Shared) -> anyhow::Result<()> 
         }
         let got = received.len();
         let now_ns = terl_telemetry::unix_nanos();
-        for e in &received {
+        gaps.clear();
+        gaps.extend(
+            received
+                .iter()
+                .map(|e| losses.observe(e.actor_id, e.episode_index, e.losses())),
+        );
+        let missed = losses.total().missed;
+        if missed > missed_logged {
+            missed_logged = missed;
+            tracing::warn!(
+                episodes_missed = missed,
+                episodes_dropped = losses.total().reported.messages,
+                "episodes never arrived: an actor's send gave up on a full receiver after \
+                 cluster.block_timeout_secs (totals so far)"
+            );
+        }
+        for (e, &missed_before) in received.iter().zip(&gaps) {
             let Some(task) = tasks.get(usize::from(e.task)) else {
                 continue;
             };
@@ -318,6 +374,7 @@ fn receive_loop(config: &SelectorConfig, shared: &Shared) -> anyhow::Result<()> 
                 length: e.length,
                 policy_version: e.policy_version,
                 guided_steps: u32::from(e.guided_steps).min(e.length),
+                missed_before,
             };
             if record.episode_return.is_finite() {
                 episode_log.write(&record, now_ns)?;
@@ -328,6 +385,7 @@ fn receive_loop(config: &SelectorConfig, shared: &Shared) -> anyhow::Result<()> 
             episode_log.flush()?;
         }
         if let Ok(mut stats) = shared.stats.lock() {
+            stats.set_losses(&losses);
             for e in &received {
                 stats.record(
                     usize::from(e.task),
@@ -381,6 +439,54 @@ fn receive_loop(config: &SelectorConfig, shared: &Shared) -> anyhow::Result<()> 
     Ok(())
 }
 
+/// `--resume`: rebuilds the success windows, episode totals and PTR gates from the episode
+/// logs earlier processes of this run wrote (`episodes.mcap`, `episodes.2.mcap`, …), so gates
+/// that were open stay open and windows continue. Episodes of tasks outside this run's task list
+/// are skipped; a log cut short by a kill contributes what was flushed. PTR pools that were not
+/// full when the earlier process stopped are not recovered (they were never selected).
+fn resume_from_logs(
+    run_dir: &std::path::Path,
+    tasks: &[&str],
+    stats: &mut EpisodeStats,
+    mut scorer: Option<&mut Scorer>,
+) -> anyhow::Result<u64> {
+    let paths = terl_telemetry::existing_paths(run_dir, "episodes");
+    let mut replayed = 0u64;
+    for path in &paths {
+        let log = terl_telemetry::read_log::<terl_wire::EpisodeSummary>(path)
+            .with_context(|| format!("--resume: cannot read the episode log {}", path.display()))?;
+        if log.truncated {
+            tracing::warn!(file = %path.display(), episodes = log.records.len(), "episode log was cut short (a killed selector); resuming from what it holds");
+        }
+        for e in &log.records {
+            let Some(task) = tasks.iter().position(|t| *t == e.task) else {
+                continue;
+            };
+            stats.record(task, e.success, e.episode_return, e.length);
+            if let Some(s) = scorer.as_deref_mut() {
+                s.replay_episode(task, e.success);
+            }
+            replayed += 1;
+        }
+    }
+    let open: Vec<&str> = match scorer.as_deref() {
+        Some(s) => tasks
+            .iter()
+            .enumerate()
+            .filter(|(k, _)| s.gate_open(*k))
+            .map(|(_, t)| *t)
+            .collect(),
+        None => Vec::new(),
+    };
+    tracing::info!(
+        logs = paths.len(),
+        episodes = replayed,
+        open_gates = ?open,
+        "resumed the success windows and PTR gates from the episode logs"
+    );
+    Ok(replayed)
+}
+
 /// Runs the selector until `shutdown` completes or receiving fails.
 pub async fn run(
     config: SelectorConfig,
@@ -402,7 +508,6 @@ pub async fn run(
         security: config.server_security.clone(),
         ..terl_wire::ServeOptions::default()
     };
-    let client_options = terl_wire::ClientOptions::secured(config.client_security.clone());
     let addr = listener.local_addr()?;
     let addr_file = terl_runtime::write_addr_file(&config.run_dir, "selector", addr)?;
     tracing::info!(%addr, file = %addr_file.display(), run_id = %config.run_id, "selector listening");
@@ -443,10 +548,14 @@ pub async fn run(
             } else {
                 vec![WeightsKind::Policy]
             };
-            Some(tokio::spawn(terl_wire::follow_weights(
+            let options = terl_wire::ClientOptions {
+                max_message_bytes: config.run.cluster.max_message_bytes(),
+                security: config.client_security.clone(),
+            };
+            Some(tokio::spawn(terl_wire::follow_weights_with(
                 addr.clone(),
-                client_options,
                 kinds,
+                options,
                 move |w| {
                     let (kind, version) = (w.kind(), w.version());
                     let flat: Vec<f32> = w.into_flat();
@@ -532,6 +641,66 @@ pub async fn run(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn episode(task: &str, index: u64, success: bool) -> terl_wire::EpisodeSummary {
+        terl_wire::EpisodeSummary {
+            task: task.into(),
+            actor_id: 0,
+            episode_index: index,
+            episode_return: 1.0,
+            success,
+            length: 500,
+            policy_version: 1,
+            guided_steps: 0,
+            missed_before: 0,
+        }
+    }
+
+    /// Windows and gates continue from the logs of earlier processes (two files, the second
+    /// cut short as by a kill); an unknown task in a log is skipped.
+    #[test]
+    fn resume_rebuilds_windows_and_gates_from_the_episode_logs() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut first =
+            terl_telemetry::EpisodeLogWriter::create(dir.path().join("episodes.mcap")).unwrap();
+        // reach: 4 successes (gate threshold 0.75 over a window of 4: opens); push: 1 of 4.
+        for k in 0..4 {
+            first.write(&episode("reach-v3", k, true), k).unwrap();
+            first.write(&episode("push-v3", k, k == 0), k).unwrap();
+        }
+        first.write(&episode("door-open-v3", 9, true), 9).unwrap();
+        first.finish().unwrap();
+        let mut second =
+            terl_telemetry::EpisodeLogWriter::create(dir.path().join("episodes.2.mcap")).unwrap();
+        // After the gate opened, reach fails twice: a latched gate stays open.
+        for k in 4..6 {
+            second.write(&episode("reach-v3", k, false), k).unwrap();
+        }
+        second.flush().unwrap();
+        std::mem::forget(second); // killed: never finished
+
+        let tasks = ["reach-v3", "push-v3"];
+        let mut stats = EpisodeStats::new(tasks.iter().map(|t| t.to_string()).collect(), 4);
+        let ptr = terl_rl::ptr::PtrConfig {
+            success_threshold: 0.75,
+            success_window: 4,
+            ..terl_rl::ptr::PtrConfig::default()
+        };
+        let sac = terl_rl::SacConfig {
+            obs_dim: OBS_DIM,
+            act_dim: ACTION_DIM,
+            num_tasks: 2,
+            ..terl_rl::SacConfig::default()
+        };
+        let mut scorer = Scorer::new(ptr, &sac);
+        let n = resume_from_logs(dir.path(), &tasks, &mut stats, Some(&mut scorer)).unwrap();
+        assert_eq!(n, 10);
+        assert!(scorer.gate_open(0) && !scorer.gate_open(1));
+        let ts = stats.task_success();
+        assert_eq!((ts[0].success_rate, ts[0].episodes), (0.5, 4));
+        assert_eq!((ts[1].success_rate, ts[1].episodes), (0.25, 4));
+        assert_eq!(stats.per_task()[0].episodes, 6);
+    }
 
     #[test]
     fn windows_roll_and_unknown_tasks_are_counted() {

@@ -29,12 +29,23 @@ struct Args {
     /// critic weights.
     #[arg(long)]
     learner_addr: Option<String>,
+    /// Continue the run in the run folder: success windows and PTR gates are rebuilt from its
+    /// episode logs; new episodes, selected samples and evaluations go to new log files.
+    #[arg(long)]
+    resume: bool,
+    /// Stop (as on SIGTERM) when the process with this pid, the launcher, exits or is killed:
+    /// no orphans (deploy/local-cluster.sh passes its own pid).
+    #[arg(long)]
+    parent_pid: Option<u32>,
 }
 
 #[tokio::main(flavor = "current_thread")]
 async fn main() -> anyhow::Result<()> {
     terl_runtime::init_tracing();
     let a = Args::parse();
+    if let Some(pid) = a.parent_pid {
+        terl_runtime::exit_with_parent(pid)?;
+    }
     let run = terl_runtime::RunConfig::load(&a.config)?;
     let run_dir = a
         .run_dir
@@ -45,5 +56,6 @@ async fn main() -> anyhow::Result<()> {
     let cluster = &config.run.cluster;
     config.server_security = cluster.server_security(terl_runtime::token_from_env())?;
     config.client_security = cluster.client_security(terl_runtime::token_from_env())?;
+    config.resume = a.resume;
     terl_selector::run(config, terl_runtime::shutdown_signal()).await
 }

@@ -97,6 +97,12 @@ impl Scorer {
         self.gate.is_open(task)
     }
 
+    /// Records an episode of an earlier process of this run (read back from its episode log on
+    /// resume) in the success gate only: gates open and latch as they did, nothing is scored.
+    pub fn replay_episode(&mut self, task: usize, success: bool) {
+        self.gate.record(task, success);
+    }
+
     /// Records `episode` in the gate and, if its task's gate is open and weights are loaded,
     /// scores it and adds it to its task's pool. When that fills the pool, returns the pool's
     /// selection (highest priority first: the batches of 512 in order), otherwise nothing.

@@ -187,6 +187,121 @@ pub fn block_times_out_on_stalled_receiver<T: Transport>(make: Make<T>, run: &st
     assert_eq!(sink.stats().full_events, 1);
 }
 
+/// A `Block` send that times out on a receiver that never drains (a stopped learner) drops
+/// the batch, counts it and its transitions, and stamps the counts on the next batch that
+/// gets through, so the receiver's [`LossTracker`] ends with the same numbers.
+pub fn block_timeouts_are_counted_and_reported<T: Transport>(make: Make<T>, run: &str) {
+    let cfg = TransportConfig {
+        buffer_batches: 2,
+        block_timeout: Duration::from_millis(50),
+        ..TransportConfig::new(run, 1)
+    };
+    let learner = make(&cfg, "learner");
+    let mut source = learner.source::<TransitionBatch>().unwrap();
+    let actor = make(&cfg, "actor-0");
+    let mut sink = actor.sink::<TransitionBatch>().unwrap();
+    let mut tracker = LossTracker::new();
+    let mut receive = |source: &mut Box<dyn MessageSource<TransitionBatch>>| {
+        let b = source.try_receive().unwrap().expect("a batch is queued");
+        tracker.observe(b.actor_id, b.sequence, b.losses());
+        b
+    };
+
+    let (mut seq, mut lost_batches, mut lost_transitions) = (0u64, 0u64, 0u64);
+    for round in 0..3u64 {
+        // Fill the receiver's buffer.
+        for _ in 0..2 {
+            assert_eq!(sink.send(&batch(0, seq)).unwrap(), SendOutcome::Delivered);
+            seq += 1;
+        }
+        // The receiver does not drain: every further send times out and is dropped.
+        for _ in 0..round + 1 {
+            let b = batch(0, seq);
+            let err = sink.send(&b).unwrap_err();
+            assert!(matches!(err, TransportError::BlockTimeout { .. }), "{err}");
+            lost_batches += 1;
+            lost_transitions += b.len as u64;
+            seq += 1;
+            let s = sink.stats();
+            assert_eq!(
+                (s.dropped, s.dropped_items),
+                (lost_batches, lost_transitions)
+            );
+        }
+        // The receiver comes back and drains what it got.
+        for _ in 0..2 {
+            receive(&mut source);
+        }
+    }
+    // The next batch that gets through carries the sender's whole count.
+    assert_eq!(sink.send(&batch(0, seq)).unwrap(), SendOutcome::Delivered);
+    let last = receive(&mut source);
+    assert_eq!(last.sequence, seq);
+    let want = Losses {
+        messages: lost_batches,
+        items: lost_transitions,
+    };
+    assert_eq!(last.losses(), want);
+    assert_eq!(lost_batches, 6);
+    let seen = tracker.sender(0);
+    assert_eq!(seen.reported, want);
+    // The only receiver missed exactly the dropped batches.
+    assert_eq!(seen.missed, lost_batches);
+    assert_eq!(sink.stats().sent, 7);
+}
+
+/// Episodes have two receivers: one that stops draining (a stalled selector) loses the
+/// episodes that time out, the other still gets them. The actor's stamp counts episodes not
+/// delivered to every receiver; each receiver's gap count is what it missed itself.
+pub fn episode_timeouts_are_counted_per_receiver<T: Transport>(make: Make<T>, run: &str) {
+    let cfg = TransportConfig {
+        buffer_episodes: 1,
+        block_timeout: Duration::from_millis(50),
+        ..TransportConfig::new(run, 1)
+    };
+    let actor = make(&cfg, "actor-0");
+    let mut sink = actor.sink::<EpisodeSummary>().unwrap();
+    let selector = make(&cfg, "selector");
+    let mut stalled = selector.source::<EpisodeSummary>().unwrap();
+    let learner = make(&cfg, "learner");
+    let mut draining = learner.source::<EpisodeSummary>().unwrap();
+    sink.wait_for_receivers(2, Duration::from_secs(5)).unwrap();
+    let (mut at_selector, mut at_learner) = (LossTracker::new(), LossTracker::new());
+    let episode = |index: u64| {
+        let mut e = EpisodeSummary::empty();
+        e.episode_index = index;
+        e.actor_id = 2;
+        e
+    };
+    let observe = |tracker: &mut LossTracker, source: &mut Box<dyn MessageSource<_>>| {
+        let e: Box<EpisodeSummary> = source.try_receive().unwrap().expect("an episode");
+        tracker.observe(e.actor_id, e.episode_index, e.losses());
+        e
+    };
+    assert_eq!(sink.send(&episode(0)).unwrap(), SendOutcome::Delivered);
+    observe(&mut at_learner, &mut draining);
+    for index in 1..=3 {
+        let err = sink.send(&episode(index)).unwrap_err();
+        assert!(matches!(err, TransportError::BlockTimeout { .. }), "{err}");
+        // The draining receiver got it all the same.
+        assert_eq!(observe(&mut at_learner, &mut draining).episode_index, index);
+    }
+    assert_eq!((sink.stats().dropped, sink.stats().dropped_items), (3, 3));
+    assert_eq!(observe(&mut at_selector, &mut stalled).episode_index, 0);
+    assert_eq!(sink.send(&episode(4)).unwrap(), SendOutcome::Delivered);
+    let e = observe(&mut at_selector, &mut stalled);
+    assert_eq!(e.episode_index, 4);
+    observe(&mut at_learner, &mut draining);
+    let three = Losses {
+        messages: 3,
+        items: 3,
+    };
+    assert_eq!(e.losses(), three);
+    let (s, l) = (at_selector.sender(2), at_learner.sender(2));
+    assert_eq!((s.reported, s.missed), (three, 3));
+    assert_eq!((l.reported, l.missed), (three, 0));
+}
+
 /// Shutdown unblocks a sender stuck on a full receiver.
 pub fn cancel_unblocks_blocked_send<T: Transport + Sync>(make: Make<T>, run: &str) {
     let cfg = TransportConfig {

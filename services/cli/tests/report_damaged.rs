@@ -1,0 +1,71 @@
+//! `terl report` on a run whose episode log has a damaged record length: the report is made
+//! from the episodes before the damage, and the damage is named on stderr (the reader once
+//! aborted on a multi-exabyte allocation here).
+
+use std::process::Command;
+
+use terl_telemetry::EpisodeLogWriter;
+use terl_wire::EpisodeSummary;
+
+fn episode(i: u64) -> EpisodeSummary {
+    EpisodeSummary {
+        task: "reach-v3".into(),
+        actor_id: 0,
+        episode_index: i,
+        episode_return: i as f64,
+        success: i.is_multiple_of(2),
+        length: 500,
+        policy_version: i,
+        guided_steps: 0,
+        missed_before: 0,
+    }
+}
+
+#[test]
+fn report_keeps_the_episodes_before_a_damaged_record_length() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    let path = run.join("episodes.mcap");
+    let mut w = EpisodeLogWriter::create(&path).unwrap();
+    for i in 0..60 {
+        w.write(&episode(i), 1 + i).unwrap();
+        if i == 29 {
+            w.flush().unwrap(); // episodes 0..30 in the second chunk, 30..60 in the third
+        }
+    }
+    w.finish().unwrap();
+    let mut bytes = std::fs::read(&path).unwrap();
+    // Walk the top-level records (after the 8-byte magic) to the third chunk (opcode 0x06).
+    let (mut at, mut seen) = (8usize, 0);
+    loop {
+        let len = u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap()) as usize;
+        if bytes[at] == 0x06 {
+            seen += 1;
+            if seen == 3 {
+                break;
+            }
+        }
+        at += 9 + len;
+    }
+    bytes[at + 1..at + 9].copy_from_slice(&(5u64 << 60).to_le_bytes());
+    std::fs::write(&path, &bytes).unwrap();
+
+    let out = Command::new(env!("CARGO_BIN_EXE_terl"))
+        .args(["report", run.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{}\n{stderr}", out.status);
+    assert!(
+        stderr.contains("episodes.mcap is read only in part")
+            && stderr.contains(&format!("claims {} bytes", 5u64 << 60))
+            && stderr.contains("using the 30 records"),
+        "{stderr}"
+    );
+    let md = std::fs::read_to_string(run.join("report.md")).unwrap();
+    // Episodes 0..30 of reach-v3: every other one a success, returns 0..29 (mean 14.5).
+    assert!(
+        md.contains("| reach-v3 | 30 | 50.0 % | 50.0 % | 14.5 | 500 |"),
+        "{md}"
+    );
+}
