@@ -72,6 +72,9 @@ pub(crate) struct Mailbox {
     pub(crate) planner: Mutex<Option<PlannerParams>>,
     /// Newest version received (for logs).
     pub(crate) received: AtomicU64,
+    /// Policy versions posted so far (a resumed learner may republish a version number the
+    /// actor has seen, so rejoining waits on this count, not on the version).
+    pub(crate) policy_posts: AtomicU64,
     pub(crate) stop: AtomicBool,
 }
 
@@ -96,6 +99,7 @@ fn post(mailbox: &Mailbox, weights: Weights) {
         _ => {
             let flat: Vec<f32> = weights.into_flat();
             mailbox.received.store(version, Ordering::Relaxed);
+            mailbox.policy_posts.fetch_add(1, Ordering::Relaxed);
             if let Ok(mut slot) = mailbox.slot.lock() {
                 *slot = Some((version, flat));
             }

@@ -743,7 +743,8 @@ fn killed_learner_is_restarted_and_runs_resume_past_a_damaged_checkpoint() {
             "--restarts",
             "2",
             "--restart-backoff",
-            "1",
+            // Long enough that the actor notices the learner is gone and pauses.
+            "3",
         ],
         &dir.path().join("first.log"),
     );
@@ -836,6 +837,19 @@ fn killed_learner_is_restarted_and_runs_resume_past_a_damaged_checkpoint() {
         status(&learner_addr, &selector_addr)
             .is_some_and(|s| u(&s, &["learner", "updates"]) > at + 50)
     });
+    // The actor was not restarted: it paused while the learner was away and rejoined.
+    let actor = |pids: &[(String, u32)]| pids.iter().find(|(r, _)| r == "actor-0").map(|p| p.1);
+    assert_eq!(
+        actor(&read_pids(&run_dir)),
+        actor(&pids),
+        "the actor kept running"
+    );
+    let actor_log = std::fs::read_to_string(run_dir.join("actor-0.log")).unwrap();
+    assert!(
+        actor_log.contains("no learner receives transitions")
+            && actor_log.contains("the learner is back; rejoining with its weights"),
+        "the actor's log shows no pause and rejoin:\n{actor_log}"
+    );
 
     // SIGKILL the launcher: every service it started stops by itself.
     let services: Vec<u32> = read_pids(&run_dir).into_iter().map(|(_, p)| p).collect();
