@@ -89,4 +89,7 @@ parity! {
     sweep_into => "sweep-into-v3",
     shelf_place => "shelf-place-v3",
     lever_pull => "lever-pull-v3",
+    // MT50 tasks, part A.
+    button_press_topdown_wall => "button-press-topdown-wall-v3",
+    button_press_wall => "button-press-wall-v3",
 }

@@ -46,6 +46,10 @@ mod sweep_into;
 mod window_close;
 mod window_open;
 
+// MT50 tasks, part A.
+mod button_press_topdown_wall;
+mod button_press_wall;
+
 /// A scripted policy: observation in, action out.
 pub type Policy = fn(&[f64; OBS_DIM]) -> [f32; ACT_DIM];
 
@@ -73,6 +77,12 @@ static POLICIES: &[(&str, Policy)] = &[
     ("sweep-into-v3", sweep_into::action),
     ("shelf-place-v3", shelf_place::action),
     ("lever-pull-v3", lever_pull::action),
+    // MT50 tasks, part A.
+    (
+        "button-press-topdown-wall-v3",
+        button_press_topdown_wall::action,
+    ),
+    ("button-press-wall-v3", button_press_wall::action),
 ];
 
 /// Tasks that have a scripted policy (whether or not the task itself is registered).

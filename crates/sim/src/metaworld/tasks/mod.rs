@@ -30,6 +30,10 @@ mod sweep_into;
 mod window_close;
 mod window_open;
 
+// MT50 tasks, part A.
+mod button_press_topdown_wall;
+mod button_press_wall;
+
 /// Static description of a task, mirroring the constants in its Python constructor.
 #[derive(Debug)]
 pub struct TaskSpec {
@@ -111,6 +115,9 @@ static REGISTRY: &[Constructor] = registry![
     sweep_into,
     shelf_place,
     lever_pull,
+    // MT50 tasks, part A.
+    button_press_topdown_wall,
+    button_press_wall,
 ];
 
 /// Names of all implemented tasks.
