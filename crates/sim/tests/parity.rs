@@ -92,4 +92,7 @@ parity! {
     // MT50 tasks, part A.
     button_press_topdown_wall => "button-press-topdown-wall-v3",
     button_press_wall => "button-press-wall-v3",
+    handle_press_side => "handle-press-side-v3",
+    handle_pull => "handle-pull-v3",
+    handle_pull_side => "handle-pull-side-v3",
 }

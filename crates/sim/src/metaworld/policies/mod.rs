@@ -49,6 +49,9 @@ mod window_open;
 // MT50 tasks, part A.
 mod button_press_topdown_wall;
 mod button_press_wall;
+mod handle_press_side;
+mod handle_pull;
+mod handle_pull_side;
 
 /// A scripted policy: observation in, action out.
 pub type Policy = fn(&[f64; OBS_DIM]) -> [f32; ACT_DIM];
@@ -83,6 +86,9 @@ static POLICIES: &[(&str, Policy)] = &[
         button_press_topdown_wall::action,
     ),
     ("button-press-wall-v3", button_press_wall::action),
+    ("handle-press-side-v3", handle_press_side::action),
+    ("handle-pull-side-v3", handle_pull_side::action),
+    ("handle-pull-v3", handle_pull::action),
 ];
 
 /// Tasks that have a scripted policy (whether or not the task itself is registered).

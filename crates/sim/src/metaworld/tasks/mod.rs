@@ -33,6 +33,9 @@ mod window_open;
 // MT50 tasks, part A.
 mod button_press_topdown_wall;
 mod button_press_wall;
+mod handle_press_side;
+mod handle_pull;
+mod handle_pull_side;
 
 /// Static description of a task, mirroring the constants in its Python constructor.
 #[derive(Debug)]
@@ -118,6 +121,9 @@ static REGISTRY: &[Constructor] = registry![
     // MT50 tasks, part A.
     button_press_topdown_wall,
     button_press_wall,
+    handle_press_side,
+    handle_pull,
+    handle_pull_side,
 ];
 
 /// Names of all implemented tasks.
