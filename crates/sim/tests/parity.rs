@@ -92,6 +92,8 @@ parity! {
     // MT50 tasks, part A.
     button_press_topdown_wall => "button-press-topdown-wall-v3",
     button_press_wall => "button-press-wall-v3",
+    coffee_pull => "coffee-pull-v3",
+    coffee_push => "coffee-push-v3",
     handle_press_side => "handle-press-side-v3",
     handle_pull => "handle-pull-v3",
     handle_pull_side => "handle-pull-side-v3",

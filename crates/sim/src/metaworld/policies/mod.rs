@@ -49,6 +49,8 @@ mod window_open;
 // MT50 tasks, part A.
 mod button_press_topdown_wall;
 mod button_press_wall;
+mod coffee_pull;
+mod coffee_push;
 mod handle_press_side;
 mod handle_pull;
 mod handle_pull_side;
@@ -86,6 +88,8 @@ static POLICIES: &[(&str, Policy)] = &[
         button_press_topdown_wall::action,
     ),
     ("button-press-wall-v3", button_press_wall::action),
+    ("coffee-pull-v3", coffee_pull::action),
+    ("coffee-push-v3", coffee_push::action),
     ("handle-press-side-v3", handle_press_side::action),
     ("handle-pull-side-v3", handle_pull_side::action),
     ("handle-pull-v3", handle_pull::action),

@@ -33,6 +33,8 @@ mod window_open;
 // MT50 tasks, part A.
 mod button_press_topdown_wall;
 mod button_press_wall;
+mod coffee_pull;
+mod coffee_push;
 mod handle_press_side;
 mod handle_pull;
 mod handle_pull_side;
@@ -121,6 +123,8 @@ static REGISTRY: &[Constructor] = registry![
     // MT50 tasks, part A.
     button_press_topdown_wall,
     button_press_wall,
+    coffee_pull,
+    coffee_push,
     handle_press_side,
     handle_pull,
     handle_pull_side,
