@@ -51,6 +51,7 @@ mod button_press_topdown_wall;
 mod button_press_wall;
 mod coffee_pull;
 mod coffee_push;
+mod hand_insert;
 mod handle_press_side;
 mod handle_pull;
 mod handle_pull_side;
@@ -90,6 +91,7 @@ static POLICIES: &[(&str, Policy)] = &[
     ("button-press-wall-v3", button_press_wall::action),
     ("coffee-pull-v3", coffee_pull::action),
     ("coffee-push-v3", coffee_push::action),
+    ("hand-insert-v3", hand_insert::action),
     ("handle-press-side-v3", handle_press_side::action),
     ("handle-pull-side-v3", handle_pull_side::action),
     ("handle-pull-v3", handle_pull::action),

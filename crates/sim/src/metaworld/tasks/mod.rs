@@ -35,6 +35,7 @@ mod button_press_topdown_wall;
 mod button_press_wall;
 mod coffee_pull;
 mod coffee_push;
+mod hand_insert;
 mod handle_press_side;
 mod handle_pull;
 mod handle_pull_side;
@@ -125,6 +126,7 @@ static REGISTRY: &[Constructor] = registry![
     button_press_wall,
     coffee_pull,
     coffee_push,
+    hand_insert,
     handle_press_side,
     handle_pull,
     handle_pull_side,
