@@ -31,6 +31,7 @@ mod window_close;
 mod window_open;
 
 // MT50 tasks, part A.
+mod box_close;
 mod button_press_topdown_wall;
 mod button_press_wall;
 mod coffee_pull;
@@ -122,6 +123,7 @@ static REGISTRY: &[Constructor] = registry![
     shelf_place,
     lever_pull,
     // MT50 tasks, part A.
+    box_close,
     button_press_topdown_wall,
     button_press_wall,
     coffee_pull,
