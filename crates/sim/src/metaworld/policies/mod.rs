@@ -47,6 +47,7 @@ mod window_close;
 mod window_open;
 
 // MT50 tasks, part A.
+mod basketball;
 mod box_close;
 mod button_press_topdown_wall;
 mod button_press_wall;
@@ -85,6 +86,7 @@ static POLICIES: &[(&str, Policy)] = &[
     ("shelf-place-v3", shelf_place::action),
     ("lever-pull-v3", lever_pull::action),
     // MT50 tasks, part A.
+    ("basketball-v3", basketball::action),
     ("box-close-v3", box_close::action),
     (
         "button-press-topdown-wall-v3",

@@ -31,6 +31,7 @@ mod window_close;
 mod window_open;
 
 // MT50 tasks, part A.
+mod basketball;
 mod box_close;
 mod button_press_topdown_wall;
 mod button_press_wall;
@@ -123,6 +124,7 @@ static REGISTRY: &[Constructor] = registry![
     shelf_place,
     lever_pull,
     // MT50 tasks, part A.
+    basketball,
     box_close,
     button_press_topdown_wall,
     button_press_wall,
