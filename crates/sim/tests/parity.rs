@@ -91,6 +91,7 @@ parity! {
     lever_pull => "lever-pull-v3",
     // MT50 tasks, part A.
     basketball => "basketball-v3",
+    bin_picking => "bin-picking-v3",
     box_close => "box-close-v3",
     button_press_topdown_wall => "button-press-topdown-wall-v3",
     button_press_wall => "button-press-wall-v3",

@@ -48,6 +48,7 @@ mod window_open;
 
 // MT50 tasks, part A.
 mod basketball;
+mod bin_picking;
 mod box_close;
 mod button_press_topdown_wall;
 mod button_press_wall;
@@ -87,6 +88,7 @@ static POLICIES: &[(&str, Policy)] = &[
     ("lever-pull-v3", lever_pull::action),
     // MT50 tasks, part A.
     ("basketball-v3", basketball::action),
+    ("bin-picking-v3", bin_picking::action),
     ("box-close-v3", box_close::action),
     (
         "button-press-topdown-wall-v3",

@@ -32,6 +32,7 @@ mod window_open;
 
 // MT50 tasks, part A.
 mod basketball;
+mod bin_picking;
 mod box_close;
 mod button_press_topdown_wall;
 mod button_press_wall;
@@ -125,6 +126,7 @@ static REGISTRY: &[Constructor] = registry![
     lever_pull,
     // MT50 tasks, part A.
     basketball,
+    bin_picking,
     box_close,
     button_press_topdown_wall,
     button_press_wall,
