@@ -54,6 +54,7 @@ mod button_press_topdown_wall;
 mod button_press_wall;
 mod coffee_pull;
 mod coffee_push;
+mod hammer;
 mod hand_insert;
 mod handle_press_side;
 mod handle_pull;
@@ -97,6 +98,7 @@ static POLICIES: &[(&str, Policy)] = &[
     ("button-press-wall-v3", button_press_wall::action),
     ("coffee-pull-v3", coffee_pull::action),
     ("coffee-push-v3", coffee_push::action),
+    ("hammer-v3", hammer::action),
     ("hand-insert-v3", hand_insert::action),
     ("handle-press-side-v3", handle_press_side::action),
     ("handle-pull-side-v3", handle_pull_side::action),

@@ -38,6 +38,7 @@ mod button_press_topdown_wall;
 mod button_press_wall;
 mod coffee_pull;
 mod coffee_push;
+mod hammer;
 mod hand_insert;
 mod handle_press_side;
 mod handle_pull;
@@ -132,6 +133,7 @@ static REGISTRY: &[Constructor] = registry![
     button_press_wall,
     coffee_pull,
     coffee_push,
+    hammer,
     hand_insert,
     handle_press_side,
     handle_pull,
