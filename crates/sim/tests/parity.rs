@@ -90,6 +90,7 @@ parity! {
     shelf_place => "shelf-place-v3",
     lever_pull => "lever-pull-v3",
     // MT50 tasks, part A.
+    assembly => "assembly-v3",
     basketball => "basketball-v3",
     bin_picking => "bin-picking-v3",
     box_close => "box-close-v3",

@@ -47,6 +47,7 @@ mod window_close;
 mod window_open;
 
 // MT50 tasks, part A.
+mod assembly;
 mod basketball;
 mod bin_picking;
 mod box_close;
@@ -88,6 +89,7 @@ static POLICIES: &[(&str, Policy)] = &[
     ("shelf-place-v3", shelf_place::action),
     ("lever-pull-v3", lever_pull::action),
     // MT50 tasks, part A.
+    ("assembly-v3", assembly::action),
     ("basketball-v3", basketball::action),
     ("bin-picking-v3", bin_picking::action),
     ("box-close-v3", box_close::action),

@@ -31,6 +31,7 @@ mod window_close;
 mod window_open;
 
 // MT50 tasks, part A.
+mod assembly;
 mod basketball;
 mod bin_picking;
 mod box_close;
@@ -126,6 +127,7 @@ static REGISTRY: &[Constructor] = registry![
     shelf_place,
     lever_pull,
     // MT50 tasks, part A.
+    assembly,
     basketball,
     bin_picking,
     box_close,
