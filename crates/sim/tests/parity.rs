@@ -98,6 +98,7 @@ parity! {
     button_press_wall => "button-press-wall-v3",
     coffee_pull => "coffee-pull-v3",
     coffee_push => "coffee-push-v3",
+    disassemble => "disassemble-v3",
     hammer => "hammer-v3",
     hand_insert => "hand-insert-v3",
     handle_press_side => "handle-press-side-v3",

@@ -55,6 +55,7 @@ mod button_press_topdown_wall;
 mod button_press_wall;
 mod coffee_pull;
 mod coffee_push;
+mod disassemble;
 mod hammer;
 mod hand_insert;
 mod handle_press_side;
@@ -100,6 +101,7 @@ static POLICIES: &[(&str, Policy)] = &[
     ("button-press-wall-v3", button_press_wall::action),
     ("coffee-pull-v3", coffee_pull::action),
     ("coffee-push-v3", coffee_push::action),
+    ("disassemble-v3", disassemble::action),
     ("hammer-v3", hammer::action),
     ("hand-insert-v3", hand_insert::action),
     ("handle-press-side-v3", handle_press_side::action),

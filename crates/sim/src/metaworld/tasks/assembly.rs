@@ -24,7 +24,7 @@ pub const SPEC: TaskSpec = TaskSpec {
 /// The peg's base is this far below the goal (its top).
 const PEG_BELOW_GOAL: f64 = 0.05;
 /// Length of the nut's handle (`WRENCH_HANDLE_LENGTH`).
-pub(super) const HANDLE_LENGTH: f64 = 0.02;
+const HANDLE_LENGTH: f64 = 0.02;
 /// Quaternion (w, x, y, z) of the nut lying flat, as the reward wants it.
 const IDEAL_QUAT: [f64; 4] = [0.707, 0.0, 0.0, 0.707];
 

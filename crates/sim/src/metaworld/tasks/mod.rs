@@ -39,6 +39,7 @@ mod button_press_topdown_wall;
 mod button_press_wall;
 mod coffee_pull;
 mod coffee_push;
+mod disassemble;
 mod hammer;
 mod hand_insert;
 mod handle_press_side;
@@ -135,6 +136,7 @@ static REGISTRY: &[Constructor] = registry![
     button_press_wall,
     coffee_pull,
     coffee_push,
+    disassemble,
     hammer,
     hand_insert,
     handle_press_side,
