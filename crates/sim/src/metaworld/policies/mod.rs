@@ -189,9 +189,9 @@ mod tests {
     fn lookup_accepts_short_names_and_rejects_unknown_tasks() {
         assert!(policy("reach").is_ok());
         assert!(policy("reach-v3").is_ok());
-        let err = policy("basketball-v3").unwrap_err().to_string();
+        let err = policy("juggle-v3").unwrap_err().to_string();
         assert!(
-            err.contains("basketball-v3") && err.contains("reach-v3"),
+            err.contains("juggle-v3") && err.contains("reach-v3"),
             "{err}"
         );
     }
