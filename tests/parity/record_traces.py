@@ -4,7 +4,7 @@
 Format: /work/shared/formats/metaworld-trace.md (header line, t=0 line after reset, one line per
 step). Run inside the venv made by tests/parity/setup-venv.sh:
 
-    .deps/venv/bin/python tests/parity/record_traces.py               # all 23 tasks, seeds 1 2
+    .deps/venv/bin/python tests/parity/record_traces.py               # every ported task, seeds 1 2
     .deps/venv/bin/python tests/parity/record_traces.py --tasks reach-v3 --seeds 7 --noise 0.1
 
 Environment: `ALL_V3_ENVIRONMENTS_GOAL_OBSERVABLE["<task>-goal-observable"](seed=seed)` (fully
@@ -47,6 +47,13 @@ TASKS = [
     "door-close-v3", "door-lock-v3", "door-unlock-v3", "button-press-v3", "coffee-button-v3",
     "dial-turn-v3", "faucet-open-v3", "faucet-close-v3", "handle-press-v3", "plate-slide-v3",
     "sweep-into-v3", "shelf-place-v3", "lever-pull-v3",
+]
+# MT50 tasks, part A.
+TASKS += [
+    "assembly-v3", "basketball-v3", "bin-picking-v3", "box-close-v3",
+    "button-press-topdown-wall-v3", "button-press-wall-v3", "coffee-pull-v3", "coffee-push-v3",
+    "disassemble-v3", "hammer-v3", "hand-insert-v3", "handle-press-side-v3",
+    "handle-pull-side-v3", "handle-pull-v3",
 ]
 DEFAULT_SEEDS = [1, 2]
 DEFAULT_NOISE = 0.1
@@ -191,7 +198,7 @@ def job(args):
 def main() -> int:
     root = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--tasks", nargs="+", default=TASKS, help="Meta-World v3 task names (default: the 23 ported tasks)")
+    p.add_argument("--tasks", nargs="+", default=TASKS, help="Meta-World v3 task names (default: every ported task)")
     p.add_argument("--seeds", nargs="+", type=int, default=DEFAULT_SEEDS, help="env/noise seeds (default: 1 2)")
     p.add_argument("--out-dir", default=os.path.join(root, "tests", "fixtures", "metaworld"))
     p.add_argument("--noise", type=float, default=DEFAULT_NOISE, help="Gaussian action noise std (default 0.1)")

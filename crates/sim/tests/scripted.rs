@@ -42,6 +42,25 @@ const BENCHMARK_TASKS: [&str; 23] = [
     "lever-pull-v3",
 ];
 
+/// MT50 tasks beyond the benchmark sets whose policies are also checked against their
+/// fixtures (part A of the MT50 port).
+const MT50_PART_A_TASKS: [&str; 14] = [
+    "assembly-v3",
+    "basketball-v3",
+    "bin-picking-v3",
+    "box-close-v3",
+    "button-press-topdown-wall-v3",
+    "button-press-wall-v3",
+    "coffee-pull-v3",
+    "coffee-push-v3",
+    "disassemble-v3",
+    "hammer-v3",
+    "hand-insert-v3",
+    "handle-press-side-v3",
+    "handle-pull-side-v3",
+    "handle-pull-v3",
+];
+
 /// Goal variations (of `goal_variations(task, 0)`) rolled out per task.
 const VARIATIONS: [usize; 3] = [0, 17, 42];
 
@@ -152,7 +171,7 @@ fn policies_reproduce_python_actions_on_fixture_traces() {
     for seed in [1, 2] {
         // (step, component) -> [(task, recorded action - policy action)]
         let mut implied: HashMap<(usize, usize), Vec<(&str, f64)>> = HashMap::new();
-        for task in BENCHMARK_TASKS {
+        for task in BENCHMARK_TASKS.into_iter().chain(MT50_PART_A_TASKS) {
             let path = fixture(task, seed);
             let trace = Trace::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
             let policy = policies::policy(task).unwrap();
@@ -191,7 +210,7 @@ fn policies_reproduce_python_actions_on_fixture_traces() {
                 }
             }
         }
-        for task in BENCHMARK_TASKS {
+        for task in BENCHMARK_TASKS.into_iter().chain(MT50_PART_A_TASKS) {
             let n = compared.get(task).copied().unwrap_or(0);
             let bad = mismatched.get(task).map_or(&[][..], Vec::as_slice);
             eprintln!(

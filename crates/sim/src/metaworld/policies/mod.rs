@@ -46,6 +46,22 @@ mod sweep_into;
 mod window_close;
 mod window_open;
 
+// MT50 tasks, part A.
+mod assembly;
+mod basketball;
+mod bin_picking;
+mod box_close;
+mod button_press_topdown_wall;
+mod button_press_wall;
+mod coffee_pull;
+mod coffee_push;
+mod disassemble;
+mod hammer;
+mod hand_insert;
+mod handle_press_side;
+mod handle_pull;
+mod handle_pull_side;
+
 /// A scripted policy: observation in, action out.
 pub type Policy = fn(&[f64; OBS_DIM]) -> [f32; ACT_DIM];
 
@@ -73,6 +89,24 @@ static POLICIES: &[(&str, Policy)] = &[
     ("sweep-into-v3", sweep_into::action),
     ("shelf-place-v3", shelf_place::action),
     ("lever-pull-v3", lever_pull::action),
+    // MT50 tasks, part A.
+    ("assembly-v3", assembly::action),
+    ("basketball-v3", basketball::action),
+    ("bin-picking-v3", bin_picking::action),
+    ("box-close-v3", box_close::action),
+    (
+        "button-press-topdown-wall-v3",
+        button_press_topdown_wall::action,
+    ),
+    ("button-press-wall-v3", button_press_wall::action),
+    ("coffee-pull-v3", coffee_pull::action),
+    ("coffee-push-v3", coffee_push::action),
+    ("disassemble-v3", disassemble::action),
+    ("hammer-v3", hammer::action),
+    ("hand-insert-v3", hand_insert::action),
+    ("handle-press-side-v3", handle_press_side::action),
+    ("handle-pull-side-v3", handle_pull_side::action),
+    ("handle-pull-v3", handle_pull::action),
 ];
 
 /// Tasks that have a scripted policy (whether or not the task itself is registered).
@@ -155,9 +189,9 @@ mod tests {
     fn lookup_accepts_short_names_and_rejects_unknown_tasks() {
         assert!(policy("reach").is_ok());
         assert!(policy("reach-v3").is_ok());
-        let err = policy("basketball-v3").unwrap_err().to_string();
+        let err = policy("juggle-v3").unwrap_err().to_string();
         assert!(
-            err.contains("basketball-v3") && err.contains("reach-v3"),
+            err.contains("juggle-v3") && err.contains("reach-v3"),
             "{err}"
         );
     }

@@ -30,6 +30,22 @@ mod sweep_into;
 mod window_close;
 mod window_open;
 
+// MT50 tasks, part A.
+mod assembly;
+mod basketball;
+mod bin_picking;
+mod box_close;
+mod button_press_topdown_wall;
+mod button_press_wall;
+mod coffee_pull;
+mod coffee_push;
+mod disassemble;
+mod hammer;
+mod hand_insert;
+mod handle_press_side;
+mod handle_pull;
+mod handle_pull_side;
+
 /// Static description of a task, mirroring the constants in its Python constructor.
 #[derive(Debug)]
 pub struct TaskSpec {
@@ -111,6 +127,21 @@ static REGISTRY: &[Constructor] = registry![
     sweep_into,
     shelf_place,
     lever_pull,
+    // MT50 tasks, part A.
+    assembly,
+    basketball,
+    bin_picking,
+    box_close,
+    button_press_topdown_wall,
+    button_press_wall,
+    coffee_pull,
+    coffee_push,
+    disassemble,
+    hammer,
+    hand_insert,
+    handle_press_side,
+    handle_pull,
+    handle_pull_side,
 ];
 
 /// Names of all implemented tasks.
