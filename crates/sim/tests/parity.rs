@@ -89,4 +89,7 @@ parity! {
     sweep_into => "sweep-into-v3",
     shelf_place => "shelf-place-v3",
     lever_pull => "lever-pull-v3",
+    plate_slide_back => "plate-slide-back-v3",
+    plate_slide_back_side => "plate-slide-back-side-v3",
+    plate_slide_side => "plate-slide-side-v3",
 }

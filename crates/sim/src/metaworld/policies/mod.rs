@@ -39,6 +39,9 @@ mod lever_pull;
 mod peg_insert_side;
 mod pick_place;
 mod plate_slide;
+mod plate_slide_back;
+mod plate_slide_back_side;
+mod plate_slide_side;
 mod push;
 mod reach;
 mod shelf_place;
@@ -73,6 +76,9 @@ static POLICIES: &[(&str, Policy)] = &[
     ("sweep-into-v3", sweep_into::action),
     ("shelf-place-v3", shelf_place::action),
     ("lever-pull-v3", lever_pull::action),
+    ("plate-slide-back-v3", plate_slide_back::action),
+    ("plate-slide-back-side-v3", plate_slide_back_side::action),
+    ("plate-slide-side-v3", plate_slide_side::action),
 ];
 
 /// Tasks that have a scripted policy (whether or not the task itself is registered).

@@ -23,6 +23,9 @@ mod lever_pull;
 mod peg_insert_side;
 mod pick_place;
 mod plate_slide;
+mod plate_slide_back;
+mod plate_slide_back_side;
+mod plate_slide_side;
 mod push;
 mod reach;
 mod shelf_place;
@@ -111,6 +114,9 @@ static REGISTRY: &[Constructor] = registry![
     sweep_into,
     shelf_place,
     lever_pull,
+    plate_slide_back,
+    plate_slide_back_side,
+    plate_slide_side,
 ];
 
 /// Names of all implemented tasks.
