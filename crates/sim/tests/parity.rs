@@ -89,7 +89,11 @@ parity! {
     sweep_into => "sweep-into-v3",
     shelf_place => "shelf-place-v3",
     lever_pull => "lever-pull-v3",
+    pick_place_wall => "pick-place-wall-v3",
     plate_slide_back => "plate-slide-back-v3",
     plate_slide_back_side => "plate-slide-back-side-v3",
     plate_slide_side => "plate-slide-side-v3",
+    push_back => "push-back-v3",
+    push_wall => "push-wall-v3",
+    reach_wall => "reach-wall-v3",
 }

@@ -38,12 +38,16 @@ mod handle_press;
 mod lever_pull;
 mod peg_insert_side;
 mod pick_place;
+mod pick_place_wall;
 mod plate_slide;
 mod plate_slide_back;
 mod plate_slide_back_side;
 mod plate_slide_side;
 mod push;
+mod push_back;
+mod push_wall;
 mod reach;
+mod reach_wall;
 mod shelf_place;
 mod sweep_into;
 mod window_close;
@@ -76,9 +80,13 @@ static POLICIES: &[(&str, Policy)] = &[
     ("sweep-into-v3", sweep_into::action),
     ("shelf-place-v3", shelf_place::action),
     ("lever-pull-v3", lever_pull::action),
+    ("pick-place-wall-v3", pick_place_wall::action),
     ("plate-slide-back-v3", plate_slide_back::action),
     ("plate-slide-back-side-v3", plate_slide_back_side::action),
     ("plate-slide-side-v3", plate_slide_side::action),
+    ("push-back-v3", push_back::action),
+    ("push-wall-v3", push_wall::action),
+    ("reach-wall-v3", reach_wall::action),
 ];
 
 /// Tasks that have a scripted policy (whether or not the task itself is registered).

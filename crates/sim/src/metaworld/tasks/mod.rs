@@ -22,12 +22,16 @@ mod handle_press;
 mod lever_pull;
 mod peg_insert_side;
 mod pick_place;
+mod pick_place_wall;
 mod plate_slide;
 mod plate_slide_back;
 mod plate_slide_back_side;
 mod plate_slide_side;
 mod push;
+mod push_back;
+mod push_wall;
 mod reach;
+mod reach_wall;
 mod shelf_place;
 mod sweep_into;
 mod window_close;
@@ -114,9 +118,13 @@ static REGISTRY: &[Constructor] = registry![
     sweep_into,
     shelf_place,
     lever_pull,
+    pick_place_wall,
     plate_slide_back,
     plate_slide_back_side,
     plate_slide_side,
+    push_back,
+    push_wall,
+    reach_wall,
 ];
 
 /// Names of all implemented tasks.
