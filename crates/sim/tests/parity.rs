@@ -96,4 +96,6 @@ parity! {
     push_back => "push-back-v3",
     push_wall => "push-wall-v3",
     reach_wall => "reach-wall-v3",
+    soccer => "soccer-v3",
+    sweep => "sweep-v3",
 }

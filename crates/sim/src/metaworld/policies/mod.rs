@@ -49,6 +49,8 @@ mod push_wall;
 mod reach;
 mod reach_wall;
 mod shelf_place;
+mod soccer;
+mod sweep;
 mod sweep_into;
 mod window_close;
 mod window_open;
@@ -87,6 +89,8 @@ static POLICIES: &[(&str, Policy)] = &[
     ("push-back-v3", push_back::action),
     ("push-wall-v3", push_wall::action),
     ("reach-wall-v3", reach_wall::action),
+    ("soccer-v3", soccer::action),
+    ("sweep-v3", sweep::action),
 ];
 
 /// Tasks that have a scripted policy (whether or not the task itself is registered).

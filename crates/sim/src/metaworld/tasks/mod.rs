@@ -20,6 +20,7 @@ mod faucet_close;
 mod faucet_open;
 mod handle_press;
 mod lever_pull;
+mod pad_caging;
 mod peg_insert_side;
 mod pick_place;
 mod pick_place_wall;
@@ -33,6 +34,8 @@ mod push_wall;
 mod reach;
 mod reach_wall;
 mod shelf_place;
+mod soccer;
+mod sweep;
 mod sweep_into;
 mod window_close;
 mod window_open;
@@ -125,6 +128,8 @@ static REGISTRY: &[Constructor] = registry![
     push_back,
     push_wall,
     reach_wall,
+    soccer,
+    sweep,
 ];
 
 /// Names of all implemented tasks.

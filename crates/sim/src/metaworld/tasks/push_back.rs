@@ -1,6 +1,7 @@
 //! push-back-v3: push a puck from the back of the table towards the robot, to a goal on the
 //! table surface.
 
+use super::pad_caging::PadCaging;
 use super::{obj_goal_apart, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{dist, hamacher_product, scipy_quat_from_mat, tolerance, Sigmoid};
@@ -22,10 +23,11 @@ pub const SPEC: TaskSpec = TaskSpec {
     rand_vec_ok: obj_goal_apart::<15>,
 };
 
-const OBJ_RADIUS: f64 = 0.007;
-const PAD_SUCCESS_MARGIN: f64 = 0.05;
-const GRIP_SUCCESS_MARGIN: f64 = OBJ_RADIUS + 0.003;
-const XZ_SUCCESS_MARGIN: f64 = 0.01;
+const CAGING: PadCaging = PadCaging {
+    obj_radius: 0.007,
+    grip_extra: 0.003,
+    xz_success_margin: 0.01,
+};
 /// Success: the puck within this distance of the goal.
 const SUCCESS_RADIUS: f64 = 0.07;
 
@@ -38,43 +40,6 @@ pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
     Ok(Box::new(PushBack {
         obj_geom: scene.sim.geom("objGeom")?,
     }))
-}
-
-/// Norm of the x and z components of `a - b`.
-fn dist_xz(a: [f64; 3], b: [f64; 3]) -> f64 {
-    dist([a[0], 0.0, a[2]], [b[0], 0.0, b[2]])
-}
-
-/// The task's override of `_gripper_caging_reward`. Its pad margins use `init_left_pad` and
-/// `init_right_pad`, which in Python are live views of `data.xpos`: the current pads.
-/// (Python also computes the gripper's closing from the action there, but never uses it.)
-fn caging_reward(scene: &Scene, obj: [f64; 3]) -> f64 {
-    let tcp = scene.tcp_center();
-    let left_pad = scene.left_pad_pos();
-    let right_pad = scene.right_pad_pos();
-    let delta_left = left_pad[1] - obj[1];
-    let delta_right = obj[1] - right_pad[1];
-    let right_margin = ((obj[1] - right_pad[1]).abs() - PAD_SUCCESS_MARGIN).abs();
-    let left_margin = ((obj[1] - left_pad[1]).abs() - PAD_SUCCESS_MARGIN).abs();
-    let caging_bounds = (OBJ_RADIUS, PAD_SUCCESS_MARGIN);
-    let grip_bounds = (OBJ_RADIUS, GRIP_SUCCESS_MARGIN);
-    let right_caging = tolerance(delta_right, caging_bounds, right_margin, Sigmoid::LongTail);
-    let left_caging = tolerance(delta_left, caging_bounds, left_margin, Sigmoid::LongTail);
-    let right_gripping = tolerance(delta_right, grip_bounds, right_margin, Sigmoid::LongTail);
-    let left_gripping = tolerance(delta_left, grip_bounds, left_margin, Sigmoid::LongTail);
-    let y_caging = hamacher_product(right_caging, left_caging);
-    let y_gripping = hamacher_product(right_gripping, left_gripping);
-
-    let xz_margin = dist_xz(scene.obj_init_pos, scene.init_tcp) - XZ_SUCCESS_MARGIN;
-    let xz_caging = tolerance(
-        dist_xz(tcp, obj),
-        (0.0, XZ_SUCCESS_MARGIN),
-        xz_margin,
-        Sigmoid::LongTail,
-    );
-    let caging = hamacher_product(y_caging, xz_caging);
-    let gripping = if caging > 0.95 { y_gripping } else { 0.0 };
-    (caging + gripping) / 2.0
 }
 
 impl Task for PushBack {
@@ -111,7 +76,7 @@ impl Task for PushBack {
             target_to_obj_init,
             Sigmoid::LongTail,
         );
-        let object_grasped = caging_reward(scene, obj);
+        let object_grasped = CAGING.reward(scene, obj);
         let mut reward = hamacher_product(object_grasped, in_place);
         if tcp_to_obj < 0.01
             && 0.0 < tcp_opened
