@@ -89,6 +89,8 @@ parity! {
     sweep_into => "sweep-into-v3",
     shelf_place => "shelf-place-v3",
     lever_pull => "lever-pull-v3",
+    peg_unplug_side => "peg-unplug-side-v3",
+    pick_out_of_hole => "pick-out-of-hole-v3",
     pick_place_wall => "pick-place-wall-v3",
     plate_slide_back => "plate-slide-back-v3",
     plate_slide_back_side => "plate-slide-back-side-v3",

@@ -37,6 +37,8 @@ mod faucet_open;
 mod handle_press;
 mod lever_pull;
 mod peg_insert_side;
+mod peg_unplug_side;
+mod pick_out_of_hole;
 mod pick_place;
 mod pick_place_wall;
 mod plate_slide;
@@ -82,6 +84,8 @@ static POLICIES: &[(&str, Policy)] = &[
     ("sweep-into-v3", sweep_into::action),
     ("shelf-place-v3", shelf_place::action),
     ("lever-pull-v3", lever_pull::action),
+    ("peg-unplug-side-v3", peg_unplug_side::action),
+    ("pick-out-of-hole-v3", pick_out_of_hole::action),
     ("pick-place-wall-v3", pick_place_wall::action),
     ("plate-slide-back-v3", plate_slide_back::action),
     ("plate-slide-back-side-v3", plate_slide_back_side::action),

@@ -22,6 +22,8 @@ mod handle_press;
 mod lever_pull;
 mod pad_caging;
 mod peg_insert_side;
+mod peg_unplug_side;
+mod pick_out_of_hole;
 mod pick_place;
 mod pick_place_wall;
 mod plate_slide;
@@ -121,6 +123,8 @@ static REGISTRY: &[Constructor] = registry![
     sweep_into,
     shelf_place,
     lever_pull,
+    peg_unplug_side,
+    pick_out_of_hole,
     pick_place_wall,
     plate_slide_back,
     plate_slide_back_side,
