@@ -99,5 +99,7 @@ parity! {
     push_wall => "push-wall-v3",
     reach_wall => "reach-wall-v3",
     soccer => "soccer-v3",
+    stick_pull => "stick-pull-v3",
+    stick_push => "stick-push-v3",
     sweep => "sweep-v3",
 }

@@ -52,6 +52,8 @@ mod reach;
 mod reach_wall;
 mod shelf_place;
 mod soccer;
+mod stick_pull;
+mod stick_push;
 mod sweep;
 mod sweep_into;
 mod window_close;
@@ -94,6 +96,8 @@ static POLICIES: &[(&str, Policy)] = &[
     ("push-wall-v3", push_wall::action),
     ("reach-wall-v3", reach_wall::action),
     ("soccer-v3", soccer::action),
+    ("stick-pull-v3", stick_pull::action),
+    ("stick-push-v3", stick_push::action),
     ("sweep-v3", sweep::action),
 ];
 

@@ -37,6 +37,8 @@ mod reach;
 mod reach_wall;
 mod shelf_place;
 mod soccer;
+mod stick_pull;
+mod stick_push;
 mod sweep;
 mod sweep_into;
 mod window_close;
@@ -133,6 +135,8 @@ static REGISTRY: &[Constructor] = registry![
     push_wall,
     reach_wall,
     soccer,
+    stick_pull,
+    stick_push,
     sweep,
 ];
 
