@@ -48,6 +48,12 @@ TASKS = [
     "dial-turn-v3", "faucet-open-v3", "faucet-close-v3", "handle-press-v3", "plate-slide-v3",
     "sweep-into-v3", "shelf-place-v3", "lever-pull-v3",
 ]
+# MT50 tasks, part B.
+TASKS += [
+    "peg-unplug-side-v3", "pick-out-of-hole-v3", "pick-place-wall-v3", "plate-slide-back-v3",
+    "plate-slide-back-side-v3", "plate-slide-side-v3", "push-back-v3", "push-wall-v3",
+    "reach-wall-v3", "soccer-v3", "stick-pull-v3", "stick-push-v3", "sweep-v3",
+]
 DEFAULT_SEEDS = [1, 2]
 DEFAULT_NOISE = 0.1
 VERIFY_SEED_OFFSET = 1000
