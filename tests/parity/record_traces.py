@@ -55,6 +55,12 @@ TASKS += [
     "disassemble-v3", "hammer-v3", "hand-insert-v3", "handle-press-side-v3",
     "handle-pull-side-v3", "handle-pull-v3",
 ]
+# MT50 tasks, part B.
+TASKS += [
+    "peg-unplug-side-v3", "pick-out-of-hole-v3", "pick-place-wall-v3", "plate-slide-back-v3",
+    "plate-slide-back-side-v3", "plate-slide-side-v3", "push-back-v3", "push-wall-v3",
+    "reach-wall-v3", "soccer-v3", "stick-pull-v3", "stick-push-v3", "sweep-v3",
+]
 DEFAULT_SEEDS = [1, 2]
 DEFAULT_NOISE = 0.1
 VERIFY_SEED_OFFSET = 1000

@@ -37,11 +37,24 @@ mod faucet_open;
 mod handle_press;
 mod lever_pull;
 mod peg_insert_side;
+mod peg_unplug_side;
+mod pick_out_of_hole;
 mod pick_place;
+mod pick_place_wall;
 mod plate_slide;
+mod plate_slide_back;
+mod plate_slide_back_side;
+mod plate_slide_side;
 mod push;
+mod push_back;
+mod push_wall;
 mod reach;
+mod reach_wall;
 mod shelf_place;
+mod soccer;
+mod stick_pull;
+mod stick_push;
+mod sweep;
 mod sweep_into;
 mod window_close;
 mod window_open;
@@ -107,6 +120,19 @@ static POLICIES: &[(&str, Policy)] = &[
     ("handle-press-side-v3", handle_press_side::action),
     ("handle-pull-side-v3", handle_pull_side::action),
     ("handle-pull-v3", handle_pull::action),
+    ("peg-unplug-side-v3", peg_unplug_side::action),
+    ("pick-out-of-hole-v3", pick_out_of_hole::action),
+    ("pick-place-wall-v3", pick_place_wall::action),
+    ("plate-slide-back-v3", plate_slide_back::action),
+    ("plate-slide-back-side-v3", plate_slide_back_side::action),
+    ("plate-slide-side-v3", plate_slide_side::action),
+    ("push-back-v3", push_back::action),
+    ("push-wall-v3", push_wall::action),
+    ("reach-wall-v3", reach_wall::action),
+    ("soccer-v3", soccer::action),
+    ("stick-pull-v3", stick_pull::action),
+    ("stick-push-v3", stick_push::action),
+    ("sweep-v3", sweep::action),
 ];
 
 /// Tasks that have a scripted policy (whether or not the task itself is registered).

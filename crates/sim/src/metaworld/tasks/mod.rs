@@ -20,12 +20,26 @@ mod faucet_close;
 mod faucet_open;
 mod handle_press;
 mod lever_pull;
+mod pad_caging;
 mod peg_insert_side;
+mod peg_unplug_side;
+mod pick_out_of_hole;
 mod pick_place;
+mod pick_place_wall;
 mod plate_slide;
+mod plate_slide_back;
+mod plate_slide_back_side;
+mod plate_slide_side;
 mod push;
+mod push_back;
+mod push_wall;
 mod reach;
+mod reach_wall;
 mod shelf_place;
+mod soccer;
+mod stick_pull;
+mod stick_push;
+mod sweep;
 mod sweep_into;
 mod window_close;
 mod window_open;
@@ -142,6 +156,19 @@ static REGISTRY: &[Constructor] = registry![
     handle_press_side,
     handle_pull,
     handle_pull_side,
+    peg_unplug_side,
+    pick_out_of_hole,
+    pick_place_wall,
+    plate_slide_back,
+    plate_slide_back_side,
+    plate_slide_side,
+    push_back,
+    push_wall,
+    reach_wall,
+    soccer,
+    stick_pull,
+    stick_push,
+    sweep,
 ];
 
 /// Names of all implemented tasks.
