@@ -249,17 +249,56 @@ fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyho
     }
 }
 
-/// The run folder of the cluster the launcher started last in `runs/`, if it is still running.
-fn last_started_run() -> Option<std::path::PathBuf> {
-    let dir = std::fs::read_to_string("runs/.cluster.run").ok()?;
+/// The launcher of a run folder: `Some(pid)` if `launcher.pid` names a live
+/// `local-cluster.sh`, `Err` with a clear message if the file is there but that process is
+/// gone (the launcher was killed: its services stopped with it), `None` without the file (not
+/// started by the launcher, or stopped cleanly).
+fn live_launcher(run: &std::path::Path) -> Result<Option<u32>> {
+    let file = run.join("launcher.pid");
+    let Ok(text) = std::fs::read_to_string(&file) else {
+        return Ok(None);
+    };
+    let pid: Option<u32> = text.trim().parse().ok();
+    let alive = pid.is_some_and(|pid| {
+        std::fs::read(format!("/proc/{pid}/cmdline"))
+            .is_ok_and(|c| String::from_utf8_lossy(&c).contains("local-cluster.sh"))
+    });
+    anyhow::ensure!(
+        alive,
+        "no cluster is running in {}: its launcher (pid {}) is gone, and its services stop \
+         with it; start one with ./deploy/local-cluster.sh (--resume {} continues this run), or \
+         ask a server with --addr",
+        run.display(),
+        text.trim(),
+        run.display()
+    );
+    Ok(pid)
+}
+
+/// The run folder of the cluster the launcher started last in `runs/` (`runs/.cluster.run`):
+/// `Ok(None)` if there is none, an error if its launcher is gone (killed with SIGKILL, which
+/// leaves the file behind).
+fn last_started_run() -> Result<Option<std::path::PathBuf>> {
+    let Ok(dir) = std::fs::read_to_string("runs/.cluster.run") else {
+        return Ok(None);
+    };
     let dir = std::path::PathBuf::from(dir.trim());
-    dir.join("learner.addr").is_file().then_some(dir)
+    match live_launcher(&dir)? {
+        Some(_) => Ok(Some(dir)),
+        None => anyhow::bail!(
+            "no cluster is running: {} has no launcher.pid (its launcher stopped)",
+            dir.display()
+        ),
+    }
 }
 
 pub fn run(args: StatusArgs) -> Result<ExitCode> {
     let run_dir = match (&args.run, &args.addr) {
-        (Some(dir), _) => Some(dir.clone()),
-        (None, None) => last_started_run(),
+        (Some(dir), _) => {
+            live_launcher(dir)?;
+            Some(dir.clone())
+        }
+        (None, None) => last_started_run()?,
         (None, Some(_)) => None,
     };
     let read = |dir: &std::path::Path, name: &str| -> Result<String> {

@@ -859,6 +859,25 @@ fn killed_learner_is_restarted_and_runs_resume_past_a_damaged_checkpoint() {
     wait_until("the services of a killed launcher to exit", limit, || {
         services.iter().all(|&p| !alive(p))
     });
+    // Its files are left behind; `terl status` says no cluster runs instead of trying the
+    // stale addresses (with --run, and by default through runs/.cluster.run).
+    for args in [
+        vec!["status", "--run", run_dir.to_str().unwrap()],
+        vec!["status"],
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_terl"))
+            .args(&args)
+            .current_dir(dir.path())
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success()
+                && err.contains("no cluster is running")
+                && err.contains("is gone"),
+            "terl {args:?}: {err}"
+        );
+    }
 
     // Damage the newest checkpoint (it is final.safetensors, written on SIGTERM).
     let mut newest: Vec<PathBuf> = std::fs::read_dir(&checkpoints)
