@@ -140,6 +140,11 @@ pub struct ClusterConfig {
     pub eval_episodes_per_task: usize,
     /// In-run evaluation: worker threads of the evaluator (each steps its own environments).
     pub eval_threads: usize,
+    /// In-run evaluation: environments the evaluator keeps per task and thread, episodes of a
+    /// task stepped in lockstep (1..=10, default 10). Each holds about 27 MB for the whole run,
+    /// so MT50 at 10 keeps 13.5 GB; lower it there (`deploy/configs/mt50*.toml`). Results do not
+    /// depend on it.
+    pub eval_envs_per_task: usize,
     /// File holding the control-plane token (16 to 1024 visible ASCII characters; trailing
     /// whitespace ignored). Every gRPC call to the learner and the selector must then carry it,
     /// the weight stream included, and every terl client sends it. The `TERL_TOKEN`
@@ -187,6 +192,7 @@ impl Default for ClusterConfig {
             buffer_batches: 8,
             eval_episodes_per_task: 10,
             eval_threads: 1,
+            eval_envs_per_task: crate::eval::BATCH,
             token_file: None,
             status_without_token: false,
             tls_cert: None,
@@ -323,6 +329,11 @@ impl RunConfig {
              in-run evaluation off)"
         );
         anyhow::ensure!(c.eval_threads > 0, "cluster.eval_threads must be ≥ 1");
+        anyhow::ensure!(
+            (1..=crate::eval::BATCH).contains(&c.eval_envs_per_task),
+            "cluster.eval_envs_per_task must be in 1..={}",
+            crate::eval::BATCH
+        );
         anyhow::ensure!(
             c.tls_cert.is_some() == c.tls_key.is_some(),
             "cluster.tls_cert and cluster.tls_key must be set together"
@@ -501,6 +512,34 @@ mod tests {
             RunConfig::actor_env_tasks(10, 0, 1, 10),
             (0..10).collect::<Vec<_>>()
         );
+    }
+
+    #[test]
+    fn eval_envs_per_task_outside_one_to_ten_is_refused_naming_the_key() {
+        let dir = tempfile::tempdir().unwrap();
+        for (value, ok) in [(0, false), (1, true), (10, true), (11, false)] {
+            let path = dir.path().join(format!("e{value}.toml"));
+            std::fs::write(
+                &path,
+                format!(
+                    "tasks = \"mt10\"\nnum_envs = 10\n[cluster]\neval_envs_per_task = {value}\n"
+                ),
+            )
+            .unwrap();
+            match RunConfig::load(&path) {
+                Ok(c) => {
+                    assert!(ok, "{value} accepted");
+                    assert_eq!(c.cluster.eval_envs_per_task, value);
+                }
+                Err(e) => {
+                    assert!(!ok, "{value} refused: {e:#}");
+                    assert!(
+                        format!("{e:#}").contains("cluster.eval_envs_per_task"),
+                        "{e:#}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]

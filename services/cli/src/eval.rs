@@ -86,6 +86,7 @@ pub fn run(args: EvalArgs) -> Result<ExitCode> {
         threads: args
             .threads
             .unwrap_or_else(|| EvalSettings::default().threads),
+        ..EvalSettings::default()
     };
     anyhow::ensure!(settings.threads > 0, "--threads must be at least 1");
     let total = (tasks.len() * settings.episodes_per_task) as u64;

@@ -48,6 +48,7 @@ pub(crate) fn run(config: &SelectorConfig, shared: &Shared, learner_addr: &str) 
         episodes_per_task: run.cluster.eval_episodes_per_task,
         variation_seed: run.variation_seed,
         threads: run.cluster.eval_threads,
+        batch: run.cluster.eval_envs_per_task,
     };
     let rt = match tokio::runtime::Builder::new_current_thread()
         .enable_all()
