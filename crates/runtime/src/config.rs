@@ -238,6 +238,12 @@ impl ClusterConfig {
             (None, None) => None,
             _ => anyhow::bail!("cluster.tls_cert and cluster.tls_key must be set together"),
         };
+        anyhow::ensure!(
+            tls.is_some() || self.tls_ca.is_none(),
+            "cluster.tls_ca is set, so every client of this run speaks TLS, but this server has \
+             no cluster.tls_cert / cluster.tls_key: it would serve plaintext that no actor or \
+             selector could reach; set both (or remove cluster.tls_ca)"
+        );
         Ok(terl_wire::ServerSecurity {
             token: self.token(env_token)?,
             status_without_token: self.status_without_token,
@@ -310,6 +316,15 @@ impl RunConfig {
             "eval_envs_per_task must be at least 1"
         );
         let c = &cfg.cluster;
+        let ratio = cfg.samples_per_insert();
+        anyhow::ensure!(
+            ratio.is_finite() && ratio > 0.0,
+            "the update-to-data ratio must be finite and > 0, got {ratio}: it is \
+             cluster.samples_per_insert when set, else train.updates_per_vec_step / num_envs \
+             ({} / {})",
+            cfg.train.updates_per_vec_step,
+            cfg.num_envs
+        );
         anyhow::ensure!(
             c.publish_every_updates > 0,
             "cluster.publish_every_updates must be at least 1"
@@ -512,6 +527,32 @@ mod tests {
             RunConfig::actor_env_tasks(10, 0, 1, 10),
             (0..10).collect::<Vec<_>>()
         );
+    }
+
+    #[test]
+    fn a_nan_or_negative_update_to_data_ratio_is_refused_naming_its_keys() {
+        let dir = tempfile::tempdir().unwrap();
+        for (extra, ok) in [
+            ("[train]\nupdates_per_vec_step = nan\n", false),
+            ("[train]\nupdates_per_vec_step = -1.0\n", false),
+            ("[cluster]\nsamples_per_insert = 0.0\n", false),
+            ("[train]\nupdates_per_vec_step = 2.0\n", true),
+        ] {
+            let path = dir.path().join("r.toml");
+            std::fs::write(&path, format!("tasks = \"mt10\"\nnum_envs = 10\n{extra}")).unwrap();
+            match RunConfig::load(&path) {
+                Ok(_) => assert!(ok, "{extra} accepted"),
+                Err(e) => {
+                    let e = format!("{e:#}");
+                    assert!(!ok, "{extra} refused: {e}");
+                    assert!(
+                        e.contains("train.updates_per_vec_step")
+                            && e.contains("samples_per_insert"),
+                        "{e}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]

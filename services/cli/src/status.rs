@@ -118,7 +118,22 @@ fn print_launcher(l: &Launcher) {
 
 impl StatusArgs {
     /// The token (`--token-file`, else TERL_TOKEN) and TLS trust (`--tls-ca`) to connect with.
-    pub fn client_options(&self) -> Result<ClientOptions> {
+    /// Without either flag, a launcher's run folder supplies its own settings: the
+    /// `[cluster]` token_file / tls_ca / tls_domain of `RUN_DIR/config.toml`.
+    pub fn client_options(&self, run_dir: Option<&std::path::Path>) -> Result<ClientOptions> {
+        if self.token_file.is_none() && self.tls_ca.is_none() {
+            if let Some(config) = run_dir
+                .map(|d| d.join("config.toml"))
+                .filter(|c| c.is_file())
+            {
+                let run = terl_runtime::RunConfig::load(&config)?;
+                let security = run
+                    .cluster
+                    .client_security(terl_runtime::token_from_env())
+                    .with_context(|| format!("the run's settings in {}", config.display()))?;
+                return Ok(ClientOptions::secured(security));
+            }
+        }
         let token = match &self.token_file {
             Some(path) => Some(Token::from_file(path)?),
             None => terl_runtime::token_from_env()
@@ -332,16 +347,27 @@ pub fn run(args: StatusArgs) -> Result<ExitCode> {
             None,
         ),
     };
+    let defaulted = run_dir.is_none() && args.addr.is_none();
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
     let timeout = Duration::from_secs_f64(args.timeout.max(0.1));
-    let options = args.client_options()?;
+    let options = args.client_options(run_dir.as_deref())?;
     runtime.block_on(async {
         let learner = tokio::time::timeout(timeout, learner_status(&addr, options.clone()))
             .await
             .unwrap_or_else(|_| Err(anyhow::anyhow!("timed out")))
-            .with_context(|| format!("learner at {addr}"))?;
+            .with_context(|| {
+                if defaulted {
+                    format!(
+                        "no cluster found: there is no runs/.cluster.run here and nothing \
+                         answers at {addr}; start one with ./deploy/local-cluster.sh, or give \
+                         --run RUN_DIR or --addr"
+                    )
+                } else {
+                    format!("learner at {addr}")
+                }
+            })?;
         let selector = tokio::time::timeout(timeout, selector_status(&selector_addr, options))
             .await
             .unwrap_or_else(|_| Err(anyhow::anyhow!("timed out")))

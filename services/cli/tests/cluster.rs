@@ -837,14 +837,20 @@ fn killed_learner_is_restarted_and_runs_resume_past_a_damaged_checkpoint() {
         status(&learner_addr, &selector_addr)
             .is_some_and(|s| u(&s, &["learner", "updates"]) > at + 50)
     });
-    // The actor was not restarted: it paused while the learner was away and rejoined.
+    // The actor was not restarted: it waited for the restarted learner and rejoined.
     let actor = |pids: &[(String, u32)]| pids.iter().find(|(r, _)| r == "actor-0").map(|p| p.1);
     assert_eq!(
         actor(&read_pids(&run_dir)),
         actor(&pids),
         "the actor kept running"
     );
+    // Whether it paused first depends on timing (a send blocked on the dead learner's full
+    // queue may simply go on to the restarted one); either way it never failed.
     let actor_log = std::fs::read_to_string(run_dir.join("actor-0.log")).unwrap();
+    assert!(
+        !actor_log.contains("Error:"),
+        "the actor failed:\n{actor_log}"
+    );
     assert!(
         actor_log.contains("no learner receives transitions")
             && actor_log.contains("the learner is back; rejoining with its weights"),
@@ -942,4 +948,87 @@ fn killed_learner_is_restarted_and_runs_resume_past_a_damaged_checkpoint() {
         log.contains("interrupted") && !log.contains("total_env_steps reached"),
         "{log}"
     );
+}
+
+/// The launcher refuses what would go wrong later: a run id the services would refuse (before
+/// it is used in a process search), a run id whose lock another launcher holds (two launchers
+/// started in the same instant both passed the process search), and a learner that cannot
+/// start (a non-loopback address without a token) is reported with its error as soon as it
+/// exits, without a restart.
+#[test]
+fn launcher_refuses_bad_or_locked_run_ids_and_reports_a_start_up_failure_with_its_error() {
+    service_binaries();
+    let root = workspace();
+    if !release_build() {
+        eprintln!("the launcher runs target/release binaries; run this test with --release");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let runs = dir.path().join("runs");
+    let locks = dir.path().join("tmp");
+    std::fs::create_dir_all(&locks).unwrap();
+    let run = |args: &[&str]| {
+        let out = Command::new(root.join("deploy/local-cluster.sh"))
+            .current_dir(&root)
+            .env("TMPDIR", &locks)
+            .args([
+                "--config",
+                "deploy/configs/cluster-smoke.toml",
+                "--no-build",
+            ])
+            .args(["--runs-root", runs.to_str().unwrap()])
+            .args(args)
+            .output()
+            .unwrap();
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stderr).to_string(),
+        )
+    };
+
+    for bad in ["bk(p", "a/b", ".."] {
+        let (code, err) = run(&["--run-id", bad]);
+        assert_eq!(code, Some(2), "{bad:?}: {err}");
+        assert!(err.contains("--run-id must be"), "{bad:?}: {err}");
+    }
+
+    // Another launcher of this run id holds its lock.
+    let id = format!("it-lock-{}", std::process::id());
+    let lock = locks.join("terl-run-locks").join(format!("{id}.lock"));
+    std::fs::create_dir_all(lock.parent().unwrap()).unwrap();
+    let mut holder = Command::new("flock")
+        .arg(&lock)
+        .args(["sleep", "60"])
+        .spawn()
+        .unwrap();
+    wait_until("the lock to be held", Duration::from_secs(10), || {
+        Command::new("flock")
+            .args(["-n", lock.to_str().unwrap(), "true"])
+            .status()
+            .is_ok_and(|s| !s.success())
+    });
+    let (code, err) = run(&["--run-id", &id]);
+    holder.kill().unwrap();
+    holder.wait().unwrap();
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("is in use by another launcher"), "{err}");
+    assert!(
+        !runs.join(&id).exists(),
+        "a refused launcher made a run folder"
+    );
+
+    // Free lock, but a learner that must refuse to start: reported with its error, no restart.
+    let (code, err) = run(&[
+        "--run-id",
+        &id,
+        "--learner-addr",
+        "0.0.0.0:0",
+        "--restarts",
+        "3",
+    ]);
+    assert_eq!(code, Some(1), "{err}");
+    assert!(err.contains("learner did not start"), "{err}");
+    assert!(err.contains("token"), "the learner's error is shown: {err}");
+    assert!(!err.contains("restart 1 of"), "{err}");
+    assert!(!err.contains("stack backtrace"), "{err}");
 }
