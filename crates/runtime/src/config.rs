@@ -489,7 +489,7 @@ mod tests {
 
     #[test]
     fn every_task_gets_the_same_number_of_environments_for_any_actor_count() {
-        for num_tasks in [1, 2, 10, 20] {
+        for num_tasks in [1, 2, 10, 20, 45, 50] {
             for envs_per_actor in [1, 3, 10] {
                 for num_actors in 1..=16 {
                     let mut per_task = vec![0usize; num_tasks];

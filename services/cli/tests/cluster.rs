@@ -8,6 +8,9 @@
 //! paper's loop: the selector scores episodes and selects samples, the learner trains the
 //! planner on them (F's predicted goal distance grows from one step towards the data's, its targets stay ≥ 1) and publishes it, actors take guided actions, the MCAP
 //! dataset holds the selected samples, and a new learner can start from that dataset.
+//!
+//! The MT50 test runs `deploy/configs/mt50-smoke.toml` and checks that episodes of all 50
+//! tasks reach the learner and the selector.
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -577,6 +580,86 @@ fn terl_cluster_selects_trains_the_planner_and_guides() {
     assert_eq!(loaded, data.samples.len() as u64);
     stop_all(&mut again, &run_dir);
 
+    let leftover: Vec<String> = shm_files().difference(&shm_before).cloned().collect();
+    assert!(
+        leftover.is_empty(),
+        "shared-memory files left: {leftover:?}"
+    );
+}
+
+/// MT50 on real processes (`deploy/configs/mt50-smoke.toml`, two actors): the one-hot spans
+/// all 50 tasks, and episodes of every task reach both the learner and the selector, in
+/// Meta-World's task order.
+#[test]
+fn mt50_cluster_trains_on_every_task() {
+    let shm_before = shm_files();
+    let mt50 = terl_sim::metaworld::task_set("mt50").unwrap();
+    assert_eq!(mt50.len(), 50);
+    let Running {
+        mut cluster,
+        run_dir,
+        learner,
+        selector,
+        _dir,
+        ..
+    } = start("deploy/configs/mt50-smoke.toml", &[]);
+    let start = Instant::now();
+    let tasks_with_episodes = |v: &Value| -> Vec<(String, u64)> {
+        v["task_success"]
+            .as_array()
+            .map(|ts| {
+                ts.iter()
+                    .map(|t| {
+                        (
+                            t["task"].as_str().unwrap_or("").to_string(),
+                            u(t, &["episodes"]),
+                        )
+                    })
+                    .collect()
+            })
+            .unwrap_or_default()
+    };
+    let mut last = Value::Null;
+    loop {
+        assert!(
+            start.elapsed() < TIMEOUT,
+            "not every task's episodes arrived in {TIMEOUT:?}; last status {last}; logs in {}",
+            run_dir.display()
+        );
+        std::thread::sleep(Duration::from_millis(500));
+        let Some(s) = status(&learner, &selector) else {
+            continue;
+        };
+        let (l, sel) = (
+            tasks_with_episodes(&s["learner"]),
+            tasks_with_episodes(&s["selector"]),
+        );
+        for side in [&l, &sel] {
+            if !side.is_empty() {
+                let names: Vec<&str> = side.iter().map(|(t, _)| t.as_str()).collect();
+                assert_eq!(names, mt50, "status lists the run's tasks in order");
+            }
+        }
+        last = s;
+        let all = |side: &[(String, u64)]| side.len() == 50 && side.iter().all(|(_, n)| *n > 0);
+        if all(&l) && all(&sel) {
+            break;
+        }
+    }
+    eprintln!("every task's episodes arrived after {:?}", start.elapsed());
+    let actors = last["learner"]["actors"]
+        .as_array()
+        .cloned()
+        .unwrap_or_default();
+    assert_eq!(actors.len(), 2, "{last}");
+    stop_all(&mut cluster, &run_dir);
+
+    // The selector's episode log holds episodes of every task.
+    let episodes =
+        terl_telemetry::read_log::<terl_wire::EpisodeSummary>(run_dir.join("episodes.mcap"))
+            .expect("episode log readable");
+    let logged: BTreeSet<&str> = episodes.records.iter().map(|e| e.task.as_str()).collect();
+    assert_eq!(logged, mt50.iter().copied().collect::<BTreeSet<_>>());
     let leftover: Vec<String> = shm_files().difference(&shm_before).cloned().collect();
     assert!(
         leftover.is_empty(),
