@@ -1079,11 +1079,16 @@ fn launcher_refuses_bad_or_locked_run_ids_and_reports_a_start_up_failure_with_it
     let id = format!("it-lock-{}", std::process::id());
     let lock = locks.join("terl-run-locks").join(format!("{id}.lock"));
     std::fs::create_dir_all(lock.parent().unwrap()).unwrap();
-    let mut holder = Command::new("flock")
-        .arg(&lock)
-        .args(["sleep", "60"])
-        .spawn()
-        .unwrap();
+    // `flock` and its `sleep` in a process group of their own, so both go at once below.
+    let mut holder = {
+        use std::os::unix::process::CommandExt;
+        Command::new("flock")
+            .arg(&lock)
+            .args(["sleep", "60"])
+            .process_group(0)
+            .spawn()
+            .unwrap()
+    };
     wait_until("the lock to be held", Duration::from_secs(10), || {
         Command::new("flock")
             .args(["-n", lock.to_str().unwrap(), "true"])
@@ -1091,7 +1096,10 @@ fn launcher_refuses_bad_or_locked_run_ids_and_reports_a_start_up_failure_with_it
             .is_ok_and(|s| !s.success())
     });
     let (code, err) = run(&["--run-id", &id]);
-    holder.kill().unwrap();
+    Command::new("kill")
+        .args(["-KILL", &format!("-{}", holder.id())])
+        .status()
+        .unwrap();
     holder.wait().unwrap();
     assert_eq!(code, Some(2), "{err}");
     assert!(err.contains("is in use by another launcher"), "{err}");
