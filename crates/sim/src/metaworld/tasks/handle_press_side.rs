@@ -1,9 +1,11 @@
 //! handle-press-side-v3: press down a handle that sticks out sideways, on the left of the table.
+//!
+//! Reset, observation, reward and success are handle-press-v3's ([`super::handle_press`]);
+//! only the model and the ranges differ.
 
-use super::{always_ok, TaskSpec};
+use super::{always_ok, handle_press, TaskSpec};
 use crate::error::Result;
-use crate::metaworld::reward::{dist, hamacher_product, tolerance, Sigmoid};
-use crate::metaworld::{Eval, Scene, Task, ACT_DIM, OBS_DIM};
+use crate::metaworld::{Scene, Task};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "handle-press-side-v3",
@@ -20,84 +22,6 @@ pub const SPEC: TaskSpec = TaskSpec {
     rand_vec_ok: always_ok,
 };
 
-/// The handle joint's coordinate (`qpos[9]`) and velocity (`qvel[9]`).
-const HANDLE_QPOS: usize = 9;
-/// Handle joint position written at reset.
-const HANDLE_INIT_QPOS: f64 = -0.001;
-/// The task's `TARGET_RADIUS` (tighter than the shared one).
-const TARGET_RADIUS: f64 = 0.02;
-const HANDLE_RADIUS: f64 = 0.02;
-
-#[derive(Debug)]
-struct HandlePressSide {
-    box_body: usize,
-    handle: usize,
-    goal_site: usize,
-    /// Handle position right after the reset (`_handle_init_pos`).
-    handle_init_pos: [f64; 3],
-}
-
 pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
-    Ok(Box::new(HandlePressSide {
-        box_body: scene.sim.body("box")?,
-        handle: scene.sim.site("handleStart")?,
-        goal_site: scene.sim.site("goalPress")?,
-        handle_init_pos: [0.0; 3],
-    }))
-}
-
-impl Task for HandlePressSide {
-    fn spec(&self) -> &'static TaskSpec {
-        &SPEC
-    }
-
-    fn reset_model(&mut self, scene: &mut Scene, rv: &[f64]) -> Result<()> {
-        scene.reset_hand();
-        scene.obj_init_pos = [rv[0], rv[1], rv[2]];
-        scene.sim.set_body_pos(self.box_body, scene.obj_init_pos);
-        // The task's `_set_obj_xyz`: only the handle joint, then `set_state` (mj_forward).
-        let mut qpos = scene.sim.qpos().to_vec();
-        let mut qvel = scene.sim.qvel().to_vec();
-        qpos[HANDLE_QPOS] = HANDLE_INIT_QPOS;
-        qvel[HANDLE_QPOS] = 0.0;
-        scene.set_state(&qpos, &qvel);
-        scene.target_pos = scene.sim.site_xpos(self.goal_site);
-        self.handle_init_pos = scene.sim.site_xpos(self.handle);
-        Ok(())
-    }
-
-    fn objects(&self, scene: &Scene, out: &mut [f64; 14]) {
-        out[..3].copy_from_slice(&scene.sim.site_xpos(self.handle));
-    }
-
-    fn evaluate(&mut self, scene: &Scene, _obs: &[f64; OBS_DIM], _a: &[f32; ACT_DIM]) -> Eval {
-        let obj = scene.sim.site_xpos(self.handle);
-        let target = scene.target_pos;
-        let target_to_obj = (obj[2] - target[2]).abs();
-        let target_to_obj_init = (self.handle_init_pos[2] - target[2]).abs();
-        let in_place = tolerance(
-            target_to_obj,
-            (0.0, TARGET_RADIUS),
-            (target_to_obj_init - TARGET_RADIUS).abs(),
-            Sigmoid::LongTail,
-        );
-        let tcp_to_obj = dist(obj, scene.tcp_center());
-        let tcp_to_obj_init = dist(self.handle_init_pos, scene.init_tcp);
-        let reach = tolerance(
-            tcp_to_obj,
-            (0.0, HANDLE_RADIUS),
-            (tcp_to_obj_init - HANDLE_RADIUS).abs(),
-            Sigmoid::LongTail,
-        );
-        let success = target_to_obj <= TARGET_RADIUS;
-        let reward = if success {
-            1.0
-        } else {
-            hamacher_product(reach, in_place)
-        };
-        Eval {
-            reward: 10.0 * reward,
-            success,
-        }
-    }
+    handle_press::build_with(scene, &SPEC)
 }

@@ -1,9 +1,11 @@
 //! reach-wall-v3: move the gripper to a goal in the air behind a wall.
+//!
+//! Reset, observation, reward and success are reach-v3's ([`super::reach`]); only the model
+//! and the ranges differ.
 
-use super::{obj_goal_apart, TaskSpec};
+use super::{obj_goal_apart, reach, TaskSpec};
 use crate::error::Result;
-use crate::metaworld::reward::{dist, scipy_quat_from_mat, tolerance, Sigmoid};
-use crate::metaworld::{Eval, Scene, Task, ACT_DIM, OBS_DIM, TARGET_RADIUS};
+use crate::metaworld::{Scene, Task};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "reach-wall-v3",
@@ -20,49 +22,6 @@ pub const SPEC: TaskSpec = TaskSpec {
     rand_vec_ok: obj_goal_apart::<15>,
 };
 
-#[derive(Debug)]
-struct ReachWall {
-    obj: usize,
-    obj_geom: usize,
-}
-
 pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
-    Ok(Box::new(ReachWall {
-        obj: scene.sim.body("obj")?,
-        obj_geom: scene.sim.geom("objGeom")?,
-    }))
-}
-
-impl Task for ReachWall {
-    fn spec(&self) -> &'static TaskSpec {
-        &SPEC
-    }
-
-    fn reset_model(&mut self, scene: &mut Scene, rv: &[f64]) -> Result<()> {
-        scene.reset_hand();
-        scene.target_pos = [rv[3], rv[4], rv[5]];
-        scene.obj_init_pos = [rv[0], rv[1], rv[2]];
-        scene.set_obj_xyz(scene.obj_init_pos);
-        scene.set_site_pos("goal", scene.target_pos)?;
-        Ok(())
-    }
-
-    fn objects(&self, scene: &Scene, out: &mut [f64; 14]) {
-        out[..3].copy_from_slice(&scene.body_com(self.obj));
-        out[3..7].copy_from_slice(&scipy_quat_from_mat(scene.sim.geom_xmat(self.obj_geom)));
-    }
-
-    fn evaluate(&mut self, scene: &Scene, _obs: &[f64; OBS_DIM], _a: &[f32; ACT_DIM]) -> Eval {
-        let tcp_to_target = dist(scene.tcp_center(), scene.target_pos);
-        let in_place = tolerance(
-            tcp_to_target,
-            (0.0, TARGET_RADIUS),
-            dist(scene.hand_init_pos, scene.target_pos),
-            Sigmoid::LongTail,
-        );
-        Eval {
-            reward: 10.0 * in_place,
-            success: tcp_to_target <= 0.05,
-        }
-    }
+    reach::build_with(scene, &SPEC)
 }
