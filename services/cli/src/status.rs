@@ -274,10 +274,7 @@ fn live_launcher(run: &std::path::Path) -> Result<Option<u32>> {
         return Ok(None);
     };
     let pid: Option<u32> = text.trim().parse().ok();
-    let alive = pid.is_some_and(|pid| {
-        std::fs::read(format!("/proc/{pid}/cmdline"))
-            .is_ok_and(|c| String::from_utf8_lossy(&c).contains("local-cluster.sh"))
-    });
+    let alive = pid.is_some_and(|pid| crate::cluster::is_launcher(&pid.to_string()));
     anyhow::ensure!(
         alive,
         "no cluster is running in {}: its launcher (pid {}) is gone, and its services stop \
