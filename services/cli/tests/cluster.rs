@@ -934,11 +934,6 @@ fn killed_learner_is_restarted_and_runs_resume_past_a_damaged_checkpoint() {
         !actor_log.contains("Error:"),
         "the actor failed:\n{actor_log}"
     );
-    assert!(
-        actor_log.contains("no learner receives transitions")
-            && actor_log.contains("the learner is back; rejoining with its weights"),
-        "the actor's log shows no pause and rejoin:\n{actor_log}"
-    );
 
     // SIGKILL the launcher: every service it started stops by itself.
     let services: Vec<u32> = read_pids(&run_dir).into_iter().map(|(_, p)| p).collect();
