@@ -22,7 +22,8 @@
 #                `terl status --run runs/<id>` a given one)
 # --restarts N   restart a process that dies (exit code other than 0, or a signal) up to N times
 #                per process, the learner and selector with --resume (default 3; 0: a death stops
-#                the cluster)
+#                the cluster). An error exit (code 1 or 2) within 10 s of a start is a start-up
+#                failure a restart would repeat: the cluster stops and prints the error instead
 # --restart-backoff SECS   wait before a restart, doubled for each further restart of the same
 #                process, at most 60 s (default 2)
 # Logs, the resolved config and checkpoints go to runs/<id>/; progress (terl status) prints every
@@ -104,9 +105,22 @@ fi
 bin=${CARGO_TARGET_DIR:-target}/release
 
 run_id=${run_id:-"$(basename "$config" .toml)-$(date +%Y%m%d-%H%M%S)"}
+[[ "$run_id" =~ ^[A-Za-z0-9._-]{1,64}$ ]] && [ "$run_id" != . ] && [ "$run_id" != .. ] || {
+    echo "--run-id must be 1 to 64 characters of A-Z a-z 0-9 . _ - (got \"$run_id\")" >&2; exit 2; }
 # Shared-memory service names carry the run id machine-wide: a second cluster with the id of a
 # live one (even in another runs root, or orphans of a killed launcher) would mix with it.
-if live=$(pgrep -f -- "terl-(learner|selector|actor) .*--run-id $run_id( |\$)"); then
+# A lock per run id, held by this launcher only (fd 9, closed in every long-lived child, so it
+# is free the moment the launcher is gone), refuses a second launcher even when both start in
+# the same instant; the process check below catches services still running (a killed
+# launcher's, or ones started by hand).
+lock_dir=${TMPDIR:-/tmp}/terl-run-locks
+mkdir -p "$lock_dir"
+exec 9>> "$lock_dir/$run_id.lock"
+if ! flock -n 9; then
+    echo "run id $run_id is in use by another launcher or its processes (lock $lock_dir/$run_id.lock): stop it, or choose another --run-id" >&2
+    exit 2
+fi
+if live=$(pgrep -f -- "terl-(learner|selector|actor) .*--run-id ${run_id//./\\.}( |\$)"); then
     echo "run id $run_id is in use by running processes ($(echo $live | tr '\n' ' ')): stop them, or choose another --run-id" >&2
     exit 2
 fi
@@ -125,6 +139,9 @@ if [ -z "$resume" ]; then
     } > "$out/cluster.txt"
 else
     echo "resumed=$(date -Iseconds) actors=$actors" >> "$out/cluster.txt"
+    if ! compgen -G "$out/checkpoints/*.safetensors" > /dev/null; then
+        echo "[cluster] warning: $out/checkpoints holds no checkpoint: the learner starts this run again from update 0" >&2
+    fi
 fi
 echo $$ > "$runs_root/.cluster.pid"
 echo "$out" > "$runs_root/.cluster.run"
@@ -132,7 +149,11 @@ echo $$ > "$out/launcher.pid"
 
 # Processes by role: learner, selector, actor-<i>; their pids, restarts so far and the last
 # exit code of each (the summary reports the worst).
-declare -A pid_of=() restarts_of=()
+declare -A pid_of=() restarts_of=() started_at=()
+# Services print errors without a backtrace (panics still follow RUST_BACKTRACE).
+export RUST_LIB_BACKTRACE=0
+# A process that exits with an error this soon after it started is not restarted.
+min_uptime=10
 worst=0
 stopping=0
 reason=""
@@ -167,9 +188,15 @@ trap 'interrupted=143' TERM
 
 common=(--config "$out/config.toml" --run-id "$run_id" --num-actors "$actors" --parent-pid $$)
 rm -f "$out/learner.addr" "$out/selector.addr"
+# The last lines of a role's log: its error, without a backtrace (see RUST_LIB_BACKTRACE).
+last_error() { tail -n 8 "$out/$1.log" | sed 's/^/    /' >&2; }
 wait_addr() {
-    for _ in $(seq 300); do [ -s "$out/$1.addr" ] && return 0; sleep 0.1; done
-    echo "[cluster] $1 did not start; see $out/$1.log" >&2; tail -5 "$out/$1.log" >&2
+    for _ in $(seq 300); do
+        [ -s "$out/$1.addr" ] && return 0
+        kill -0 "${pid_of[$1]}" 2>/dev/null || break
+        sleep 0.1
+    done
+    echo "[cluster] $1 did not start; the end of $out/$1.log:" >&2; last_error "$1"
     reason="the $1 did not start"; stop; exit 1
 }
 write_pids() {
@@ -185,18 +212,19 @@ start() {
             local extra=()
             for d in "${tep_datasets[@]}"; do extra+=(--tep-dataset "$d"); done
             "$bin/terl-learner" "${common[@]}" --addr "$learner_addr" --run-dir "$out" \
-                "${extra[@]}" "${resume_flag[@]}" 2>> "$out/learner.log" &
+                "${extra[@]}" "${resume_flag[@]}" 2>> "$out/learner.log" 9>&- &
             ;;
         selector)
             "$bin/terl-selector" "${common[@]}" --addr "$selector_addr" --run-dir "$out" \
-                --learner-addr "$learner_addr" "${resume_flag[@]}" 2>> "$out/selector.log" &
+                --learner-addr "$learner_addr" "${resume_flag[@]}" 2>> "$out/selector.log" 9>&- &
             ;;
         actor-*)
             "$bin/terl-actor" "${common[@]}" --actor-id "${role#actor-}" \
-                --learner-addr "$learner_addr" 2>> "$out/$role.log" &
+                --learner-addr "$learner_addr" 2>> "$out/$role.log" 9>&- &
             ;;
     esac
     pid_of[$role]=$!
+    started_at[$role]=$(date +%s)
     write_pids
 }
 
@@ -215,7 +243,7 @@ echo "[cluster] run $run_id $verb: learner $learner_addr, selector $selector_add
 
 # Sleeps $1 seconds unless interrupted.
 nap() {
-    sleep "$1" &
+    sleep "$1" 9>&- &
     wait $! || true
 }
 while [ -z "$interrupted" ]; do
@@ -237,6 +265,18 @@ while [ -z "$interrupted" ]; do
             exit 0
         fi
         n=${restarts_of[$role]:-0}
+        # An error exit (not a signal, not a panic) within seconds of a start is a start-up
+        # failure that a restart would repeat (a changed config, no checkpoint the run can use,
+        # a full disk with on_checkpoint_error = "stop"): stop, and say why.
+        if [ "$code" = 1 ] || [ "$code" = 2 ]; then
+            if [ $(( $(date +%s) - ${started_at[$role]:-0} )) -lt "$min_uptime" ]; then
+                reason="$role (pid $p) exited with code $code within ${min_uptime}s of its start, a failure a restart would repeat"
+                echo "[cluster] $reason; stopping the cluster. The end of $out/$role.log:" >&2
+                last_error "$role"
+                stop || true
+                exit 1
+            fi
+        fi
         if [ "$n" -ge "$restarts" ]; then
             reason="$role (pid $p) exited with code $code after $n restart(s) (limit --restarts $restarts)"
             echo "[cluster] $reason; stopping the cluster (logs in $out/)" >&2
@@ -253,7 +293,7 @@ while [ -z "$interrupted" ]; do
     done
     [ -n "$interrupted" ] && break
     echo "---- $(date +%H:%M:%S)" >&2
-    "$bin/terl" status --run "$out" >&2 || true
+    "$bin/terl" status --run "$out" >&2 9>&- || true
 done
 reason="interrupted (signal $((interrupted - 128)))"
 stop

@@ -59,8 +59,10 @@ command -v cc >/dev/null || need+=(build-essential)
 have_libclang || need+=(libclang-dev)
 command -v python3 >/dev/null || need+=(python3 python3-pip)
 # `terl report` draws PNG charts with DejaVu Sans (plotters renders text from a font file).
-ls /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf /usr/share/fonts/dejavu/DejaVuSans.ttf \
-    /usr/share/fonts/TTF/DejaVuSans.ttf >/dev/null 2>&1 || need+=(fonts-dejavu-core)
+font_found=0
+for f in /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf /usr/share/fonts/dejavu/DejaVuSans.ttf \
+    /usr/share/fonts/TTF/DejaVuSans.ttf; do [ -f "$f" ] && font_found=1; done
+[ "$font_found" = 1 ] || need+=(fonts-dejavu-core)
 [ ${#need[@]} -eq 0 ] || apt_install "${need[@]}"
 command -v cargo >/dev/null || die "cargo not found" "install the stable Rust toolchain (rustup), then re-run"
 

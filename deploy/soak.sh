@@ -4,7 +4,7 @@
 #   ./deploy/soak.sh [--minutes M] [--kill-every SECS] [--config FILE] [--no-build]
 #
 # Runs deploy/local-cluster.sh on deploy/configs/cluster-smoke.toml (2 actors, checkpoints every
-# few seconds, port 0, a run id of its own) for M minutes (default 10); kills an actor with
+# few seconds, port 0, a run id of its own; without its training budget) for M minutes (default 10); kills an actor with
 # SIGKILL every --kill-every seconds (default 60) and the learner once, half-way. The launcher
 # restarts each (the learner resuming from its newest checkpoint). At the end it stops the
 # cluster with SIGTERM and checks, printing one line per check:
@@ -49,7 +49,16 @@ out=runs/$run_id
 shm_set() { ls /dev/shm 2>/dev/null | grep '^iox2_' | grep -v 'global_mgmt$' | sort || true; }
 shm_before=$(shm_set)
 
-./deploy/local-cluster.sh --config "$config" --actors 2 --run-id "$run_id" --no-build \
+# The soak runs until it stops the cluster itself: no training budget (total_env_steps = 0).
+grep -q '^total_env_steps' "$config" && { say "$config sets total_env_steps; the soak needs a config without a budget"; exit 2; }
+soak_config=$(mktemp --suffix=.toml)
+trap 'rm -f "$soak_config"' EXIT
+if grep -q '^\[train\]' "$config"; then
+    sed 's/^\[train\]$/[train]\ntotal_env_steps = 0/' "$config" > "$soak_config"
+else
+    { cat "$config"; printf '\n[train]\ntotal_env_steps = 0\n'; } > "$soak_config"
+fi
+./deploy/local-cluster.sh --config "$soak_config" --actors 2 --run-id "$run_id" --no-build \
     --learner-addr 127.0.0.1:0 --selector-addr 127.0.0.1:0 --restarts 100 --restart-backoff 1 \
     > /dev/null 2> "$run_id.launcher.log" &
 launcher=$!

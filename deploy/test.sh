@@ -4,7 +4,7 @@
 # 2-minute soak of the smoke cluster under injected faults (deploy/soak.sh).
 #
 #   ./deploy/test.sh            everything
-#   ./deploy/test.sh parity     only tests whose name matches "parity" (nextest filter)
+#   ./deploy/test.sh -E 'binary(parity)'   only the parity tests (any nextest filter; no soak)
 set -euo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$ROOT"

@@ -4,7 +4,7 @@
 Format: /work/shared/formats/metaworld-trace.md (header line, t=0 line after reset, one line per
 step). Run inside the venv made by tests/parity/setup-venv.sh:
 
-    .deps/venv/bin/python tests/parity/record_traces.py               # all 23 tasks, seeds 1 2
+    .deps/venv/bin/python tests/parity/record_traces.py               # all 50 tasks, seeds 1 2
     .deps/venv/bin/python tests/parity/record_traces.py --tasks reach-v3 --seeds 7 --noise 0.1
 
 Environment: `ALL_V3_ENVIRONMENTS_GOAL_OBSERVABLE["<task>-goal-observable"](seed=seed)` (fully
@@ -41,13 +41,14 @@ from importlib.metadata import version
 
 import numpy as np
 
-TASKS = [
-    "reach-v3", "push-v3", "pick-place-v3", "door-open-v3", "drawer-open-v3", "drawer-close-v3",
-    "button-press-topdown-v3", "peg-insert-side-v3", "window-open-v3", "window-close-v3",
-    "door-close-v3", "door-lock-v3", "door-unlock-v3", "button-press-v3", "coffee-button-v3",
-    "dial-turn-v3", "faucet-open-v3", "faucet-close-v3", "handle-press-v3", "plate-slide-v3",
-    "sweep-into-v3", "shelf-place-v3", "lever-pull-v3",
-]
+
+def all_tasks() -> list[str]:
+    """Every Meta-World v3 task, in Meta-World's order (`ALL_V3_ENVIRONMENTS`): all are ported."""
+    from metaworld.env_dict import ALL_V3_ENVIRONMENTS
+
+    return list(ALL_V3_ENVIRONMENTS)
+
+
 DEFAULT_SEEDS = [1, 2]
 DEFAULT_NOISE = 0.1
 VERIFY_SEED_OFFSET = 1000
@@ -191,7 +192,7 @@ def job(args):
 def main() -> int:
     root = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--tasks", nargs="+", default=TASKS, help="Meta-World v3 task names (default: the 23 ported tasks)")
+    p.add_argument("--tasks", nargs="+", default=None, help="Meta-World v3 task names (default: all 50)")
     p.add_argument("--seeds", nargs="+", type=int, default=DEFAULT_SEEDS, help="env/noise seeds (default: 1 2)")
     p.add_argument("--out-dir", default=os.path.join(root, "tests", "fixtures", "metaworld"))
     p.add_argument("--noise", type=float, default=DEFAULT_NOISE, help="Gaussian action noise std (default 0.1)")
@@ -199,7 +200,7 @@ def main() -> int:
     p.add_argument("--jobs", type=int, default=min(8, os.cpu_count() or 1))
     p.add_argument("--no-verify", action="store_true", help="skip the bit-exact replay check")
     a = p.parse_args()
-    tasks = [t.strip() for ts in a.tasks for t in ts.split(",") if t.strip()]
+    tasks = [t.strip() for ts in (a.tasks or all_tasks()) for t in ts.split(",") if t.strip()]
     os.makedirs(a.out_dir, exist_ok=True)
     jobs = [(t, s, a.noise, a.digits, a.out_dir, not a.no_verify) for t in tasks for s in a.seeds]
     with mp.get_context("spawn").Pool(max(1, a.jobs)) as pool:

@@ -2,7 +2,7 @@
 //! the cluster splits the work. One TOML schema for `terl train` and the cluster services;
 //! the `[cluster]` section is optional, so single-process configs keep working unchanged.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
@@ -140,6 +140,33 @@ pub struct ClusterConfig {
     pub eval_episodes_per_task: usize,
     /// In-run evaluation: worker threads of the evaluator (each steps its own environments).
     pub eval_threads: usize,
+    /// In-run evaluation: environments the evaluator keeps per task and thread, episodes of a
+    /// task stepped in lockstep (1..=10, default 10). Each holds about 27 MB for the whole run,
+    /// so MT50 at 10 keeps 13.5 GB; lower it there (`deploy/configs/mt50*.toml`). Results do not
+    /// depend on it.
+    pub eval_envs_per_task: usize,
+    /// File holding the control-plane token (16 to 1024 visible ASCII characters; trailing
+    /// whitespace ignored). Every gRPC call to the learner and the selector must then carry it,
+    /// the weight stream included, and every terl client sends it. The `TERL_TOKEN`
+    /// environment variable, when set, is used instead. A server bound to anything but a
+    /// loopback address refuses to start without a token. Relative paths are relative to the
+    /// working directory. The token is never logged.
+    pub token_file: Option<PathBuf>,
+    /// With a token: leave `GetStatus` of both services and `grpc.health.v1` readable without
+    /// it (monitoring without the secret). Checkpoints, weights and reflection stay closed.
+    pub status_without_token: bool,
+    /// TLS certificate chain of the learner and selector servers (PEM); with `tls_key`, the
+    /// servers speak TLS only. Needs `tls_ca` too, since the same run file configures the
+    /// clients.
+    pub tls_cert: Option<PathBuf>,
+    /// Private key of `tls_cert` (PEM). Never logged.
+    pub tls_key: Option<PathBuf>,
+    /// CA certificate(s) (PEM) the clients (actors, the selector, `terl status`) verify the
+    /// servers against; setting it makes the clients use TLS. The system's roots are not used.
+    pub tls_ca: Option<PathBuf>,
+    /// Name the clients expect in the server certificate, instead of the host they dial (e.g.
+    /// `learner.cluster` when dialling an IP address that is not in the certificate).
+    pub tls_domain: Option<String>,
     /// Largest gRPC message, MiB, of the learner's server and of the actors' and selector's
     /// weight streams. Every weights message the run's networks produce (policy; with
     /// `algorithm = "terl"` also both critics and the planner's F and AN) must fit:
@@ -172,6 +199,13 @@ impl Default for ClusterConfig {
             buffer_batches: 8,
             eval_episodes_per_task: 10,
             eval_threads: 1,
+            eval_envs_per_task: crate::eval::BATCH,
+            token_file: None,
+            status_without_token: false,
+            tls_cert: None,
+            tls_key: None,
+            tls_ca: None,
+            tls_domain: None,
             max_message_mib: 64,
             transport: terl_transport::TransportKind::Shm,
             zenoh: terl_transport::ZenohConfig::default(),
@@ -189,6 +223,70 @@ impl RunConfig {
         if !connect.is_empty() {
             self.cluster.zenoh.connect = connect;
         }
+    }
+}
+
+/// The value of the `TERL_TOKEN` environment variable, if set and not empty (what the service
+/// binaries pass to [`ClusterConfig::server_security`] / [`ClusterConfig::client_security`]).
+pub fn token_from_env() -> Option<String> {
+    std::env::var(terl_wire::TOKEN_ENV)
+        .ok()
+        .filter(|v| !v.is_empty())
+}
+
+impl ClusterConfig {
+    /// The control-plane token: `env_token` (the `TERL_TOKEN` value) when given, else the
+    /// content of `token_file`, else none. Errors name the source, never the value.
+    pub fn token(&self, env_token: Option<String>) -> Result<Option<terl_wire::Token>> {
+        if let Some(value) = env_token {
+            return Ok(Some(terl_wire::Token::new(value, terl_wire::TOKEN_ENV)?));
+        }
+        match &self.token_file {
+            Some(path) => Ok(Some(
+                terl_wire::Token::from_file(path).context("cluster.token_file")?,
+            )),
+            None => Ok(None),
+        }
+    }
+
+    /// What the learner's and selector's servers enforce: the token, `status_without_token`
+    /// and TLS from `tls_cert`/`tls_key` (read now; unreadable files are an error).
+    pub fn server_security(&self, env_token: Option<String>) -> Result<terl_wire::ServerSecurity> {
+        let tls = match (&self.tls_cert, &self.tls_key) {
+            (Some(cert), Some(key)) => Some(
+                terl_wire::ServerTls::from_files(cert, key)
+                    .context("cluster.tls_cert / cluster.tls_key")?,
+            ),
+            (None, None) => None,
+            _ => anyhow::bail!("cluster.tls_cert and cluster.tls_key must be set together"),
+        };
+        anyhow::ensure!(
+            tls.is_some() || self.tls_ca.is_none(),
+            "cluster.tls_ca is set, so every client of this run speaks TLS, but this server has \
+             no cluster.tls_cert / cluster.tls_key: it would serve plaintext that no actor or \
+             selector could reach; set both (or remove cluster.tls_ca)"
+        );
+        Ok(terl_wire::ServerSecurity {
+            token: self.token(env_token)?,
+            status_without_token: self.status_without_token,
+            tls,
+        })
+    }
+
+    /// What every client of the run sends and trusts: the token and, with `tls_ca`, TLS
+    /// verified against that CA (and `tls_domain`).
+    pub fn client_security(&self, env_token: Option<String>) -> Result<terl_wire::ClientSecurity> {
+        let tls = match &self.tls_ca {
+            Some(ca) => Some(
+                terl_wire::ClientTls::from_file(ca, self.tls_domain.clone())
+                    .context("cluster.tls_ca")?,
+            ),
+            None => None,
+        };
+        Ok(terl_wire::ClientSecurity {
+            token: self.token(env_token)?,
+            tls,
+        })
     }
 }
 
@@ -240,6 +338,15 @@ impl RunConfig {
             "eval_envs_per_task must be at least 1"
         );
         let c = &cfg.cluster;
+        let ratio = cfg.samples_per_insert();
+        anyhow::ensure!(
+            ratio.is_finite() && ratio > 0.0,
+            "the update-to-data ratio must be finite and > 0, got {ratio}: it is \
+             cluster.samples_per_insert when set, else train.updates_per_vec_step / num_envs \
+             ({} / {})",
+            cfg.train.updates_per_vec_step,
+            cfg.num_envs
+        );
         anyhow::ensure!(
             c.publish_every_updates > 0,
             "cluster.publish_every_updates must be at least 1"
@@ -259,6 +366,20 @@ impl RunConfig {
              in-run evaluation off)"
         );
         anyhow::ensure!(c.eval_threads > 0, "cluster.eval_threads must be ≥ 1");
+        anyhow::ensure!(
+            (1..=crate::eval::BATCH).contains(&c.eval_envs_per_task),
+            "cluster.eval_envs_per_task must be in 1..={}",
+            crate::eval::BATCH
+        );
+        anyhow::ensure!(
+            c.tls_cert.is_some() == c.tls_key.is_some(),
+            "cluster.tls_cert and cluster.tls_key must be set together"
+        );
+        anyhow::ensure!(
+            c.tls_cert.is_none() || c.tls_ca.is_some(),
+            "cluster.tls_cert is set but cluster.tls_ca is not: the run's clients (actors, \
+             selector, terl status) need the CA to verify the TLS servers"
+        );
         anyhow::ensure!(
             (1..=MAX_MESSAGE_MIB_LIMIT).contains(&c.max_message_mib),
             "cluster.max_message_mib must be in 1..={MAX_MESSAGE_MIB_LIMIT}"
@@ -393,7 +514,7 @@ mod tests {
 
     #[test]
     fn every_task_gets_the_same_number_of_environments_for_any_actor_count() {
-        for num_tasks in [1, 2, 10, 20] {
+        for num_tasks in [1, 2, 10, 20, 45, 50] {
             for envs_per_actor in [1, 3, 10] {
                 for num_actors in 1..=16 {
                     let mut per_task = vec![0usize; num_tasks];
@@ -431,6 +552,60 @@ mod tests {
             RunConfig::actor_env_tasks(10, 0, 1, 10),
             (0..10).collect::<Vec<_>>()
         );
+    }
+
+    #[test]
+    fn a_nan_or_negative_update_to_data_ratio_is_refused_naming_its_keys() {
+        let dir = tempfile::tempdir().unwrap();
+        for (extra, ok) in [
+            ("[train]\nupdates_per_vec_step = nan\n", false),
+            ("[train]\nupdates_per_vec_step = -1.0\n", false),
+            ("[cluster]\nsamples_per_insert = 0.0\n", false),
+            ("[train]\nupdates_per_vec_step = 2.0\n", true),
+        ] {
+            let path = dir.path().join("r.toml");
+            std::fs::write(&path, format!("tasks = \"mt10\"\nnum_envs = 10\n{extra}")).unwrap();
+            match RunConfig::load(&path) {
+                Ok(_) => assert!(ok, "{extra} accepted"),
+                Err(e) => {
+                    let e = format!("{e:#}");
+                    assert!(!ok, "{extra} refused: {e}");
+                    assert!(
+                        e.contains("train.updates_per_vec_step")
+                            && e.contains("samples_per_insert"),
+                        "{e}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn eval_envs_per_task_outside_one_to_ten_is_refused_naming_the_key() {
+        let dir = tempfile::tempdir().unwrap();
+        for (value, ok) in [(0, false), (1, true), (10, true), (11, false)] {
+            let path = dir.path().join(format!("e{value}.toml"));
+            std::fs::write(
+                &path,
+                format!(
+                    "tasks = \"mt10\"\nnum_envs = 10\n[cluster]\neval_envs_per_task = {value}\n"
+                ),
+            )
+            .unwrap();
+            match RunConfig::load(&path) {
+                Ok(c) => {
+                    assert!(ok, "{value} accepted");
+                    assert_eq!(c.cluster.eval_envs_per_task, value);
+                }
+                Err(e) => {
+                    assert!(!ok, "{value} refused: {e:#}");
+                    assert!(
+                        format!("{e:#}").contains("cluster.eval_envs_per_task"),
+                        "{e:#}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]

@@ -11,7 +11,7 @@ mod config;
 pub mod eval;
 mod metaworld_vec;
 
-pub use config::{Algorithm, ClusterConfig, OnCheckpointError, RunConfig};
+pub use config::{token_from_env, Algorithm, ClusterConfig, OnCheckpointError, RunConfig};
 pub use metaworld_vec::MetaWorldVec;
 
 /// What a cluster service (learner or selector) needs to start.
@@ -31,6 +31,12 @@ pub struct ServiceConfig {
     /// Learner with `algorithm = "terl"`: TEP datasets (MCAP) to load into the TEP buffer at
     /// start-up, in order, e.g. `runs/<older-run>/tep-dataset.mcap` of each MT1-Ind run.
     pub tep_datasets: Vec<std::path::PathBuf>,
+    /// Token and TLS of this service's gRPC server (default: none, loopback only); the binaries
+    /// fill it from `[cluster]` and `TERL_TOKEN` ([`ClusterConfig::server_security`]).
+    pub server_security: terl_wire::ServerSecurity,
+    /// Token and TLS trust of this service's clients (the selector's learner subscription);
+    /// [`ClusterConfig::client_security`].
+    pub client_security: terl_wire::ClientSecurity,
     /// Continue the run in `run_dir` from its newest intact checkpoint (learner), or from its
     /// logs (selector) instead of starting fresh.
     pub resume: bool,
@@ -52,6 +58,8 @@ impl ServiceConfig {
             run_dir,
             learner_addr: None,
             tep_datasets: Vec::new(),
+            server_security: terl_wire::ServerSecurity::default(),
+            client_security: terl_wire::ClientSecurity::default(),
             resume: false,
         }
     }

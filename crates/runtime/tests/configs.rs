@@ -13,20 +13,49 @@ fn load(name: &str) -> RunConfig {
     RunConfig::load(&configs_dir().join(name)).unwrap_or_else(|e| panic!("{name}: {e:#}"))
 }
 
-#[test]
-fn every_shipped_config_loads_and_names_known_tasks() {
-    let mut n = 0;
-    for entry in std::fs::read_dir(configs_dir()).unwrap() {
-        let path = entry.unwrap().path();
-        if path.extension().is_some_and(|e| e == "toml") {
-            let cfg =
-                RunConfig::load(&path).unwrap_or_else(|e| panic!("{}: {e:#}", path.display()));
-            terl_runtime::resolve_tasks(&cfg.tasks)
-                .unwrap_or_else(|e| panic!("{}: {e:#}", path.display()));
-            n += 1;
+/// Every `.toml` under `deploy/configs`, its `experiments/` folder included.
+fn shipped_configs() -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let mut dirs = vec![configs_dir()];
+    while let Some(dir) = dirs.pop() {
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.is_dir() {
+                dirs.push(path);
+            } else if path.extension().is_some_and(|e| e == "toml") {
+                out.push(path);
+            }
         }
     }
-    assert!(n >= 6, "found only {n} configs");
+    out.sort();
+    out
+}
+
+#[test]
+fn every_shipped_config_loads_and_names_known_tasks() {
+    let configs = shipped_configs();
+    for path in &configs {
+        let cfg = RunConfig::load(path).unwrap_or_else(|e| panic!("{}: {e:#}", path.display()));
+        let tasks = terl_runtime::resolve_tasks(&cfg.tasks)
+            .unwrap_or_else(|e| panic!("{}: {e:#}", path.display()));
+        // Weights messages of the run's size fit the configured gRPC limit.
+        cfg.check_weight_messages(tasks.len())
+            .unwrap_or_else(|e| panic!("{}: {e:#}", path.display()));
+    }
+    let names: Vec<String> = configs
+        .iter()
+        .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+        .collect();
+    for expected in [
+        "mt10.toml",
+        "mt10-workstation.toml",
+        "mt50.toml",
+        "mt50-workstation.toml",
+        "mt20-paper.toml",
+        "cluster-smoke.toml",
+    ] {
+        assert!(names.iter().any(|n| n == expected), "{expected} not found");
+    }
 }
 
 #[test]
@@ -79,4 +108,54 @@ fn a_task_named_twice_is_refused() {
         let e = format!("{:#}", terl_runtime::resolve_tasks(spec).unwrap_err());
         assert!(e.contains("twice"), "{spec}: {e}");
     }
+}
+
+/// Updates per transition of a run file (the cluster's default update-to-data ratio).
+fn updates_per_transition(c: &RunConfig) -> f64 {
+    c.train.updates_per_vec_step / c.num_envs as f64
+}
+
+#[test]
+fn mt50_runs_every_task_with_the_reference_mtsac_settings() {
+    let paper = load("mt50.toml");
+    let tasks = terl_runtime::resolve_tasks(&paper.tasks).unwrap();
+    assert_eq!(tasks.len(), 50);
+    // One environment per task, the MT10 run's update-to-data ratio.
+    assert_eq!(paper.num_envs, 50);
+    assert_eq!(
+        updates_per_transition(&paper),
+        updates_per_transition(&load("mt10.toml"))
+    );
+    // The reference MT50 MTSAC: 1M transitions in all, batch 128 per task, 100M env steps.
+    assert_eq!(
+        paper.train.replay_capacity_per_task * tasks.len(),
+        1_000_000
+    );
+    assert_eq!(paper.sac.batch_size, 128 * tasks.len());
+    assert_eq!(paper.train.total_env_steps, 100_000_000);
+    let reference = load("mt10.toml").sac;
+    let s = &paper.sac;
+    assert_eq!(s.policy_hidden, reference.policy_hidden);
+    assert_eq!(s.critic_hidden, reference.critic_hidden);
+    assert_eq!((s.adam_eps, s.max_grad_norm), (1e-5, 1.0));
+    assert_eq!(s.init, terl_rl::NetInit::HeUniform);
+
+    // The workstation run: the same tasks and ratio, the MT10 workstation's networks.
+    let ws = load("mt50-workstation.toml");
+    assert_eq!(terl_runtime::resolve_tasks(&ws.tasks).unwrap(), tasks);
+    assert_eq!(ws.num_envs, 50);
+    assert_eq!(updates_per_transition(&ws), updates_per_transition(&paper));
+    assert_eq!(
+        ws.train.replay_capacity_per_task,
+        paper.train.replay_capacity_per_task
+    );
+    let small = load("mt10-workstation.toml");
+    assert_eq!(ws.sac.policy_hidden, small.sac.policy_hidden);
+    assert_eq!(ws.sac.critic_hidden, small.sac.critic_hidden);
+    assert_eq!(ws.sac.batch_size, small.sac.batch_size);
+    // The same env steps per task as the MT10 workstation run.
+    assert_eq!(
+        ws.train.total_env_steps / 50,
+        small.train.total_env_steps / 10
+    );
 }

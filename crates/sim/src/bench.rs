@@ -49,6 +49,10 @@ pub struct EnvBenchReport {
     pub seconds_per_measurement: f64,
     pub tasks: Vec<EnvBenchRow>,
     pub min_ratio: f64,
+    /// The goal for every task's `ratio`: task logic costs at most 15 % of the physics rate.
+    pub target_ratio: f64,
+    /// Tasks whose `ratio` is below `target_ratio`, worst first.
+    pub below_target: Vec<String>,
     /// E = 1 and E = 8 on the first task, then E = 8 spread over all tasks.
     pub vec_env: Vec<VecBenchRow>,
     /// Per-step throughput of E = 8 over E = 1 on the same task, median over alternating rounds
@@ -62,6 +66,9 @@ fn random_actions(seed: u64, n: usize) -> Vec<[f32; ACT_DIM]> {
         .map(|_| std::array::from_fn(|_| rng.gen_range(-1.0f32..1.0)))
         .collect()
 }
+
+/// The goal for [`EnvBenchRow::ratio`] on every task.
+pub const TARGET_RATIO: f64 = 0.85;
 
 /// Rounds in which the environment and the physics bound are measured alternately, so load
 /// from other processes hits both alike; ratios are the median over rounds.
@@ -210,6 +217,9 @@ pub fn env_bench(tasks: &[&str], seconds: f64) -> Result<EnvBenchReport> {
         })
         .collect::<Result<Vec<_>>>()?;
     let min_ratio = rows.iter().map(|r| r.ratio).fold(f64::INFINITY, f64::min);
+    let mut below: Vec<&EnvBenchRow> = rows.iter().filter(|r| r.ratio < TARGET_RATIO).collect();
+    below.sort_by(|a, b| a.ratio.total_cmp(&b.ratio));
+    let below_target = below.iter().map(|r| r.task.clone()).collect();
     // E = 1 against E = 8 on the same task, alternating.
     let mut one = VecRun::new(&tasks[..1], 1)?;
     let mut eight = VecRun::new(&tasks[..1], 8)?;
@@ -225,6 +235,8 @@ pub fn env_bench(tasks: &[&str], seconds: f64) -> Result<EnvBenchReport> {
     Ok(EnvBenchReport {
         seconds_per_measurement: seconds,
         min_ratio,
+        target_ratio: TARGET_RATIO,
+        below_target,
         vec_env_8_over_1: median(vec_ratios),
         vec_env: vec![one.row(1), eight.row(1), mixed.row(tasks.len().min(8))],
         tasks: rows,

@@ -450,6 +450,12 @@ impl Simulation {
             q[4 * body + 3],
         ]
     }
+    /// World rotation matrix (row-major) of a body frame (`data.body(name).xmat`).
+    pub fn body_xmat(&self, body: usize) -> [f64; 9] {
+        // SAFETY: xmat has 9*nbody entries.
+        let m = unsafe { slice(self.d().xmat, 9 * self.nbody()) };
+        m[9 * body..9 * body + 9].try_into().expect("9 entries")
+    }
     /// World position of a site.
     pub fn site_xpos(&self, site: usize) -> [f64; 3] {
         // SAFETY: site_xpos has 3*nsite entries.

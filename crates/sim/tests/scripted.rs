@@ -4,10 +4,11 @@
 //! * For every registered task, the noiseless scripted policy reaches success within 500 steps
 //!   from three Rust-generated initial states (goal variations of seed 0): reward and success
 //!   are wired up end to end. The first-success steps are printed (`--nocapture`).
-//! * The policies compute Python's actions: the fixture traces were recorded with Python's
-//!   policy plus `default_rng(seed).normal(0, 0.1, 4)` per step, the same noise sequence for
-//!   every task of a seed, so `recorded action - Rust policy(previous obs)` must give the same
-//!   value across all tasks wherever the action was not clipped.
+//! * The policies compute Python's actions (benchmark and registered tasks): the fixture
+//!   traces were recorded with Python's policy plus `default_rng(seed).normal(0, 0.1, 4)` per
+//!   step, the same noise sequence for every task of a seed, so `recorded action - Rust
+//!   policy(previous obs)` must give the same value across all tasks wherever the action was
+//!   not clipped.
 
 use std::collections::HashMap;
 use std::path::PathBuf;
@@ -148,11 +149,18 @@ fn fixture(task: &str, seed: u32) -> PathBuf {
 
 #[test]
 fn policies_reproduce_python_actions_on_fixture_traces() {
+    // The benchmark tasks and every other registered task (each has fixtures for parity).
+    let mut tasks = BENCHMARK_TASKS.to_vec();
+    for task in task_names() {
+        if !tasks.contains(&task) {
+            tasks.push(task);
+        }
+    }
     let mut failures = Vec::new();
     for seed in [1, 2] {
         // (step, component) -> [(task, recorded action - policy action)]
         let mut implied: HashMap<(usize, usize), Vec<(&str, f64)>> = HashMap::new();
-        for task in BENCHMARK_TASKS {
+        for &task in &tasks {
             let path = fixture(task, seed);
             let trace = Trace::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
             let policy = policies::policy(task).unwrap();
@@ -191,7 +199,7 @@ fn policies_reproduce_python_actions_on_fixture_traces() {
                 }
             }
         }
-        for task in BENCHMARK_TASKS {
+        for &task in &tasks {
             let n = compared.get(task).copied().unwrap_or(0);
             let bad = mismatched.get(task).map_or(&[][..], Vec::as_slice);
             eprintln!(

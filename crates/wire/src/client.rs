@@ -6,12 +6,14 @@
 use std::pin::Pin;
 
 use futures_util::{Stream, StreamExt};
+use tonic::service::interceptor::InterceptedService;
 use tonic::transport::{Channel, Endpoint};
 use tonic::Status;
 
 use crate::pb;
 use crate::pb::learner_client::LearnerClient as RawLearnerClient;
 use crate::pb::selector_client::SelectorClient as RawSelectorClient;
+use crate::security::{ClientSecurity, TokenInterceptor};
 use crate::server::{CheckpointRequest, CheckpointSaved};
 use crate::status::{LearnerStatus, SelectorStatus};
 use crate::weights::{Weights, WeightsKind};
@@ -30,19 +32,45 @@ pub enum ConnectError {
         addr: String,
         source: tonic::transport::Error,
     },
+    #[error(
+        "{addr}: TLS is configured (cluster.tls_ca), so the address must be host:port or an \
+         https:// URI, not plaintext http://"
+    )]
+    PlaintextWithTls { addr: String },
+    #[error("TLS settings for {addr}: {source}")]
+    Tls {
+        addr: String,
+        source: tonic::transport::Error,
+    },
 }
 
+/// The transport under every wire client: a channel that adds the token (if any) to each call.
+pub type SecuredChannel = InterceptedService<Channel, TokenInterceptor>;
+
 /// Client settings.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct ClientOptions {
     /// Largest message decoded or encoded; must be at least the server's weight size.
     pub max_message_bytes: usize,
+    /// Token sent on every call and TLS trust (default: neither).
+    pub security: ClientSecurity,
 }
 
 impl Default for ClientOptions {
     fn default() -> Self {
         Self {
             max_message_bytes: DEFAULT_MAX_MESSAGE_BYTES,
+            security: ClientSecurity::default(),
+        }
+    }
+}
+
+impl ClientOptions {
+    /// Default limits with these credentials.
+    pub fn secured(security: ClientSecurity) -> Self {
+        Self {
+            security,
+            ..Self::default()
         }
     }
 }
@@ -53,17 +81,33 @@ impl Default for ClientOptions {
 /// down, after which an actor reconnects.
 pub type WeightsStream = Pin<Box<dyn Stream<Item = Result<Weights, Status>> + Send>>;
 
-async fn channel(addr: &str) -> Result<Channel, ConnectError> {
+async fn channel(addr: &str, security: &ClientSecurity) -> Result<SecuredChannel, ConnectError> {
+    let tls = security.tls.as_ref();
     let uri = if addr.contains("://") {
+        if tls.is_some() && !addr.starts_with("https://") {
+            return Err(ConnectError::PlaintextWithTls {
+                addr: addr.to_owned(),
+            });
+        }
         addr.to_owned()
+    } else if tls.is_some() {
+        format!("https://{addr}")
     } else {
         format!("http://{addr}")
     };
-    let endpoint = Endpoint::from_shared(uri).map_err(|source| ConnectError::Address {
+    let mut endpoint = Endpoint::from_shared(uri).map_err(|source| ConnectError::Address {
         addr: addr.to_owned(),
         source,
     })?;
-    endpoint
+    if let Some(tls) = tls {
+        endpoint = endpoint
+            .tls_config(tls.config())
+            .map_err(|source| ConnectError::Tls {
+                addr: addr.to_owned(),
+                source,
+            })?;
+    }
+    let channel = endpoint
         .tcp_nodelay(true)
         // Large windows so a whole weight version is in flight at once.
         .initial_stream_window_size(4 << 20)
@@ -76,7 +120,11 @@ async fn channel(addr: &str) -> Result<Channel, ConnectError> {
         .map_err(|source| ConnectError::Connect {
             addr: addr.to_owned(),
             source,
-        })
+        })?;
+    Ok(InterceptedService::new(
+        channel,
+        TokenInterceptor::new(security.token.as_ref()),
+    ))
 }
 
 /// Connects to a learner at `addr` (`host:port` or a URI) with default options.
@@ -89,7 +137,7 @@ pub async fn connect_learner_with(
     addr: &str,
     options: ClientOptions,
 ) -> Result<LearnerClient, ConnectError> {
-    let raw = RawLearnerClient::new(channel(addr).await?)
+    let raw = RawLearnerClient::new(channel(addr, &options.security).await?)
         .max_decoding_message_size(options.max_message_bytes)
         .max_encoding_message_size(options.max_message_bytes);
     Ok(LearnerClient { raw })
@@ -97,8 +145,15 @@ pub async fn connect_learner_with(
 
 /// Connects to a selector at `addr`.
 pub async fn connect_selector(addr: &str) -> Result<SelectorClient, ConnectError> {
-    let options = ClientOptions::default();
-    let raw = RawSelectorClient::new(channel(addr).await?)
+    connect_selector_with(addr, ClientOptions::default()).await
+}
+
+/// [`connect_selector`] with explicit options.
+pub async fn connect_selector_with(
+    addr: &str,
+    options: ClientOptions,
+) -> Result<SelectorClient, ConnectError> {
+    let raw = RawSelectorClient::new(channel(addr, &options.security).await?)
         .max_decoding_message_size(options.max_message_bytes)
         .max_encoding_message_size(options.max_message_bytes);
     Ok(SelectorClient { raw })
@@ -107,7 +162,7 @@ pub async fn connect_selector(addr: &str) -> Result<SelectorClient, ConnectError
 /// A `terl.v1.Learner` client; cheap to clone (clones share the connection).
 #[derive(Debug, Clone)]
 pub struct LearnerClient {
-    raw: RawLearnerClient<Channel>,
+    raw: RawLearnerClient<SecuredChannel>,
 }
 
 impl LearnerClient {
@@ -144,7 +199,7 @@ impl LearnerClient {
     }
 
     /// The generated client, for calls that have no domain wrapper.
-    pub fn raw(&mut self) -> &mut RawLearnerClient<Channel> {
+    pub fn raw(&mut self) -> &mut RawLearnerClient<SecuredChannel> {
         &mut self.raw
     }
 }
@@ -152,7 +207,7 @@ impl LearnerClient {
 /// A `terl.v1.Selector` client.
 #[derive(Debug, Clone)]
 pub struct SelectorClient {
-    raw: RawSelectorClient<Channel>,
+    raw: RawSelectorClient<SecuredChannel>,
 }
 
 impl SelectorClient {
@@ -161,7 +216,7 @@ impl SelectorClient {
         SelectorStatus::try_from(response.into_inner())
     }
 
-    pub fn raw(&mut self) -> &mut RawSelectorClient<Channel> {
+    pub fn raw(&mut self) -> &mut RawSelectorClient<SecuredChannel> {
         &mut self.raw
     }
 }
@@ -175,7 +230,9 @@ pub async fn follow_weights(addr: String, kinds: Vec<WeightsKind>, sink: impl Fn
     follow_weights_with(addr, kinds, ClientOptions::default(), sink).await
 }
 
-/// [`follow_weights`] with explicit client options (a message limit matching the learner's).
+/// [`follow_weights`] with explicit client options: a message limit matching the learner's,
+/// the token and TLS trust. A refused call (e.g. `UNAUTHENTICATED` for a wrong token) is logged
+/// once per status code and retried like any other failure.
 pub async fn follow_weights_with(
     addr: String,
     kinds: Vec<WeightsKind>,
@@ -184,12 +241,15 @@ pub async fn follow_weights_with(
 ) {
     let mut logged_wait = false;
     let mut backoff = FOLLOW_BACKOFF_MIN;
+    // A refusal (e.g. a wrong token) repeats every retry: log each distinct code once.
+    let mut logged_refusal = None;
     loop {
-        match connect_learner_with(&addr, options).await {
+        match connect_learner_with(&addr, options.clone()).await {
             Ok(mut client) => match client.watch_weights(&kinds).await {
                 Ok(mut stream) => {
                     tracing::info!(%addr, ?kinds, "following the learner's weights");
                     logged_wait = false;
+                    logged_refusal = None;
                     backoff = FOLLOW_BACKOFF_MIN;
                     while let Some(item) = futures_util::StreamExt::next(&mut stream).await {
                         match item {
@@ -201,7 +261,12 @@ pub async fn follow_weights_with(
                         }
                     }
                 }
-                Err(status) => tracing::warn!(%status, "WatchWeights refused"),
+                Err(status) => {
+                    if logged_refusal != Some(status.code()) {
+                        tracing::warn!(%status, "WatchWeights refused; retrying with back-off");
+                        logged_refusal = Some(status.code());
+                    }
+                }
             },
             Err(e) => {
                 if !logged_wait {

@@ -6,13 +6,15 @@
 //! `Status::invalid_argument` with the precise problem; code behind the edge never sees a `pb`
 //! type. The crate also owns the [`WeightHub`] the learner publishes weights through, the server
 //! helpers ([`serve_learner`], [`serve_selector`]: service + `grpc.health.v1` + reflection v1 and
-//! v1alpha), the client helpers ([`connect_learner`], [`LearnerClient::watch_weights`]) and the
-//! gRPC side of the transport benchmarks ([`bench`]).
+//! v1alpha), the client helpers ([`connect_learner`], [`LearnerClient::watch_weights`]), the
+//! control plane's access control ([`ServerSecurity`], [`ClientSecurity`]: a token on every RPC,
+//! optional TLS) and the gRPC side of the transport benchmarks ([`bench`]).
 
 pub mod bench;
 mod client;
 mod dataset;
 mod hub;
+mod security;
 mod server;
 mod status;
 mod weights;
@@ -29,14 +31,20 @@ pub mod pb {
 }
 
 pub use client::{
-    connect_learner, connect_learner_with, connect_selector, follow_weights, follow_weights_with,
-    ClientOptions, ConnectError, LearnerClient, SelectorClient, WeightsStream,
+    connect_learner, connect_learner_with, connect_selector, connect_selector_with, follow_weights,
+    follow_weights_with, ClientOptions, ConnectError, LearnerClient, SecuredChannel,
+    SelectorClient, WeightsStream,
 };
 pub use dataset::{EpisodeSummary, Metric, TepSample, ACTION_DIM, OBS_DIM};
 pub use hub::{PublishError, WeightHub};
+pub use security::{
+    ClientSecurity, ClientTls, SecurityError, ServerSecurity, ServerTls, Token, TokenInterceptor,
+    MAX_TOKEN_BYTES, MIN_TOKEN_BYTES, TOKEN_ENV,
+};
 pub use server::{
-    bind, serve_learner, serve_learner_with, serve_selector, CheckpointRequest, CheckpointSaved,
-    LearnerBackend, LearnerService, SelectorBackend, SelectorService, ServeError, ServeOptions,
+    bind, bind_secured, serve_learner, serve_learner_with, serve_selector, serve_selector_with,
+    CheckpointRequest, CheckpointSaved, LearnerBackend, LearnerService, SelectorBackend,
+    SelectorService, ServeError, ServeOptions,
 };
 pub use status::{
     ActorStats, EvalResult, LearnerStatus, PriorityStats, SelectorStatus, TaskEval, TaskSuccess,

@@ -27,6 +27,7 @@ use crate::hub::{Latest, WeightHub};
 use crate::pb;
 use crate::pb::learner_server::{Learner, LearnerServer};
 use crate::pb::selector_server::{Selector, SelectorServer};
+use crate::security::{AuthLayer, SecurityError, ServerSecurity};
 use crate::status::{LearnerStatus, SelectorStatus};
 use crate::weights::WeightsKind;
 use crate::{DEFAULT_MAX_MESSAGE_BYTES, FILE_DESCRIPTOR_SET};
@@ -40,10 +41,12 @@ pub enum ServeError {
     Transport(#[from] tonic::transport::Error),
     #[error("reflection service: {0}")]
     Reflection(#[from] tonic_reflection::server::Error),
+    #[error(transparent)]
+    Security(#[from] SecurityError),
 }
 
 /// Server settings that differ from tonic's defaults on purpose.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct ServeOptions {
     /// Largest message decoded or encoded, bytes. tonic's default is 4 MiB, which the TEP planner
     /// weights (F and AN, ≈ 1.1 M f32 ≈ 4.5 MB) already exceed; the default
@@ -59,6 +62,9 @@ pub struct ServeOptions {
     /// control, such as a client's `grpc.health.v1.Health/Watch`, which would otherwise keep a
     /// graceful shutdown waiting forever.
     pub shutdown_grace: Duration,
+    /// Token and TLS. Without a token the server refuses a non-loopback listener
+    /// ([`ServeError::Security`]); with one, every RPC must carry it (see [`ServerSecurity`]).
+    pub security: ServerSecurity,
 }
 
 impl Default for ServeOptions {
@@ -68,14 +74,26 @@ impl Default for ServeOptions {
             stream_window_bytes: 4 << 20,
             connection_window_bytes: 16 << 20,
             shutdown_grace: Duration::from_secs(3),
+            security: ServerSecurity::default(),
         }
     }
 }
 
 /// Binds a TCP listener; pass [`crate::DEFAULT_LEARNER_ADDR`], [`crate::DEFAULT_SELECTOR_ADDR`]
 /// or `127.0.0.1:0` (tests). Loopback by default: the control plane is not meant to be exposed.
+/// A non-loopback address also needs a token, which [`bind_secured`] checks before binding.
 pub async fn bind(addr: SocketAddr) -> std::io::Result<TcpListener> {
     TcpListener::bind(addr).await
+}
+
+/// [`bind`] after [`ServerSecurity::check_bind`]: a non-loopback `addr` without a token is
+/// refused (nothing is bound) with an error naming the token settings.
+pub async fn bind_secured(
+    addr: SocketAddr,
+    security: &ServerSecurity,
+) -> Result<TcpListener, ServeError> {
+    security.check_bind(addr)?;
+    Ok(TcpListener::bind(addr).await?)
 }
 
 /// What the learner process provides to its gRPC service.
@@ -336,7 +354,16 @@ pub async fn serve_selector<B: SelectorBackend>(
     backend: B,
     shutdown: impl Future<Output = ()> + Send,
 ) -> Result<(), ServeError> {
-    let options = ServeOptions::default();
+    serve_selector_with(listener, backend, shutdown, ServeOptions::default()).await
+}
+
+/// [`serve_selector`] with explicit options.
+pub async fn serve_selector_with<B: SelectorBackend>(
+    listener: TcpListener,
+    backend: B,
+    shutdown: impl Future<Output = ()> + Send,
+    options: ServeOptions,
+) -> Result<(), ServeError> {
     let service = SelectorServer::new(SelectorService {
         backend: Arc::new(backend),
     })
@@ -353,7 +380,11 @@ pub async fn serve_selector<B: SelectorBackend>(
     .await
 }
 
-/// Health + reflection v1 + reflection v1alpha, with our transport settings.
+/// The router every server of this crate builds on.
+pub(crate) type SecuredRouter = Router<tower_layer::Stack<AuthLayer, tower_layer::Identity>>;
+
+/// Health + reflection v1 + reflection v1alpha, with our transport settings, TLS when
+/// configured, and the token check in front of all of them.
 /// Reflection lists exactly the services this server answers (`service_name`, health and both
 /// reflection versions), not every service in the descriptor set.
 pub(crate) fn base_router(
@@ -362,7 +393,7 @@ pub(crate) fn base_router(
     health: tonic_health::pb::health_server::HealthServer<
         impl tonic_health::pb::health_server::Health,
     >,
-) -> Result<Router, ServeError> {
+) -> Result<SecuredRouter, ServeError> {
     use tonic_reflection::pb::{v1, v1alpha};
     let reflection = |other_reflection_version: &'static [u8]| {
         // Each build_v1* adds its own descriptor; the other version's is added here.
@@ -375,7 +406,12 @@ pub(crate) fn base_router(
             .with_service_name("grpc.reflection.v1.ServerReflection")
             .with_service_name("grpc.reflection.v1alpha.ServerReflection")
     };
-    Ok(Server::builder()
+    let mut builder = Server::builder();
+    if let Some(tls) = &options.security.tls {
+        builder = builder.tls_config(tls.config())?;
+    }
+    Ok(builder
+        .layer(options.security.layer())
         .initial_stream_window_size(options.stream_window_bytes)
         .initial_connection_window_size(options.connection_window_bytes)
         .add_service(health)
@@ -386,18 +422,27 @@ pub(crate) fn base_router(
 async fn serve(
     listener: TcpListener,
     service_name: &'static str,
-    add_service: impl FnOnce(Router) -> Router,
+    add_service: impl FnOnce(SecuredRouter) -> SecuredRouter,
     shutdown: impl Future<Output = ()> + Send,
     options: ServeOptions,
     on_shutdown: impl FnOnce() + Send,
 ) -> Result<(), ServeError> {
     let addr = listener.local_addr()?;
+    options.security.check_bind(addr)?;
     let (reporter, health) = tonic_health::server::health_reporter();
     reporter
         .set_service_status(service_name, ServingStatus::Serving)
         .await;
     let router = add_service(base_router(&options, service_name, health)?);
-    tracing::info!(%addr, service = service_name, "gRPC server listening");
+    tracing::info!(
+        %addr,
+        service = service_name,
+        token = options.security.token.is_some(),
+        status_without_token = options.security.token.is_some()
+            && options.security.status_without_token,
+        tls = options.security.tls.is_some(),
+        "gRPC server listening"
+    );
     let (fired, fired_rx) = tokio::sync::oneshot::channel::<()>();
     let signal = async move {
         shutdown.await;

@@ -389,6 +389,7 @@ async fn oversized_messages_fail_with_resource_exhausted_not_a_crash() {
     let addr = server.addr.to_string();
     let small = ClientOptions {
         max_message_bytes: 1 << 20,
+        ..ClientOptions::default()
     };
     let mut client = connect_learner_with(&addr, small).await.unwrap();
     let mut stream = client.watch_weights(&[WeightsKind::Policy]).await.unwrap();

@@ -24,6 +24,86 @@ const STARTUP_WAIT: Duration = Duration::from_secs(60);
 const LOG_EVERY: Duration = Duration::from_secs(10);
 /// How long a failed send waits for this actor's own shutdown signal before it is an error.
 const PEER_GONE_GRACE: Duration = Duration::from_secs(2);
+/// While the learner is away the actor checks for it after 0.25 s, then doubles the wait up to
+/// 5 s (the same schedule as the weight follower's reconnects).
+const AWAY_BACKOFF_MIN: Duration = Duration::from_millis(250);
+const AWAY_BACKOFF_MAX: Duration = Duration::from_secs(5);
+/// Once the learner is back, how long the actor waits for its first weights before it goes on
+/// with the ones it has.
+const REJOIN_WEIGHTS_WAIT: Duration = Duration::from_secs(30);
+/// How often a running actor removes dead processes' subscriptions (iceoryx2's dead-node
+/// cleanup) to notice a killed learner.
+const LEARNER_CHECK_EVERY: Duration = Duration::from_secs(1);
+
+/// How a pause for an absent learner ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Rejoin {
+    /// The learner subscribes again and sent weights (or [`REJOIN_WEIGHTS_WAIT`] passed).
+    Back { waited: Duration, checks: u32 },
+    /// This actor was asked to stop while waiting.
+    Stopped,
+}
+
+/// Pauses the environment loop while no learner receives transitions (it crashed, was killed
+/// or is restarting), instead of stepping environments whose transitions would reach nobody.
+/// Checks for the learner with back-off ([`AWAY_BACKOFF_MIN`] doubling to
+/// [`AWAY_BACKOFF_MAX`]), calling `cleanup` first each time (the shared-memory transport's
+/// dead-node cleanup, which removes the subscription a killed learner leaves behind). When a
+/// receiver is back and this actor had received weights before, waits until the mailbox holds
+/// a policy posted after the pause began (the weight follower reconnects on its own), at most
+/// [`REJOIN_WEIGHTS_WAIT`]. Never busy-waits:
+/// it sleeps in slices of at most 50 ms to notice `mailbox.stop`.
+pub(crate) fn wait_for_learner(
+    transitions: &dyn MessageSink<TransitionBatch>,
+    mut cleanup: impl FnMut(),
+    mailbox: &Mailbox,
+) -> Rejoin {
+    let began = Instant::now();
+    let posts_before = mailbox.policy_posts.load(Ordering::Relaxed);
+    let nap = |d: Duration| -> bool {
+        let until = Instant::now() + d;
+        while Instant::now() < until {
+            if mailbox.stop.load(Ordering::Relaxed) {
+                return false;
+            }
+            std::thread::sleep((until - Instant::now()).min(Duration::from_millis(50)));
+        }
+        !mailbox.stop.load(Ordering::Relaxed)
+    };
+    let mut backoff = AWAY_BACKOFF_MIN;
+    let mut checks = 0u32;
+    loop {
+        cleanup();
+        checks += 1;
+        if transitions.receivers() > 0 {
+            break;
+        }
+        if !nap(backoff) {
+            return Rejoin::Stopped;
+        }
+        backoff = (backoff * 2).min(AWAY_BACKOFF_MAX);
+    }
+    // A learner that resumes publishes its restored policy at once; a fresh one publishes only
+    // after its warm-up, which needs this actor's transitions, so only an actor that had
+    // weights waits for new ones.
+    let deadline = Instant::now() + REJOIN_WEIGHTS_WAIT;
+    while posts_before > 0 && mailbox.policy_posts.load(Ordering::Relaxed) == posts_before {
+        if Instant::now() >= deadline {
+            tracing::warn!(
+                "the learner is back but sent no weights within {REJOIN_WEIGHTS_WAIT:?}; going on \
+                 with the policy this actor has"
+            );
+            break;
+        }
+        if !nap(Duration::from_millis(50)) {
+            return Rejoin::Stopped;
+        }
+    }
+    Rejoin::Back {
+        waited: began.elapsed(),
+        checks,
+    }
+}
 
 /// Sends `message`; returns whether the loop should go on. A send that timed out on a full
 /// receiver (a receiver stopped or stalled for longer than the block timeout) is not fatal:
@@ -199,6 +279,7 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
         std::thread::sleep(Duration::from_millis(10));
     }
 
+    let (mut pauses, mut paused) = (0u64, Duration::ZERO);
     let mut batch = TransitionBatch::EMPTY;
     batch.actor_id = actor_id;
     let mut sequence = 0u64;
@@ -213,8 +294,46 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
     let mut unstable_steps = 0u64;
     let start = Instant::now();
     let (mut log_at, mut log_steps) = (start, 0u64);
+    let (mut dropped_seen, mut checked_at) = (0u64, start);
 
     while !mailbox.stop.load(Ordering::Relaxed) {
+        // A learner killed with SIGKILL leaves its subscription behind, and sends would fill
+        // its queue and then block for `block_timeout_secs`: every second, and after any send
+        // that timed out, remove dead processes' subscriptions, so that a dead learner shows
+        // as no receiver.
+        if transitions.stats().dropped > dropped_seen || checked_at.elapsed() >= LEARNER_CHECK_EVERY
+        {
+            dropped_seen = transitions.stats().dropped;
+            checked_at = Instant::now();
+            transport.cleanup_dead_nodes();
+        }
+        if transitions.receivers() == 0 {
+            tracing::warn!(
+                actor_id,
+                "no learner receives transitions (stopped, killed or restarting): pausing the \
+                 environments and checking for it with back-off"
+            );
+            match wait_for_learner(
+                &transitions,
+                || {
+                    transport.cleanup_dead_nodes();
+                },
+                mailbox,
+            ) {
+                Rejoin::Stopped => break,
+                Rejoin::Back { waited, checks } => {
+                    pauses += 1;
+                    paused += waited;
+                    tracing::info!(
+                        actor_id,
+                        waited_secs = format!("{:.1}", waited.as_secs_f64()),
+                        checks,
+                        newest_received = mailbox.received.load(Ordering::Relaxed),
+                        "the learner is back; rejoining with its weights"
+                    );
+                }
+            }
+        }
         let fresh = mailbox.slot.lock().ok().and_then(|mut s| s.take());
         if let Some((version, params)) = fresh {
             match policy.set_params(&params, version) {
@@ -330,6 +449,8 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
         env_steps = steps,
         env_steps_per_second = format!("{:.0}", steps as f64 / start.elapsed().as_secs_f64()),
         policy_version = policy.version,
+        pauses_for_the_learner = pauses,
+        paused_secs = format!("{:.1}", paused.as_secs_f64()),
         transition_batches_dropped = transitions.stats().dropped,
         transitions_dropped = transitions.stats().dropped_items,
         episodes_dropped = episodes.stats().dropped,
@@ -398,5 +519,88 @@ mod tests {
         env.step(&actions).unwrap();
         assert!(!env.unstable()[1]);
         assert!(transition_of(&env, 1, &obs, &actions, 1, 0, 1, false).is_some());
+    }
+
+    /// The memory twin's sink for transitions, its transport (to add a receiver later) and a
+    /// mailbox.
+    fn link() -> (
+        terl_transport::memory::MemoryTransport,
+        terl_transport::memory::MemorySink<TransitionBatch>,
+        std::sync::Arc<Mailbox>,
+    ) {
+        let t = terl_transport::memory::MemoryTransport::new(TransportConfig::new("pause-test", 1))
+            .unwrap();
+        let sink = t.memory_sink::<TransitionBatch>().unwrap();
+        (t, sink, std::sync::Arc::default())
+    }
+
+    #[test]
+    fn with_no_learner_the_actor_waits_with_back_off_until_stopped() {
+        let (_t, sink, mailbox) = link();
+        let stopper = {
+            let mailbox = std::sync::Arc::clone(&mailbox);
+            std::thread::spawn(move || {
+                std::thread::sleep(Duration::from_millis(1200));
+                mailbox.stop.store(true, Ordering::Relaxed);
+            })
+        };
+        let began = Instant::now();
+        let mut cleanups = 0u32;
+        let out = wait_for_learner(&sink, || cleanups += 1, &mailbox);
+        let waited = began.elapsed();
+        stopper.join().unwrap();
+        assert_eq!(out, Rejoin::Stopped);
+        // Checks at 0, 0.25, 0.75, 1.75 s, ...: with doubling waits, at most
+        // 1 + log2(1 + waited / 0.25 s) checks fit in `waited` (a busy loop would make
+        // thousands).
+        let bound = 1.0 + (1.0 + waited.as_secs_f64() / 0.25).log2();
+        assert!(
+            cleanups >= 1 && f64::from(cleanups) <= bound.floor(),
+            "{cleanups} checks in {waited:?} (bound {bound:.2})"
+        );
+    }
+
+    #[test]
+    fn the_actor_rejoins_once_the_learner_subscribes_and_sends_weights() {
+        let (t, sink, mailbox) = link();
+        // This actor had weights before the learner went away.
+        mailbox.policy_posts.store(3, Ordering::Relaxed);
+        let learner = {
+            let mailbox = std::sync::Arc::clone(&mailbox);
+            let t = t.clone();
+            std::thread::spawn(move || {
+                std::thread::sleep(Duration::from_millis(300));
+                let source = t.memory_source::<TransitionBatch>().unwrap();
+                // Subscribed but no weights yet: the actor must keep waiting.
+                std::thread::sleep(Duration::from_millis(400));
+                let posted_at = Instant::now();
+                mailbox.policy_posts.fetch_add(1, Ordering::Relaxed);
+                (source, posted_at)
+            })
+        };
+        let out = wait_for_learner(&sink, || {}, &mailbox);
+        let returned_at = Instant::now();
+        let (_source, posted_at) = learner.join().unwrap();
+        assert!(matches!(out, Rejoin::Back { .. }), "{out:?}");
+        assert!(
+            returned_at >= posted_at,
+            "returned before the new weights were posted"
+        );
+        assert_eq!(sink.receivers(), 1);
+    }
+
+    #[test]
+    fn an_actor_without_weights_rejoins_a_fresh_learner_without_waiting_for_weights() {
+        let (t, sink, mailbox) = link();
+        let _source = t.memory_source::<TransitionBatch>().unwrap();
+        // No weights were ever posted and none will be: a fresh learner publishes only after
+        // its warm-up, which needs this actor's transitions.
+        match wait_for_learner(&sink, || {}, &mailbox) {
+            Rejoin::Back { waited, checks } => {
+                assert_eq!(checks, 1);
+                assert!(waited < REJOIN_WEIGHTS_WAIT, "{waited:?}");
+            }
+            other => panic!("{other:?}"),
+        }
     }
 }

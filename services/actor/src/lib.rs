@@ -37,6 +37,9 @@ pub struct ActorConfig {
     pub num_actors: usize,
     /// The learner's gRPC address (`host:port`).
     pub learner_addr: String,
+    /// Token and TLS trust for the learner's weight stream (default: none); the binary fills
+    /// it from `[cluster]` and `TERL_TOKEN` ([`RunConfig`]'s `cluster.client_security`).
+    pub client_security: terl_wire::ClientSecurity,
 }
 
 impl ActorConfig {
@@ -53,6 +56,7 @@ impl ActorConfig {
             actor_id,
             num_actors,
             learner_addr,
+            client_security: terl_wire::ClientSecurity::default(),
         }
     }
 }
@@ -68,6 +72,9 @@ pub(crate) struct Mailbox {
     pub(crate) planner: Mutex<Option<PlannerParams>>,
     /// Newest version received (for logs).
     pub(crate) received: AtomicU64,
+    /// Policy versions posted so far (a resumed learner may republish a version number the
+    /// actor has seen, so rejoining waits on this count, not on the version).
+    pub(crate) policy_posts: AtomicU64,
     pub(crate) stop: AtomicBool,
 }
 
@@ -92,6 +99,7 @@ fn post(mailbox: &Mailbox, weights: Weights) {
         _ => {
             let flat: Vec<f32> = weights.into_flat();
             mailbox.received.store(version, Ordering::Relaxed);
+            mailbox.policy_posts.fetch_add(1, Ordering::Relaxed);
             if let Ok(mut slot) = mailbox.slot.lock() {
                 *slot = Some((version, flat));
             }
@@ -119,6 +127,7 @@ pub async fn run(
         let mailbox = Arc::clone(&mailbox);
         let options = terl_wire::ClientOptions {
             max_message_bytes: config.run.cluster.max_message_bytes(),
+            security: config.client_security.clone(),
         };
         tokio::spawn(terl_wire::follow_weights_with(
             config.learner_addr.clone(),

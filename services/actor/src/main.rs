@@ -48,7 +48,11 @@ async fn main() -> anyhow::Result<()> {
     }
     let mut run = terl_runtime::RunConfig::load(&a.config)?;
     run.override_zenoh_endpoints(a.zenoh_listen, a.zenoh_connect);
-    let config =
+    let client_security = run
+        .cluster
+        .client_security(terl_runtime::token_from_env())?;
+    let mut config =
         terl_actor::ActorConfig::new(run, a.run_id, a.actor_id, a.num_actors, a.learner_addr);
+    config.client_security = client_security;
     terl_actor::run(config, terl_runtime::shutdown_signal()).await
 }

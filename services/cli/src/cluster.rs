@@ -78,9 +78,8 @@ pub fn run(cmd: ClusterCommand) -> Result<ExitCode> {
             );
             // A launcher killed with SIGKILL leaves its pid file; the pid may since belong to
             // an unrelated process, which must not be signalled.
-            let cmdline = std::fs::read(format!("/proc/{pid}/cmdline")).unwrap_or_default();
             anyhow::ensure!(
-                String::from_utf8_lossy(&cmdline).contains("local-cluster.sh"),
+                is_launcher(pid),
                 "no running cluster launcher has pid {pid} (stale {pid_file}: the launcher was \
                  killed); its services stop by themselves when it dies"
             );
@@ -96,4 +95,11 @@ pub fn run(cmd: ClusterCommand) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
     }
+}
+
+/// Whether process `pid` is a running `deploy/local-cluster.sh` (a launcher's pid file outlives
+/// a launcher killed with SIGKILL, and its pid may be reused by anything).
+pub(crate) fn is_launcher(pid: &str) -> bool {
+    std::fs::read(format!("/proc/{pid}/cmdline"))
+        .is_ok_and(|c| String::from_utf8_lossy(&c).contains("local-cluster.sh"))
 }

@@ -10,7 +10,7 @@ use terl_sim::trace::{Comparison, Tolerance, Trace};
 
 #[derive(Debug, Subcommand)]
 pub enum EnvCommand {
-    /// List implemented tasks and the task sets.
+    /// List the implemented tasks (Meta-World's 50, in its order) and the task sets.
     List {
         #[arg(long)]
         json: bool,
@@ -59,7 +59,7 @@ pub fn run(cmd: EnvCommand) -> Result<ExitCode> {
                 }
                 println!("task sets:");
                 for (name, tasks) in sets {
-                    println!("  {name:8} {}", tasks.join(" "));
+                    println!("  {name:10} {:2} tasks: {}", tasks.len(), tasks.join(" "));
                 }
             }
             Ok(ExitCode::SUCCESS)

@@ -23,7 +23,8 @@ pub struct EvalArgs {
     /// (its newest checkpoint).
     #[arg(long)]
     pub checkpoint: PathBuf,
-    /// Tasks to evaluate: a task set (mt10, mt1-ind, mt20, mt-test) or comma-separated names
+    /// Tasks to evaluate: a task set (mt10, mt50, ml10-train, ml10-test, ml45-train, ml45-test,
+    /// mt20, mt1-ind, mt-test; see `terl env list`) or comma-separated names
     /// (default: the tasks the checkpoint was trained on).
     #[arg(long)]
     pub tasks: Option<String>,
@@ -86,6 +87,7 @@ pub fn run(args: EvalArgs) -> Result<ExitCode> {
         threads: args
             .threads
             .unwrap_or_else(|| EvalSettings::default().threads),
+        ..EvalSettings::default()
     };
     anyhow::ensure!(settings.threads > 0, "--threads must be at least 1");
     let total = (tasks.len() * settings.episodes_per_task) as u64;

@@ -1,12 +1,13 @@
 //! `terl status`: one snapshot of a running cluster from the learner's and the selector's
 //! `GetStatus`, as a table or JSON (`--json`, for scripts and tests).
 
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use terl_wire::{LearnerStatus, SelectorStatus};
+use terl_wire::{ClientOptions, ClientSecurity, ClientTls, LearnerStatus, SelectorStatus, Token};
 
 #[derive(Debug, Args)]
 pub struct StatusArgs {
@@ -23,6 +24,18 @@ pub struct StatusArgs {
     /// Seconds to wait for each server.
     #[arg(long, default_value_t = 5.0)]
     pub timeout: f64,
+    /// File holding the control-plane token (the run's `cluster.token_file`); without it the
+    /// TERL_TOKEN environment variable is sent, if set.
+    #[arg(long)]
+    pub token_file: Option<PathBuf>,
+    /// CA certificate (PEM) to verify TLS servers with (the run's `cluster.tls_ca`); makes the
+    /// connection TLS.
+    #[arg(long)]
+    pub tls_ca: Option<PathBuf>,
+    /// Name expected in the servers' certificate instead of the dialled host
+    /// (`cluster.tls_domain`).
+    #[arg(long, requires = "tls_ca")]
+    pub tls_domain: Option<String>,
     /// A launcher's run folder (runs/<id>): the addresses come from its learner.addr and
     /// selector.addr, and the launcher's processes (alive or not) and restarts are shown too.
     #[arg(long, value_name = "RUN_DIR")]
@@ -103,13 +116,46 @@ fn print_launcher(l: &Launcher) {
     }
 }
 
-async fn learner_status(addr: &str) -> Result<LearnerStatus> {
-    let mut client = terl_wire::connect_learner(addr).await?;
+impl StatusArgs {
+    /// The token (`--token-file`, else TERL_TOKEN) and TLS trust (`--tls-ca`) to connect with.
+    /// Without either flag, a launcher's run folder supplies its own settings: the
+    /// `[cluster]` token_file / tls_ca / tls_domain of `RUN_DIR/config.toml`.
+    pub fn client_options(&self, run_dir: Option<&std::path::Path>) -> Result<ClientOptions> {
+        if self.token_file.is_none() && self.tls_ca.is_none() {
+            if let Some(config) = run_dir
+                .map(|d| d.join("config.toml"))
+                .filter(|c| c.is_file())
+            {
+                let run = terl_runtime::RunConfig::load(&config)?;
+                let security = run
+                    .cluster
+                    .client_security(terl_runtime::token_from_env())
+                    .with_context(|| format!("the run's settings in {}", config.display()))?;
+                return Ok(ClientOptions::secured(security));
+            }
+        }
+        let token = match &self.token_file {
+            Some(path) => Some(Token::from_file(path)?),
+            None => terl_runtime::token_from_env()
+                .map(|v| Token::new(v, terl_wire::TOKEN_ENV))
+                .transpose()?,
+        };
+        let tls = self
+            .tls_ca
+            .as_deref()
+            .map(|ca| ClientTls::from_file(ca, self.tls_domain.clone()))
+            .transpose()?;
+        Ok(ClientOptions::secured(ClientSecurity { token, tls }))
+    }
+}
+
+async fn learner_status(addr: &str, options: ClientOptions) -> Result<LearnerStatus> {
+    let mut client = terl_wire::connect_learner_with(addr, options).await?;
     Ok(client.status().await?)
 }
 
-async fn selector_status(addr: &str) -> Result<SelectorStatus> {
-    let mut client = terl_wire::connect_selector(addr).await?;
+async fn selector_status(addr: &str, options: ClientOptions) -> Result<SelectorStatus> {
+    let mut client = terl_wire::connect_selector_with(addr, options).await?;
     Ok(client.status().await?)
 }
 
@@ -218,17 +264,53 @@ fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyho
     }
 }
 
-/// The run folder of the cluster the launcher started last in `runs/`, if it is still running.
-fn last_started_run() -> Option<std::path::PathBuf> {
-    let dir = std::fs::read_to_string("runs/.cluster.run").ok()?;
+/// The launcher of a run folder: `Some(pid)` if `launcher.pid` names a live
+/// `local-cluster.sh`, `Err` with a clear message if the file is there but that process is
+/// gone (the launcher was killed: its services stopped with it), `None` without the file (not
+/// started by the launcher, or stopped cleanly).
+fn live_launcher(run: &std::path::Path) -> Result<Option<u32>> {
+    let file = run.join("launcher.pid");
+    let Ok(text) = std::fs::read_to_string(&file) else {
+        return Ok(None);
+    };
+    let pid: Option<u32> = text.trim().parse().ok();
+    let alive = pid.is_some_and(|pid| crate::cluster::is_launcher(&pid.to_string()));
+    anyhow::ensure!(
+        alive,
+        "no cluster is running in {}: its launcher (pid {}) is gone, and its services stop \
+         with it; start one with ./deploy/local-cluster.sh (--resume {} continues this run), or \
+         ask a server with --addr",
+        run.display(),
+        text.trim(),
+        run.display()
+    );
+    Ok(pid)
+}
+
+/// The run folder of the cluster the launcher started last in `runs/` (`runs/.cluster.run`):
+/// `Ok(None)` if there is none, an error if its launcher is gone (killed with SIGKILL, which
+/// leaves the file behind).
+fn last_started_run() -> Result<Option<std::path::PathBuf>> {
+    let Ok(dir) = std::fs::read_to_string("runs/.cluster.run") else {
+        return Ok(None);
+    };
     let dir = std::path::PathBuf::from(dir.trim());
-    dir.join("learner.addr").is_file().then_some(dir)
+    match live_launcher(&dir)? {
+        Some(_) => Ok(Some(dir)),
+        None => anyhow::bail!(
+            "no cluster is running: {} has no launcher.pid (its launcher stopped)",
+            dir.display()
+        ),
+    }
 }
 
 pub fn run(args: StatusArgs) -> Result<ExitCode> {
     let run_dir = match (&args.run, &args.addr) {
-        (Some(dir), _) => Some(dir.clone()),
-        (None, None) => last_started_run(),
+        (Some(dir), _) => {
+            live_launcher(dir)?;
+            Some(dir.clone())
+        }
+        (None, None) => last_started_run()?,
         (None, Some(_)) => None,
     };
     let read = |dir: &std::path::Path, name: &str| -> Result<String> {
@@ -262,16 +344,28 @@ pub fn run(args: StatusArgs) -> Result<ExitCode> {
             None,
         ),
     };
+    let defaulted = run_dir.is_none() && args.addr.is_none();
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
     let timeout = Duration::from_secs_f64(args.timeout.max(0.1));
+    let options = args.client_options(run_dir.as_deref())?;
     runtime.block_on(async {
-        let learner = tokio::time::timeout(timeout, learner_status(&addr))
+        let learner = tokio::time::timeout(timeout, learner_status(&addr, options.clone()))
             .await
             .unwrap_or_else(|_| Err(anyhow::anyhow!("timed out")))
-            .with_context(|| format!("learner at {addr}"))?;
-        let selector = tokio::time::timeout(timeout, selector_status(&selector_addr))
+            .with_context(|| {
+                if defaulted {
+                    format!(
+                        "no cluster found: there is no runs/.cluster.run here and nothing \
+                         answers at {addr}; start one with ./deploy/local-cluster.sh, or give \
+                         --run RUN_DIR or --addr"
+                    )
+                } else {
+                    format!("learner at {addr}")
+                }
+            })?;
+        let selector = tokio::time::timeout(timeout, selector_status(&selector_addr, options))
             .await
             .unwrap_or_else(|_| Err(anyhow::anyhow!("timed out")))
             .with_context(|| format!("selector at {selector_addr}"));

@@ -8,6 +8,9 @@
 //! paper's loop: the selector scores episodes and selects samples, the learner trains the
 //! planner on them (F's predicted goal distance grows from one step towards the data's, its targets stay ≥ 1) and publishes it, actors take guided actions, the MCAP
 //! dataset holds the selected samples, and a new learner can start from that dataset.
+//!
+//! The MT50 test runs `deploy/configs/mt50-smoke.toml` and checks that episodes of all 50
+//! tasks reach the learner and the selector.
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -584,6 +587,86 @@ fn terl_cluster_selects_trains_the_planner_and_guides() {
     );
 }
 
+/// MT50 on real processes (`deploy/configs/mt50-smoke.toml`, two actors): the one-hot spans
+/// all 50 tasks, and episodes of every task reach both the learner and the selector, in
+/// Meta-World's task order.
+#[test]
+fn mt50_cluster_trains_on_every_task() {
+    let shm_before = shm_files();
+    let mt50 = terl_sim::metaworld::task_set("mt50").unwrap();
+    assert_eq!(mt50.len(), 50);
+    let Running {
+        mut cluster,
+        run_dir,
+        learner,
+        selector,
+        _dir,
+        ..
+    } = start("deploy/configs/mt50-smoke.toml", &[]);
+    let start = Instant::now();
+    let tasks_with_episodes = |v: &Value| -> Vec<(String, u64)> {
+        v["task_success"]
+            .as_array()
+            .map(|ts| {
+                ts.iter()
+                    .map(|t| {
+                        (
+                            t["task"].as_str().unwrap_or("").to_string(),
+                            u(t, &["episodes"]),
+                        )
+                    })
+                    .collect()
+            })
+            .unwrap_or_default()
+    };
+    let mut last = Value::Null;
+    loop {
+        assert!(
+            start.elapsed() < TIMEOUT,
+            "not every task's episodes arrived in {TIMEOUT:?}; last status {last}; logs in {}",
+            run_dir.display()
+        );
+        std::thread::sleep(Duration::from_millis(500));
+        let Some(s) = status(&learner, &selector) else {
+            continue;
+        };
+        let (l, sel) = (
+            tasks_with_episodes(&s["learner"]),
+            tasks_with_episodes(&s["selector"]),
+        );
+        for side in [&l, &sel] {
+            if !side.is_empty() {
+                let names: Vec<&str> = side.iter().map(|(t, _)| t.as_str()).collect();
+                assert_eq!(names, mt50, "status lists the run's tasks in order");
+            }
+        }
+        last = s;
+        let all = |side: &[(String, u64)]| side.len() == 50 && side.iter().all(|(_, n)| *n > 0);
+        if all(&l) && all(&sel) {
+            break;
+        }
+    }
+    eprintln!("every task's episodes arrived after {:?}", start.elapsed());
+    let actors = last["learner"]["actors"]
+        .as_array()
+        .cloned()
+        .unwrap_or_default();
+    assert_eq!(actors.len(), 2, "{last}");
+    stop_all(&mut cluster, &run_dir);
+
+    // The selector's episode log holds episodes of every task.
+    let episodes =
+        terl_telemetry::read_log::<terl_wire::EpisodeSummary>(run_dir.join("episodes.mcap"))
+            .expect("episode log readable");
+    let logged: BTreeSet<&str> = episodes.records.iter().map(|e| e.task.as_str()).collect();
+    assert_eq!(logged, mt50.iter().copied().collect::<BTreeSet<_>>());
+    let leftover: Vec<String> = shm_files().difference(&shm_before).cloned().collect();
+    assert!(
+        leftover.is_empty(),
+        "shared-memory files left: {leftover:?}"
+    );
+}
+
 /// Whether these tests run against release binaries (the launcher runs `target/release`).
 fn release_build() -> bool {
     Path::new(env!("CARGO_BIN_EXE_terl"))
@@ -743,7 +826,8 @@ fn killed_learner_is_restarted_and_runs_resume_past_a_damaged_checkpoint() {
             "--restarts",
             "2",
             "--restart-backoff",
-            "1",
+            // Long enough that the actor notices the learner is gone and pauses.
+            "3",
         ],
         &dir.path().join("first.log"),
     );
@@ -836,6 +920,20 @@ fn killed_learner_is_restarted_and_runs_resume_past_a_damaged_checkpoint() {
         status(&learner_addr, &selector_addr)
             .is_some_and(|s| u(&s, &["learner", "updates"]) > at + 50)
     });
+    // The actor was not restarted: it waited for the restarted learner and rejoined.
+    let actor = |pids: &[(String, u32)]| pids.iter().find(|(r, _)| r == "actor-0").map(|p| p.1);
+    assert_eq!(
+        actor(&read_pids(&run_dir)),
+        actor(&pids),
+        "the actor kept running"
+    );
+    // Whether it paused first depends on timing (a send blocked on the dead learner's full
+    // queue may simply go on to the restarted one); either way it never failed.
+    let actor_log = std::fs::read_to_string(run_dir.join("actor-0.log")).unwrap();
+    assert!(
+        !actor_log.contains("Error:"),
+        "the actor failed:\n{actor_log}"
+    );
 
     // SIGKILL the launcher: every service it started stops by itself.
     let services: Vec<u32> = read_pids(&run_dir).into_iter().map(|(_, p)| p).collect();
@@ -845,6 +943,25 @@ fn killed_learner_is_restarted_and_runs_resume_past_a_damaged_checkpoint() {
     wait_until("the services of a killed launcher to exit", limit, || {
         services.iter().all(|&p| !alive(p))
     });
+    // Its files are left behind; `terl status` says no cluster runs instead of trying the
+    // stale addresses (with --run, and by default through runs/.cluster.run).
+    for args in [
+        vec!["status", "--run", run_dir.to_str().unwrap()],
+        vec!["status"],
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_terl"))
+            .args(&args)
+            .current_dir(dir.path())
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success()
+                && err.contains("no cluster is running")
+                && err.contains("is gone"),
+            "terl {args:?}: {err}"
+        );
+    }
 
     // Damage the newest checkpoint (it is final.safetensors, written on SIGTERM).
     let mut newest: Vec<PathBuf> = std::fs::read_dir(&checkpoints)
@@ -909,4 +1026,95 @@ fn killed_learner_is_restarted_and_runs_resume_past_a_damaged_checkpoint() {
         log.contains("interrupted") && !log.contains("total_env_steps reached"),
         "{log}"
     );
+}
+
+/// The launcher refuses what would go wrong later: a run id the services would refuse (before
+/// it is used in a process search), a run id whose lock another launcher holds (two launchers
+/// started in the same instant both passed the process search), and a learner that cannot
+/// start (a non-loopback address without a token) is reported with its error as soon as it
+/// exits, without a restart.
+#[test]
+fn launcher_refuses_bad_or_locked_run_ids_and_reports_a_start_up_failure_with_its_error() {
+    service_binaries();
+    let root = workspace();
+    if !release_build() {
+        eprintln!("the launcher runs target/release binaries; run this test with --release");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let runs = dir.path().join("runs");
+    let locks = dir.path().join("tmp");
+    std::fs::create_dir_all(&locks).unwrap();
+    let run = |args: &[&str]| {
+        let out = Command::new(root.join("deploy/local-cluster.sh"))
+            .current_dir(&root)
+            .env("TMPDIR", &locks)
+            .args([
+                "--config",
+                "deploy/configs/cluster-smoke.toml",
+                "--no-build",
+            ])
+            .args(["--runs-root", runs.to_str().unwrap()])
+            .args(args)
+            .output()
+            .unwrap();
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stderr).to_string(),
+        )
+    };
+
+    for bad in ["bk(p", "a/b", ".."] {
+        let (code, err) = run(&["--run-id", bad]);
+        assert_eq!(code, Some(2), "{bad:?}: {err}");
+        assert!(err.contains("--run-id must be"), "{bad:?}: {err}");
+    }
+
+    // Another launcher of this run id holds its lock.
+    let id = format!("it-lock-{}", std::process::id());
+    let lock = locks.join("terl-run-locks").join(format!("{id}.lock"));
+    std::fs::create_dir_all(lock.parent().unwrap()).unwrap();
+    // `flock` and its `sleep` in a process group of their own, so both go at once below.
+    let mut holder = {
+        use std::os::unix::process::CommandExt;
+        Command::new("flock")
+            .arg(&lock)
+            .args(["sleep", "60"])
+            .process_group(0)
+            .spawn()
+            .unwrap()
+    };
+    wait_until("the lock to be held", Duration::from_secs(10), || {
+        Command::new("flock")
+            .args(["-n", lock.to_str().unwrap(), "true"])
+            .status()
+            .is_ok_and(|s| !s.success())
+    });
+    let (code, err) = run(&["--run-id", &id]);
+    Command::new("kill")
+        .args(["-KILL", &format!("-{}", holder.id())])
+        .status()
+        .unwrap();
+    holder.wait().unwrap();
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("is in use by another launcher"), "{err}");
+    assert!(
+        !runs.join(&id).exists(),
+        "a refused launcher made a run folder"
+    );
+
+    // Free lock, but a learner that must refuse to start: reported with its error, no restart.
+    let (code, err) = run(&[
+        "--run-id",
+        &id,
+        "--learner-addr",
+        "0.0.0.0:0",
+        "--restarts",
+        "3",
+    ]);
+    assert_eq!(code, Some(1), "{err}");
+    assert!(err.contains("learner did not start"), "{err}");
+    assert!(err.contains("token"), "the learner's error is shown: {err}");
+    assert!(!err.contains("restart 1 of"), "{err}");
+    assert!(!err.contains("stack backtrace"), "{err}");
 }

@@ -34,8 +34,37 @@ fn list_shows_tasks_and_sets() {
     assert!(o.status.success(), "{}", text(&o));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let tasks = v["tasks"].as_array().unwrap();
+    assert_eq!(tasks.len(), 50);
     assert!(tasks.iter().any(|t| t == "reach-v3"));
-    assert_eq!(v["task_sets"]["mt10"].as_array().unwrap().len(), 10);
+    for (set, len) in [
+        ("mt10", 10),
+        ("mt50", 50),
+        ("ml10-train", 10),
+        ("ml10-test", 5),
+        ("ml45-train", 45),
+        ("ml45-test", 5),
+        ("mt20", 20),
+        ("mt1-ind", 5),
+        ("mt-test", 4),
+    ] {
+        assert_eq!(v["task_sets"][set].as_array().unwrap().len(), len, "{set}");
+    }
+    assert_eq!(&v["task_sets"]["mt50"], &v["tasks"]);
+
+    // The text listing names every task and every set.
+    let o = terl(&["env", "list"]);
+    assert!(o.status.success(), "{}", text(&o));
+    let listing = String::from_utf8_lossy(&o.stdout);
+    assert!(listing.starts_with("tasks (50):"), "{listing}");
+    for t in tasks {
+        assert!(listing.contains(t.as_str().unwrap()), "{t} missing");
+    }
+    for set in v["task_sets"].as_object().unwrap().keys() {
+        assert!(
+            listing.contains(&format!("  {set} ")),
+            "{set} missing: {listing}"
+        );
+    }
 }
 
 #[test]

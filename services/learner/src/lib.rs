@@ -116,9 +116,14 @@ pub async fn run(
     let num_tasks = terl_runtime::resolve_tasks(&config.run.tasks)?.len();
     config.run.check_weight_messages(num_tasks)?;
     let max_message_bytes = config.run.cluster.max_message_bytes();
-    let listener = terl_wire::bind(config.addr)
+    let listener = terl_wire::bind_secured(config.addr, &config.server_security)
         .await
         .with_context(|| format!("cannot listen on {}", config.addr))?;
+    let serve_options = terl_wire::ServeOptions {
+        max_message_bytes,
+        security: config.server_security.clone(),
+        ..terl_wire::ServeOptions::default()
+    };
     let addr = listener.local_addr()?;
     let addr_file = terl_runtime::write_addr_file(&config.run_dir, "learner", addr)?;
     tracing::info!(%addr, file = %addr_file.display(), run_id = %config.run_id, "learner listening");
@@ -155,11 +160,8 @@ pub async fn run(
             _ = done_rx.wait_for(|done| *done) => tracing::info!("trainer stopped; shutting down"),
         }
     };
-    let options = terl_wire::ServeOptions {
-        max_message_bytes,
-        ..terl_wire::ServeOptions::default()
-    };
-    let served = terl_wire::serve_learner_with(listener, backend, stop_serving, options).await;
+    let served =
+        terl_wire::serve_learner_with(listener, backend, stop_serving, serve_options).await;
     shared.stop.store(true, Ordering::Relaxed);
     let trained = tokio::task::spawn_blocking(move || trainer.join())
         .await?

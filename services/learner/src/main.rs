@@ -65,6 +65,10 @@ async fn main() -> anyhow::Result<()> {
         .unwrap_or_else(|| PathBuf::from("runs").join(&a.run_id));
     let mut config = terl_learner::LearnerConfig::new(run, a.run_id, a.addr, a.num_actors, run_dir);
     config.tep_datasets = a.tep_dataset;
+    config.server_security = config
+        .run
+        .cluster
+        .server_security(terl_runtime::token_from_env())?;
     config.resume = a.resume;
     terl_learner::run(config, terl_runtime::shutdown_signal()).await
 }

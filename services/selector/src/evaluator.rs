@@ -48,6 +48,7 @@ pub(crate) fn run(config: &SelectorConfig, shared: &Shared, learner_addr: &str) 
         episodes_per_task: run.cluster.eval_episodes_per_task,
         variation_seed: run.variation_seed,
         threads: run.cluster.eval_threads,
+        batch: run.cluster.eval_envs_per_task,
     };
     let rt = match tokio::runtime::Builder::new_current_thread()
         .enable_all()
@@ -75,7 +76,8 @@ pub(crate) fn run(config: &SelectorConfig, shared: &Shared, learner_addr: &str) 
         let status = rt.block_on(async {
             tokio::time::timeout(Duration::from_secs(5), async {
                 if client.is_none() {
-                    client = Some(terl_wire::connect_learner(learner_addr).await?);
+                    let options = terl_wire::ClientOptions::secured(config.client_security.clone());
+                    client = Some(terl_wire::connect_learner_with(learner_addr, options).await?);
                 }
                 let c = client.as_mut().expect("connected above");
                 anyhow::Ok(c.status().await?)

@@ -502,9 +502,13 @@ pub async fn run(
         .into_iter()
         .map(str::to_owned)
         .collect();
-    let listener = terl_wire::bind(config.addr)
+    let listener = terl_wire::bind_secured(config.addr, &config.server_security)
         .await
         .with_context(|| format!("cannot listen on {}", config.addr))?;
+    let serve_options = terl_wire::ServeOptions {
+        security: config.server_security.clone(),
+        ..terl_wire::ServeOptions::default()
+    };
     let addr = listener.local_addr()?;
     let addr_file = terl_runtime::write_addr_file(&config.run_dir, "selector", addr)?;
     tracing::info!(%addr, file = %addr_file.display(), run_id = %config.run_id, "selector listening");
@@ -547,6 +551,7 @@ pub async fn run(
             };
             let options = terl_wire::ClientOptions {
                 max_message_bytes: config.run.cluster.max_message_bytes(),
+                security: config.client_security.clone(),
             };
             Some(tokio::spawn(terl_wire::follow_weights_with(
                 addr.clone(),
@@ -602,8 +607,13 @@ pub async fn run(
             _ = done_rx.wait_for(|done| *done) => tracing::warn!("episode receiver stopped"),
         }
     };
-    let served =
-        terl_wire::serve_selector(listener, Backend(Arc::clone(&shared)), stop_serving).await;
+    let served = terl_wire::serve_selector_with(
+        listener,
+        Backend(Arc::clone(&shared)),
+        stop_serving,
+        serve_options,
+    )
+    .await;
     shared.stop.store(true, Ordering::Relaxed);
     if let Some(f) = follower {
         f.abort();

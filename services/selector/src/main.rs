@@ -62,6 +62,9 @@ async fn main() -> anyhow::Result<()> {
     let mut config =
         terl_selector::SelectorConfig::new(run, a.run_id, a.addr, a.num_actors, run_dir);
     config.learner_addr = a.learner_addr;
+    let cluster = &config.run.cluster;
+    config.server_security = cluster.server_security(terl_runtime::token_from_env())?;
+    config.client_security = cluster.client_security(terl_runtime::token_from_env())?;
     config.resume = a.resume;
     terl_selector::run(config, terl_runtime::shutdown_signal()).await
 }

@@ -55,6 +55,11 @@ pub trait Task: Send + std::fmt::Debug {
     fn objects(&self, scene: &Scene, out: &mut [f64; 14]);
     /// Reward and success of the (clipped) observation and the action as given.
     fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], action: &[f32; ACT_DIM]) -> Eval;
+    /// Whether `evaluate` reads contacts or constraint forces: then every step ends with a
+    /// full `mj_forward`, as in Python, instead of the cheaper kinematics pass.
+    fn reads_contacts(&self) -> bool {
+        false
+    }
 }
 
 /// What [`Env::step`] returns.
@@ -261,8 +266,13 @@ impl Env {
         // Python calls mj_forward here. Observations and rewards read only poses (contact
         // forces feed only Python's `grasp_success` info, not reward or success), and
         // mj_forward changes no state the next mj_step uses, so the kinematics pass suffices;
-        // the parity traces check both claims on every task.
-        self.scene.sim.kinematics();
+        // the parity traces check both claims on every task. Tasks whose success reads
+        // contact forces (stick-push) get the full pass.
+        if self.task.reads_contacts() {
+            self.scene.sim.forward();
+        } else {
+            self.scene.sim.kinematics();
+        }
 
         let mut obs = [0.0; OBS_DIM];
         self.current_frame(&mut obs);

@@ -37,14 +37,43 @@ mod faucet_open;
 mod handle_press;
 mod lever_pull;
 mod peg_insert_side;
+mod peg_unplug_side;
+mod pick_out_of_hole;
 mod pick_place;
+mod pick_place_wall;
 mod plate_slide;
+mod plate_slide_back;
+mod plate_slide_back_side;
+mod plate_slide_side;
 mod push;
+mod push_back;
+mod push_wall;
 mod reach;
+mod reach_wall;
 mod shelf_place;
+mod soccer;
+mod stick_pull;
+mod stick_push;
+mod sweep;
 mod sweep_into;
 mod window_close;
 mod window_open;
+
+// MT50 tasks, part A.
+mod assembly;
+mod basketball;
+mod bin_picking;
+mod box_close;
+mod button_press_topdown_wall;
+mod button_press_wall;
+mod coffee_pull;
+mod coffee_push;
+mod disassemble;
+mod hammer;
+mod hand_insert;
+mod handle_press_side;
+mod handle_pull;
+mod handle_pull_side;
 
 /// A scripted policy: observation in, action out.
 pub type Policy = fn(&[f64; OBS_DIM]) -> [f32; ACT_DIM];
@@ -73,6 +102,37 @@ static POLICIES: &[(&str, Policy)] = &[
     ("sweep-into-v3", sweep_into::action),
     ("shelf-place-v3", shelf_place::action),
     ("lever-pull-v3", lever_pull::action),
+    // MT50 tasks, part A.
+    ("assembly-v3", assembly::action),
+    ("basketball-v3", basketball::action),
+    ("bin-picking-v3", bin_picking::action),
+    ("box-close-v3", box_close::action),
+    (
+        "button-press-topdown-wall-v3",
+        button_press_topdown_wall::action,
+    ),
+    ("button-press-wall-v3", button_press_wall::action),
+    ("coffee-pull-v3", coffee_pull::action),
+    ("coffee-push-v3", coffee_push::action),
+    ("disassemble-v3", disassemble::action),
+    ("hammer-v3", hammer::action),
+    ("hand-insert-v3", hand_insert::action),
+    ("handle-press-side-v3", handle_press_side::action),
+    ("handle-pull-side-v3", handle_pull_side::action),
+    ("handle-pull-v3", handle_pull::action),
+    ("peg-unplug-side-v3", peg_unplug_side::action),
+    ("pick-out-of-hole-v3", pick_out_of_hole::action),
+    ("pick-place-wall-v3", pick_place_wall::action),
+    ("plate-slide-back-v3", plate_slide_back::action),
+    ("plate-slide-back-side-v3", plate_slide_back_side::action),
+    ("plate-slide-side-v3", plate_slide_side::action),
+    ("push-back-v3", push_back::action),
+    ("push-wall-v3", push_wall::action),
+    ("reach-wall-v3", reach_wall::action),
+    ("soccer-v3", soccer::action),
+    ("stick-pull-v3", stick_pull::action),
+    ("stick-push-v3", stick_push::action),
+    ("sweep-v3", sweep::action),
 ];
 
 /// Tasks that have a scripted policy (whether or not the task itself is registered).
@@ -155,9 +215,9 @@ mod tests {
     fn lookup_accepts_short_names_and_rejects_unknown_tasks() {
         assert!(policy("reach").is_ok());
         assert!(policy("reach-v3").is_ok());
-        let err = policy("basketball-v3").unwrap_err().to_string();
+        let err = policy("juggle-v3").unwrap_err().to_string();
         assert!(
-            err.contains("basketball-v3") && err.contains("reach-v3"),
+            err.contains("juggle-v3") && err.contains("reach-v3"),
             "{err}"
         );
     }

@@ -30,6 +30,7 @@ const HANDLE_RADIUS: f64 = 0.02;
 
 #[derive(Debug)]
 struct HandlePress {
+    spec: &'static TaskSpec,
     box_body: usize,
     handle: usize,
     goal_site: usize,
@@ -38,7 +39,14 @@ struct HandlePress {
 }
 
 pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
+    build_with(scene, &SPEC)
+}
+
+/// The handle-press task with another layout (handle-press-side-v3: same reset, observation
+/// and reward, a sideways handle and other ranges).
+pub(super) fn build_with(scene: &Scene, spec: &'static TaskSpec) -> Result<Box<dyn Task>> {
     Ok(Box::new(HandlePress {
+        spec,
         box_body: scene.sim.body("box")?,
         handle: scene.sim.site("handleStart")?,
         goal_site: scene.sim.site("goalPress")?,
@@ -48,7 +56,7 @@ pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
 
 impl Task for HandlePress {
     fn spec(&self) -> &'static TaskSpec {
-        &SPEC
+        self.spec
     }
 
     fn reset_model(&mut self, scene: &mut Scene, rv: &[f64]) -> Result<()> {

@@ -6,10 +6,19 @@
 use super::{Scene, Task};
 use crate::error::{Result, SimError};
 
+mod assembly;
+mod basketball;
+mod bin_picking;
+mod box_close;
 mod button_press;
 mod button_press_topdown;
+mod button_press_topdown_wall;
+mod button_press_wall;
 mod coffee_button;
+mod coffee_pull;
+mod coffee_push;
 mod dial_turn;
+mod disassemble;
 mod door_close;
 mod door_lock;
 mod door_open;
@@ -18,14 +27,33 @@ mod drawer_close;
 mod drawer_open;
 mod faucet_close;
 mod faucet_open;
+mod hammer;
+mod hand_insert;
 mod handle_press;
+mod handle_press_side;
+mod handle_pull;
+mod handle_pull_side;
 mod lever_pull;
+mod pad_caging;
 mod peg_insert_side;
+mod peg_unplug_side;
+mod pick_out_of_hole;
 mod pick_place;
+mod pick_place_wall;
 mod plate_slide;
+mod plate_slide_back;
+mod plate_slide_back_side;
+mod plate_slide_side;
 mod push;
+mod push_back;
+mod push_wall;
 mod reach;
+mod reach_wall;
 mod shelf_place;
+mod soccer;
+mod stick_pull;
+mod stick_push;
+mod sweep;
 mod sweep_into;
 mod window_close;
 mod window_open;
@@ -87,30 +115,58 @@ macro_rules! registry {
     };
 }
 
+/// Every Meta-World v3 task, in Meta-World's order (`ALL_V3_ENVIRONMENTS`, which is also MT50's).
 static REGISTRY: &[Constructor] = registry![
-    reach,
-    push,
-    pick_place,
-    door_open,
-    drawer_open,
-    drawer_close,
+    assembly,
+    basketball,
+    bin_picking,
+    box_close,
     button_press_topdown,
-    peg_insert_side,
-    window_open,
-    window_close,
+    button_press_topdown_wall,
+    button_press,
+    button_press_wall,
+    coffee_button,
+    coffee_pull,
+    coffee_push,
+    dial_turn,
+    disassemble,
     door_close,
     door_lock,
+    door_open,
     door_unlock,
-    button_press,
-    coffee_button,
-    dial_turn,
+    hand_insert,
+    drawer_close,
+    drawer_open,
     faucet_open,
     faucet_close,
+    hammer,
+    handle_press_side,
     handle_press,
-    plate_slide,
-    sweep_into,
-    shelf_place,
+    handle_pull_side,
+    handle_pull,
     lever_pull,
+    pick_place_wall,
+    pick_out_of_hole,
+    pick_place,
+    plate_slide,
+    plate_slide_side,
+    plate_slide_back,
+    plate_slide_back_side,
+    peg_insert_side,
+    peg_unplug_side,
+    soccer,
+    stick_push,
+    stick_pull,
+    push,
+    push_wall,
+    push_back,
+    reach,
+    reach_wall,
+    shelf_place,
+    sweep_into,
+    sweep,
+    window_open,
+    window_close,
 ];
 
 /// Names of all implemented tasks.
@@ -135,6 +191,7 @@ pub fn constructor(name: &str) -> Result<Constructor> {
         })
 }
 
+/// Meta-World's MT10 (`MT10_V3`).
 const MT10: &[&str] = &[
     "reach-v3",
     "push-v3",
@@ -147,6 +204,8 @@ const MT10: &[&str] = &[
     "window-open-v3",
     "window-close-v3",
 ];
+/// The paper's MT20: MT10 followed by these ten tasks. Not a Meta-World benchmark (Meta-World
+/// 3.1.1 defines MT10, MT25 and MT50); the TERL paper chose it.
 const MT20_EXTRA: &[&str] = &[
     "door-close-v3",
     "door-lock-v3",
@@ -159,6 +218,84 @@ const MT20_EXTRA: &[&str] = &[
     "handle-press-v3",
     "plate-slide-v3",
 ];
+/// Meta-World's ML10 meta-training tasks (`ML10_V3["train"]`).
+const ML10_TRAIN: &[&str] = &[
+    "reach-v3",
+    "push-v3",
+    "pick-place-v3",
+    "door-open-v3",
+    "drawer-close-v3",
+    "button-press-topdown-v3",
+    "peg-insert-side-v3",
+    "window-open-v3",
+    "sweep-v3",
+    "basketball-v3",
+];
+/// Meta-World's ML10 meta-test tasks (`ML10_V3["test"]`).
+const ML10_TEST: &[&str] = &[
+    "drawer-open-v3",
+    "door-close-v3",
+    "shelf-place-v3",
+    "sweep-into-v3",
+    "lever-pull-v3",
+];
+/// Meta-World's ML45 meta-training tasks (`ML45_V3["train"]`).
+const ML45_TRAIN: &[&str] = &[
+    "assembly-v3",
+    "basketball-v3",
+    "button-press-topdown-v3",
+    "button-press-topdown-wall-v3",
+    "button-press-v3",
+    "button-press-wall-v3",
+    "coffee-button-v3",
+    "coffee-pull-v3",
+    "coffee-push-v3",
+    "dial-turn-v3",
+    "disassemble-v3",
+    "door-close-v3",
+    "door-open-v3",
+    "drawer-close-v3",
+    "drawer-open-v3",
+    "faucet-open-v3",
+    "faucet-close-v3",
+    "hammer-v3",
+    "handle-press-side-v3",
+    "handle-press-v3",
+    "handle-pull-side-v3",
+    "handle-pull-v3",
+    "lever-pull-v3",
+    "pick-place-wall-v3",
+    "pick-out-of-hole-v3",
+    "push-back-v3",
+    "pick-place-v3",
+    "plate-slide-v3",
+    "plate-slide-side-v3",
+    "plate-slide-back-v3",
+    "plate-slide-back-side-v3",
+    "peg-insert-side-v3",
+    "peg-unplug-side-v3",
+    "soccer-v3",
+    "stick-push-v3",
+    "stick-pull-v3",
+    "push-wall-v3",
+    "push-v3",
+    "reach-wall-v3",
+    "reach-v3",
+    "shelf-place-v3",
+    "sweep-into-v3",
+    "sweep-v3",
+    "window-open-v3",
+    "window-close-v3",
+];
+/// Meta-World's ML45 meta-test tasks (`ML45_V3["test"]`).
+const ML45_TEST: &[&str] = &[
+    "bin-picking-v3",
+    "box-close-v3",
+    "hand-insert-v3",
+    "door-lock-v3",
+    "door-unlock-v3",
+];
+/// The paper's MT1-Ind: each task trained alone.
 const MT1_IND: &[&str] = &[
     "door-open-v3",
     "button-press-v3",
@@ -166,6 +303,7 @@ const MT1_IND: &[&str] = &[
     "window-open-v3",
     "sweep-into-v3",
 ];
+/// The paper's MT-Test: zero-shot evaluation of an MT10 policy.
 const MT_TEST: &[&str] = &[
     "door-close-v3",
     "sweep-into-v3",
@@ -173,20 +311,44 @@ const MT_TEST: &[&str] = &[
     "lever-pull-v3",
 ];
 
-/// Task sets of the paper: `mt1-ind` (each task trained alone), `mt10`, `mt20`, `mt-test`
-/// (zero-shot evaluation).
+/// Names of the task sets, Meta-World's benchmarks first, each as Meta-World 3.1.1 defines it
+/// (`metaworld/env_dict.py`):
+/// - `mt10`, `mt50` (all 50 tasks, in Meta-World's order);
+/// - `ml10-train`/`ml10-test` and `ml45-train`/`ml45-test`: the meta-learning benchmarks'
+///   training and held-out tasks (trained here as multi-task sets, or evaluated zero-shot);
+///
+/// then the paper's:
+/// - `mt20`: MT10 and ten more tasks, the paper's choice (not a Meta-World benchmark);
+/// - `mt1-ind`: five tasks, each trained alone;
+/// - `mt-test`: four tasks for zero-shot evaluation of an MT10 policy.
 pub fn task_set_names() -> &'static [&'static str] {
-    &["mt1-ind", "mt10", "mt20", "mt-test"]
+    &[
+        "mt10",
+        "mt50",
+        "ml10-train",
+        "ml10-test",
+        "ml45-train",
+        "ml45-test",
+        "mt20",
+        "mt1-ind",
+        "mt-test",
+    ]
 }
 
-/// Tasks of a set, or a single task name as a one-task set.
+/// Tasks of a set (see [`task_set_names`]; `_` works for `-`, case does not matter), or a
+/// single task name as a one-task set.
 pub fn task_set(name: &str) -> Result<Vec<&'static str>> {
-    let lower = name.to_ascii_lowercase();
+    let lower = name.to_ascii_lowercase().replace('_', "-");
     let set: Vec<&'static str> = match lower.as_str() {
-        "mt1-ind" | "mt1_ind" => MT1_IND.to_vec(),
         "mt10" => MT10.to_vec(),
+        "mt50" => task_names(),
+        "ml10-train" => ML10_TRAIN.to_vec(),
+        "ml10-test" => ML10_TEST.to_vec(),
+        "ml45-train" => ML45_TRAIN.to_vec(),
+        "ml45-test" => ML45_TEST.to_vec(),
         "mt20" => MT10.iter().chain(MT20_EXTRA).copied().collect(),
-        "mt-test" | "mt_test" => MT_TEST.to_vec(),
+        "mt1-ind" => MT1_IND.to_vec(),
+        "mt-test" => MT_TEST.to_vec(),
         _ => {
             return constructor(name).map(|c| vec![c.spec.name]).map_err(|_| {
                 SimError::UnknownTaskSet {

@@ -22,12 +22,20 @@ pub const SPEC: TaskSpec = TaskSpec {
 
 #[derive(Debug)]
 struct Reach {
+    spec: &'static TaskSpec,
     obj: usize,
     obj_geom: usize,
 }
 
 pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
+    build_with(scene, &SPEC)
+}
+
+/// The reach task with another layout (reach-wall-v3: same reset, observation and reward,
+/// another model and ranges).
+pub(super) fn build_with(scene: &Scene, spec: &'static TaskSpec) -> Result<Box<dyn Task>> {
     Ok(Box::new(Reach {
+        spec,
         obj: scene.sim.body("obj")?,
         obj_geom: scene.sim.geom("objGeom")?,
     }))
@@ -35,7 +43,7 @@ pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
 
 impl Task for Reach {
     fn spec(&self) -> &'static TaskSpec {
-        &SPEC
+        self.spec
     }
 
     fn reset_model(&mut self, scene: &mut Scene, rv: &[f64]) -> Result<()> {

@@ -1,0 +1,21 @@
+//! `SawyerHandlePullV3Policy`: in front of the handle, level with it, then pull up.
+
+use super::{act, add, hand, object, xy_dist, V3};
+use crate::metaworld::{ACT_DIM, OBS_DIM};
+
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+    let hand = hand(obs);
+    act(hand, desired_pos(hand, object(obs)), 25.0, 1.0)
+}
+
+fn desired_pos(hand: V3, handle: V3) -> V3 {
+    let handle = add(handle, [0.0, -0.04, 0.0]);
+    if xy_dist(hand, handle) > 0.02 {
+        handle
+    } else if (hand[2] - handle[2]).abs() > 0.02 {
+        // Python returns the scalar height here, which NumPy broadcasts to all three axes.
+        [handle[2]; 3]
+    } else {
+        add(handle, [0.0, 0.0, 0.1])
+    }
+}

@@ -1,0 +1,37 @@
+//! `SawyerPickOutOfHoleV3Policy`: above the peg, down, grip lightly, up to the goal's height,
+//! then to the goal.
+
+use super::{act, add, goal, hand, object, xy_dist, V3};
+use crate::metaworld::{ACT_DIM, OBS_DIM};
+
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+    let (hand, puck) = (hand(obs), object(obs));
+    act(
+        hand,
+        desired_pos(hand, puck, goal(obs)),
+        25.0,
+        grab_effort(hand, puck),
+    )
+}
+
+fn desired_pos(hand: V3, puck: V3, goal: V3) -> V3 {
+    let puck = add(puck, [0.0, 0.0, 0.02]);
+    if xy_dist(hand, puck) > 0.02 {
+        add(puck, [0.0, 0.0, 0.15])
+    } else if (hand[2] - puck[2]).abs() > 0.01 {
+        puck
+    } else if (hand[2] - goal[2]).abs() > 0.04 {
+        [hand[0], hand[1], goal[2]]
+    } else {
+        goal
+    }
+}
+
+fn grab_effort(hand: V3, puck: V3) -> f64 {
+    let puck = add(puck, [0.0, 0.0, 0.02]);
+    if xy_dist(hand, puck) > 0.02 || (hand[2] - puck[2]).abs() > 0.15 {
+        0.0
+    } else {
+        0.1
+    }
+}

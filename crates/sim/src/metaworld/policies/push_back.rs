@@ -1,0 +1,33 @@
+//! `SawyerPushBackV3Policy`: above the puck, down onto it, close the gripper halfway and pull
+//! it to the goal at the hand's height.
+
+use super::{act, add, goal, hand, object, xy_dist, V3};
+use crate::metaworld::{ACT_DIM, OBS_DIM};
+
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+    let (hand, puck) = (hand(obs), object(obs));
+    act(
+        hand,
+        desired_pos(hand, puck, goal(obs)),
+        10.0,
+        grab_effort(hand, puck),
+    )
+}
+
+fn desired_pos(hand: V3, puck: V3, goal: V3) -> V3 {
+    if xy_dist(hand, puck) > 0.04 {
+        add(puck, [0.0, 0.0, 0.3])
+    } else if (hand[2] - puck[2]).abs() > 0.055 {
+        puck
+    } else {
+        add(goal, [0.0, 0.0, hand[2]])
+    }
+}
+
+fn grab_effort(hand: V3, puck: V3) -> f64 {
+    if xy_dist(hand, puck) > 0.04 || (hand[2] - puck[2]).abs() > 0.05 {
+        0.0
+    } else {
+        0.9
+    }
+}
