@@ -7,9 +7,19 @@
 #   XML/STL assets into assets/metaworld;
 # - records what it did in .deps/setup.done so a re-run is instant and works offline.
 #
+# - creates the Python environments the tests use (.deps/grpc-venv, .deps/mcap-venv,
+#   .deps/k8s-venv); `--no-test-tools` skips them (the container image's build stage).
+#
 # Nothing else is needed: the sim crate bakes the absolute path of .deps/mujoco/lib into every
 # binary it builds (override at run time with TERL_MUJOCO_LIB=/path/to/libmujoco.so).
 set -euo pipefail
+test_tools=1
+for arg in "$@"; do
+    case "$arg" in
+        --no-test-tools) test_tools=0 ;;
+        *) echo "usage: $0 [--no-test-tools]" >&2; exit 2 ;;
+    esac
+done
 
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 DEPS="$ROOT/.deps"
@@ -84,7 +94,20 @@ setup_mcap_venv() {
         || die "creating .deps/mcap-venv failed" "re-run crates/telemetry/tests/python/setup-venv.sh and read its output"
 }
 
-[ "$have_all" = 1 ] && { say "already set up ($STAMP_CONTENT)"; setup_grpc_venv; setup_mcap_venv; exit 0; }
+setup_k8s_venv() {
+    python3 -c "import ensurepip, venv" 2>/dev/null || apt_install python3-venv
+    "$ROOT/deploy/k8s/setup-validator.sh" >&2 \
+        || die "creating .deps/k8s-venv failed" "re-run deploy/k8s/setup-validator.sh and read its output"
+}
+
+setup_test_tools() {
+    [ "$test_tools" = 1 ] || return 0
+    setup_grpc_venv
+    setup_mcap_venv
+    setup_k8s_venv
+}
+
+[ "$have_all" = 1 ] && { say "already set up ($STAMP_CONTENT)"; setup_test_tools; exit 0; }
 
 # ---------------------------------------------------------------- wheels
 python3 -m pip --version >/dev/null 2>&1 || die "python3 has no pip" "install python3-pip (apt-get install python3-pip)"
@@ -137,6 +160,5 @@ mv "$ROOT/assets/metaworld.tmp" "$ROOT/assets/metaworld"
 echo "$STAMP_CONTENT" >"$STAMP"
 say "done: libmujoco in .deps/mujoco/lib, Meta-World assets in assets/metaworld"
 
-# gRPC interop client and MCAP reader venvs (see setup_grpc_venv and setup_mcap_venv above).
-setup_grpc_venv
-setup_mcap_venv
+# gRPC interop client, MCAP reader and Kubernetes validator venvs (see setup_test_tools above).
+setup_test_tools

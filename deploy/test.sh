@@ -20,6 +20,9 @@ cargo fmt --all -- --check
 say "cargo clippy (all targets, warnings are errors)"
 cargo clippy --workspace --all-targets --release -- -D warnings
 
+say "Kubernetes manifests (deploy/k8s) against the API's schemas"
+"$ROOT/.deps/k8s-venv/bin/kubernetes-validate" --strict --quiet "$ROOT"/deploy/k8s/*.yaml
+
 say "tests (release)"
 if cargo nextest --version >/dev/null 2>&1; then
     cargo nextest run --workspace --release --no-fail-fast "$@"

@@ -144,6 +144,16 @@ pub fn exit_with_parent(parent: u32) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// This machine's host name (`gethostname(2)`; in Kubernetes the pod's name), or `"unknown"`
+/// where the kernel gives none. Actors report it to the learner, which shows it in status.
+pub fn host_name() -> String {
+    nix::unistd::gethostname()
+        .ok()
+        .map(|h| h.to_string_lossy().into_owned())
+        .filter(|h| !h.is_empty())
+        .unwrap_or_else(|| "unknown".to_owned())
+}
+
 /// Initialises `tracing` for a service binary: `RUST_LOG` or `info`, to stderr (colours only on
 /// a terminal).
 pub fn init_tracing() {

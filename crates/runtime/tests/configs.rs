@@ -159,3 +159,30 @@ fn mt50_runs_every_task_with_the_reference_mtsac_settings() {
         small.train.total_env_steps / 10
     );
 }
+
+/// The run file inside the Kubernetes ConfigMap (deploy/k8s/run.yaml, key `run.toml`, a YAML
+/// block scalar indented by four spaces) loads, runs over Zenoh as a client of the
+/// `terl-zenoh` router, and is MT10's run file in every other key.
+#[test]
+fn the_kubernetes_run_file_is_mt10_over_zenoh_through_the_router() {
+    let yaml = std::fs::read_to_string(configs_dir().join("../k8s/run.yaml")).unwrap();
+    let body: Vec<&str> = yaml
+        .lines()
+        .skip_while(|l| l.trim() != "run.toml: |")
+        .skip(1)
+        .take_while(|l| l.is_empty() || l.starts_with("    "))
+        .map(|l| l.strip_prefix("    ").unwrap_or(l))
+        .collect();
+    assert!(body.len() > 10, "no run.toml block in deploy/k8s/run.yaml");
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.toml");
+    std::fs::write(&path, body.join("\n")).unwrap();
+    let k8s = RunConfig::load(&path).unwrap_or_else(|e| panic!("run.toml of run.yaml: {e:#}"));
+    assert_eq!(k8s.cluster.transport, terl_transport::TransportKind::Zenoh);
+    assert_eq!(k8s.cluster.zenoh.mode, terl_transport::ZenohMode::Client);
+    assert_eq!(k8s.cluster.zenoh.connect, ["tcp/terl-zenoh:7447"]);
+    let mut as_shm = k8s.clone();
+    as_shm.cluster.transport = Default::default();
+    as_shm.cluster.zenoh = Default::default();
+    assert_eq!(format!("{as_shm:?}"), format!("{:?}", load("mt10.toml")));
+}

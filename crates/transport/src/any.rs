@@ -19,7 +19,7 @@ pub enum RunTransport {
 /// An actor id held by this process (see [`RunTransport::claim_actor_id`]).
 #[derive(Debug)]
 pub enum ActorClaim {
-    Shm(SenderClaim),
+    Shm(Box<SenderClaim>),
     Zenoh(ZenohClaim),
 }
 
@@ -44,9 +44,19 @@ impl RunTransport {
     /// [`TransportError::IdInUse`] while another live process holds it.
     pub fn claim_actor_id(&self, actor_id: u16) -> Result<ActorClaim, TransportError> {
         Ok(match self {
-            Self::Shm(t) => ActorClaim::Shm(t.claim_actor_id(actor_id)?),
+            Self::Shm(t) => ActorClaim::Shm(Box::new(t.claim_actor_id(actor_id)?)),
             Self::Zenoh(t) => ActorClaim::Zenoh(t.claim_actor_id(actor_id)?),
         })
+    }
+
+    /// Removes the resources dead processes left (shared memory: iceoryx2's dead-node
+    /// cleanup, e.g. the subscription of a learner killed with SIGKILL). Zenoh: nothing to do
+    /// (a dead process's liveliness tokens vanish with its session).
+    pub fn cleanup_dead_nodes(&self) -> crate::StaleCleanup {
+        match self {
+            Self::Shm(t) => t.cleanup_dead_nodes(),
+            Self::Zenoh(_) => crate::StaleCleanup::default(),
+        }
     }
 
     /// Sleeps for `cycle`; `false` when the process should stop (shared memory: iceoryx2's

@@ -231,6 +231,169 @@ pub fn throughput(
     })
 }
 
+/// What the publishing half of a cross-host measurement ([`zenoh_publish`]) sent.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PublishReport {
+    pub batches_sent: u64,
+    /// Sends that met a full receiver and waited (back-pressure, not loss).
+    pub full_events: u64,
+}
+
+fn remote_config(run_id: &str, publishers: usize, zenoh: ZenohConfig) -> TransportConfig {
+    TransportConfig {
+        overflow: OverflowPolicy::Block,
+        buffer_batches: 64,
+        transport: TransportKind::Zenoh,
+        zenoh,
+        ..TransportConfig::new(run_id, publishers)
+    }
+}
+
+/// Publishing half of a measurement between hosts (network namespaces in `terl bench
+/// transport --netns`): `publishers` threads, each with its own Zenoh client session connected
+/// to `connect` (the receiver's endpoint), send full batches for `seconds` under `Block`.
+///
+/// # Errors
+/// A session that cannot open or a receiver that does not appear within 10 s.
+pub fn zenoh_publish(
+    connect: &str,
+    run_id: &str,
+    publishers: usize,
+    seconds: f64,
+) -> Result<PublishReport, TransportError> {
+    let config = remote_config(
+        run_id,
+        publishers,
+        ZenohConfig {
+            mode: crate::ZenohMode::Client,
+            connect: vec![connect.to_owned()],
+            ..ZenohConfig::default()
+        },
+    );
+    let duration = Duration::from_secs_f64(seconds);
+    let ready = Barrier::new(publishers);
+    std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..publishers)
+            .map(|actor| {
+                let (config, ready) = (&config, &ready);
+                scope.spawn(move || -> Result<PublishReport, TransportError> {
+                    let opened = (|| {
+                        let transport =
+                            RunTransport::open(config.clone(), &format!("bench-actor-{actor}"))?;
+                        let sink = transport.sink::<TransitionBatch>()?;
+                        sink.wait_for_receivers(1, Duration::from_secs(10))?;
+                        Ok((transport, sink))
+                    })();
+                    ready.wait();
+                    let (_transport, mut sink) = opened?;
+                    let mut batch = filled_batch(actor as u16);
+                    let start = Instant::now();
+                    let mut sent = 0u64;
+                    while start.elapsed() < duration {
+                        batch.sequence = sent;
+                        sink.send(&batch)?;
+                        sent += 1;
+                    }
+                    Ok(PublishReport {
+                        batches_sent: sent,
+                        full_events: sink.stats().full_events,
+                    })
+                })
+            })
+            .collect();
+        let mut total = PublishReport {
+            batches_sent: 0,
+            full_events: 0,
+        };
+        for handle in handles {
+            let r = handle.join().expect("bench publisher panicked")?;
+            total.batches_sent += r.batches_sent;
+            total.full_events += r.full_events;
+        }
+        Ok(total)
+    })
+}
+
+/// Receiving half of a measurement between hosts: a Zenoh peer listening on `listen` takes
+/// batches from `publishers` remote publishers ([`zenoh_publish`]) until `publisher_done`
+/// returns what they sent and nothing more has arrived for 500 ms. `publisher_done` is first
+/// called once the session listens (start the publishers there) and then polled. The rate is over the span
+/// from the first to the last batch received; loss is sent minus received.
+///
+/// # Errors
+/// A session that cannot open, or `publisher_done` failing (the publishing process failed).
+pub fn zenoh_receive(
+    listen: &str,
+    run_id: &str,
+    publishers: usize,
+    label: &str,
+    mut publisher_done: impl FnMut() -> Result<Option<PublishReport>, TransportError>,
+) -> Result<ShmBenchReport, TransportError> {
+    let config = remote_config(
+        run_id,
+        publishers,
+        ZenohConfig {
+            listen: vec![listen.to_owned()],
+            ..ZenohConfig::default()
+        },
+    );
+    let learner = RunTransport::open(config, "bench-learner")?;
+    let mut source = learner.source::<TransitionBatch>()?;
+    let mut out = TransitionBatch::empty();
+    let mut next_seq = vec![0u64; publishers];
+    let (mut received, mut transitions, mut out_of_order) = (0u64, 0u64, 0u64);
+    let (mut first, mut last) = (None::<Instant>, Instant::now());
+    let mut done: Option<(PublishReport, Instant)> = None;
+    loop {
+        if source.try_receive_into(&mut out)? {
+            let now = Instant::now();
+            first.get_or_insert(now);
+            last = now;
+            received += 1;
+            transitions += u64::from(out.len);
+            let expected = &mut next_seq[out.actor_id as usize % publishers];
+            if out.sequence != *expected {
+                out_of_order += 1;
+            }
+            *expected = out.sequence + 1;
+            continue;
+        }
+        match &done {
+            None => {
+                if let Some(report) = publisher_done()? {
+                    done = Some((report, Instant::now()));
+                }
+                std::thread::sleep(Duration::from_micros(50));
+            }
+            Some((_, at)) if at.elapsed() > DRAIN_QUIET && last.elapsed() > DRAIN_QUIET => break,
+            Some(_) => std::thread::yield_now(),
+        }
+    }
+    let (sent, _) = done.expect("loop ends after the publishers");
+    let secs = first.map_or(0.0, |f| last.duration_since(f).as_secs_f64());
+    let per_sec = if secs > 0.0 {
+        transitions as f64 / secs
+    } else {
+        0.0
+    };
+    Ok(ShmBenchReport {
+        transport: label.to_owned(),
+        publishers,
+        obs_dim: OBS_DIM,
+        transitions_per_batch: TRANSITIONS_PER_BATCH,
+        transition_bytes: core::mem::size_of::<Transition>(),
+        seconds: secs,
+        batches_sent: sent.batches_sent,
+        batches_received: received,
+        transitions_received: transitions,
+        lost_batches: sent.batches_sent.saturating_sub(received),
+        out_of_order,
+        full_events: sent.full_events,
+        transitions_per_sec: per_sec,
+        gigabytes_per_sec: per_sec * core::mem::size_of::<Transition>() as f64 / 1e9,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -249,6 +412,37 @@ mod tests {
             let json = serde_json::to_string(&r).unwrap();
             assert!(json.contains("\"transitions_per_sec\""));
         }
+    }
+
+    /// The two halves of a cross-host measurement, here in two threads on loopback: every
+    /// batch the publishers sent is received, in order.
+    #[test]
+    fn remote_halves_count_every_batch() {
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        let endpoint = format!("tcp/127.0.0.1:{port}");
+        let run = format!("bench-halves-{}", std::process::id());
+        // The publishers start once the receiver listens (its first call of the callback),
+        // as `terl bench transport --netns` starts its publishing process.
+        let mut publisher = None;
+        let r = zenoh_receive(&endpoint, &run, 2, "zenoh-test", || {
+            let handle = publisher.get_or_insert_with(|| {
+                let (endpoint, run) = (endpoint.clone(), run.clone());
+                std::thread::spawn(move || zenoh_publish(&endpoint, &run, 2, 0.3))
+            });
+            if handle.is_finished() {
+                let handle = publisher.take().unwrap();
+                return handle.join().unwrap().map(Some);
+            }
+            Ok(None)
+        })
+        .unwrap();
+        assert!(r.batches_sent > 0);
+        assert_eq!((r.lost_batches, r.out_of_order), (0, 0), "{r:?}");
+        assert_eq!(r.batches_received, r.batches_sent, "{r:?}");
     }
 
     #[test]

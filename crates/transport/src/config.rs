@@ -64,6 +64,10 @@ pub enum ZenohMode {
     Peer,
     /// Connects only to the router or peer in `connect`; everything goes through it.
     Client,
+    /// Routes between the clients and peers that connect to it (`terl zenoh-router`, or a
+    /// process of the run itself); listens on `listen` (Zenoh's default `tcp/[::]:7447` if
+    /// empty).
+    Router,
 }
 
 /// The Zenoh session of one process: how it finds the others.

@@ -44,4 +44,4 @@ pub use flow::{
 pub use ipc::{SenderClaim, ShmSink, ShmSource, ShmTransport, StaleCleanup};
 pub use memory::MemoryTransport;
 pub use selector_to_learner::{SelectedBatch, SelectedSample, SELECTED_PER_BATCH};
-pub use zenoh_net::{ZenohClaim, ZenohSink, ZenohSource, ZenohTransport};
+pub use zenoh_net::{ZenohClaim, ZenohRouter, ZenohSink, ZenohSource, ZenohTransport};

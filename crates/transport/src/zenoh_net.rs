@@ -55,7 +55,7 @@ use zenoh::sample::SampleKind;
 use zenoh::{Session, Wait};
 
 use crate::channel::{Message, MessageSink, MessageSource, Transport};
-use crate::config::{TransportConfig, ZenohMode};
+use crate::config::{TransportConfig, ZenohConfig, ZenohMode};
 use crate::error::TransportError;
 use crate::flow::{OverflowPolicy, SendOutcome, StatsSnapshot, TransportStats};
 
@@ -126,6 +126,7 @@ impl ZenohTransport {
         let mode = match z.mode {
             ZenohMode::Peer => "peer",
             ZenohMode::Client => "client",
+            ZenohMode::Router => "router",
         };
         for (key, value) in [
             ("mode", json(&mode)),
@@ -451,6 +452,53 @@ impl Transport for ZenohTransport {
 
     fn cancel_blocked_sends(&self) {
         self.cancel.store(true, Ordering::Relaxed);
+    }
+}
+
+/// A Zenoh router for a cluster whose processes run in `client` mode (`terl zenoh-router`,
+/// the Kubernetes manifests' `terl-zenoh`): Zenoh's own router, with the session settings of
+/// [`ZenohConfig`] (mode forced to `router`; multicast scouting as configured). Routes every
+/// run's keys; it keeps no state of its own, so restarting it only interrupts the streams
+/// (losses counted by the senders and receivers as for a link outage). Stops when dropped.
+pub struct ZenohRouter {
+    session: Session,
+}
+
+impl core::fmt::Debug for ZenohRouter {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("ZenohRouter")
+            .field("zid", &self.session.zid())
+            .finish()
+    }
+}
+
+impl ZenohRouter {
+    /// Opens the router session, listening on `config.listen`.
+    ///
+    /// # Errors
+    /// [`TransportError::Config`] for a malformed endpoint; [`TransportError::Zenoh`] when Zenoh
+    /// cannot open the session (e.g. the port is taken).
+    pub fn open(config: &ZenohConfig) -> Result<Self, TransportError> {
+        let config = ZenohConfig {
+            mode: ZenohMode::Router,
+            ..config.clone()
+        };
+        let transport = ZenohTransport::open(
+            TransportConfig {
+                zenoh: config,
+                transport: crate::TransportKind::Zenoh,
+                ..TransportConfig::new("router", 1)
+            },
+            "router",
+        )?;
+        Ok(Self {
+            session: transport.session,
+        })
+    }
+
+    /// The underlying session (e.g. to read its id or peers).
+    pub fn session(&self) -> &Session {
+        &self.session
     }
 }
 

@@ -46,6 +46,76 @@ impl Mesh {
     }
 }
 
+/// Opens sessions like the processes of a cluster behind a Zenoh router (the Kubernetes
+/// layout): the first call starts the router, every session is a client connected to it.
+#[derive(Default)]
+struct Star {
+    router: Mutex<Option<(String, ZenohRouter)>>,
+}
+
+impl Star {
+    fn make(&self) -> impl Fn(&TransportConfig, &str) -> ZenohTransport + Sync + '_ {
+        move |cfg, role| {
+            let endpoint = {
+                let mut router = self.router.lock().unwrap();
+                let (endpoint, _) = router.get_or_insert_with(|| {
+                    let listen = format!("tcp/127.0.0.1:{}", free_port());
+                    let r = ZenohRouter::open(&ZenohConfig {
+                        listen: vec![listen.clone()],
+                        ..ZenohConfig::default()
+                    })
+                    .unwrap();
+                    (listen, r)
+                });
+                endpoint.clone()
+            };
+            let cfg = TransportConfig {
+                zenoh: ZenohConfig {
+                    mode: ZenohMode::Client,
+                    listen: vec![],
+                    connect: vec![endpoint],
+                    multicast_scouting: false,
+                },
+                ..cfg.clone()
+            };
+            ZenohTransport::open(cfg, role).unwrap()
+        }
+    }
+}
+
+#[test]
+fn through_a_router_one_to_one() {
+    one_to_one_in_order(&Star::default().make(), &unique_run("r-one"));
+}
+
+#[test]
+fn through_a_router_many_publishers() {
+    many_publishers_block_zero_loss(&Star::default().make(), &unique_run("r-many"));
+}
+
+#[test]
+fn through_a_router_block_timeouts_are_counted() {
+    block_timeouts_are_counted_and_reported(&Star::default().make(), &unique_run("r-lost"));
+}
+
+#[test]
+fn through_a_router_episodes_and_selected() {
+    episodes_broadcast_and_selected_flow(&Star::default().make(), &unique_run("r-eps"));
+}
+
+#[test]
+fn through_a_router_limits_and_claims() {
+    let star = Star::default();
+    limits_are_enforced(&star.make(), &unique_run("r-lim"));
+    let make = star.make();
+    let cfg = TransportConfig::new(unique_run("r-claim"), 4);
+    let first = make(&cfg, "actor-2");
+    let _claim = first.claim_actor_id(2).unwrap();
+    let second = make(&cfg, "actor-2");
+    let err = second.claim_actor_id(2).unwrap_err();
+    assert!(matches!(err, TransportError::IdInUse { .. }), "{err}");
+}
+
 #[test]
 fn one_to_one() {
     one_to_one_in_order(&Mesh::default().make(), &unique_run("one"));

@@ -241,7 +241,10 @@ pub struct BroadcastReport {
     pub meets_floor: bool,
 }
 
-struct HubOnly(WeightHub);
+/// A learner backend that only publishes weights (for weight-broadcast benchmarks): status is
+/// empty and checkpoints are refused.
+#[derive(Debug, Clone)]
+pub struct HubOnly(pub WeightHub);
 
 impl LearnerBackend for HubOnly {
     async fn status(&self) -> Result<LearnerStatus, Status> {
@@ -367,8 +370,13 @@ pub async fn broadcast_latency_async(
     })
 }
 
+/// Bytes of `weights` as one `WeightsUpdate` message on the wire.
+pub fn encoded_len(weights: &Weights) -> usize {
+    prost::Message::encoded_len(&pb::WeightsUpdate::from(weights))
+}
+
 /// Nearest-rank percentile of sorted values (0 for none).
-fn percentile(sorted: &[f64], q: f64) -> f64 {
+pub fn percentile(sorted: &[f64], q: f64) -> f64 {
     if sorted.is_empty() {
         return 0.0;
     }

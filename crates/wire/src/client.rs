@@ -54,6 +54,18 @@ pub struct ClientOptions {
     pub max_message_bytes: usize,
     /// Token sent on every call and TLS trust (default: neither).
     pub security: ClientSecurity,
+    /// Who follows the weights, for the learner's status: an actor's id and host name
+    /// ([`LearnerClient::watch_weights`] sends them; `None` for other clients).
+    pub watcher: Option<Watcher>,
+}
+
+/// An actor naming itself when it subscribes to the weights; the learner lists its host and
+/// address beside its stats (`terl status`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Watcher {
+    pub actor_id: u32,
+    /// At most [`crate::status::MAX_HOST_BYTES`] bytes (longer names are cut).
+    pub host: String,
 }
 
 impl Default for ClientOptions {
@@ -61,6 +73,7 @@ impl Default for ClientOptions {
         Self {
             max_message_bytes: DEFAULT_MAX_MESSAGE_BYTES,
             security: ClientSecurity::default(),
+            watcher: None,
         }
     }
 }
@@ -140,7 +153,10 @@ pub async fn connect_learner_with(
     let raw = RawLearnerClient::new(channel(addr, &options.security).await?)
         .max_decoding_message_size(options.max_message_bytes)
         .max_encoding_message_size(options.max_message_bytes);
-    Ok(LearnerClient { raw })
+    Ok(LearnerClient {
+        raw,
+        watcher: options.watcher,
+    })
 }
 
 /// Connects to a selector at `addr`.
@@ -163,6 +179,7 @@ pub async fn connect_selector_with(
 #[derive(Debug, Clone)]
 pub struct LearnerClient {
     raw: RawLearnerClient<SecuredChannel>,
+    watcher: Option<Watcher>,
 }
 
 impl LearnerClient {
@@ -173,12 +190,19 @@ impl LearnerClient {
 
     /// Subscribes to the given kinds (empty = all). The first items are the current version of
     /// each kind that has one; then every version the subscriber keeps up with (latest wins).
+    /// Names the actor of [`ClientOptions::watcher`], if any, to the learner.
     pub async fn watch_weights(&mut self, kinds: &[WeightsKind]) -> Result<WeightsStream, Status> {
         let request = pb::WatchWeightsRequest {
             kinds: kinds
                 .iter()
                 .map(|&k| pb::WeightsKind::from(k) as i32)
                 .collect(),
+            actor_id: self.watcher.as_ref().map(|w| w.actor_id),
+            host: self
+                .watcher
+                .as_ref()
+                .map(|w| cut_to_bytes(&w.host, crate::status::MAX_HOST_BYTES))
+                .unwrap_or_default(),
         };
         let stream = self.raw.watch_weights(request).await?.into_inner();
         Ok(Box::pin(
@@ -202,6 +226,15 @@ impl LearnerClient {
     pub fn raw(&mut self) -> &mut RawLearnerClient<SecuredChannel> {
         &mut self.raw
     }
+}
+
+/// `s` cut at a character boundary to at most `max` bytes.
+fn cut_to_bytes(s: &str, max: usize) -> String {
+    let mut end = s.len().min(max);
+    while !s.is_char_boundary(end) {
+        end -= 1;
+    }
+    s[..end].to_owned()
 }
 
 /// A `terl.v1.Selector` client.

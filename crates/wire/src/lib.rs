@@ -33,7 +33,7 @@ pub mod pb {
 pub use client::{
     connect_learner, connect_learner_with, connect_selector, connect_selector_with, follow_weights,
     follow_weights_with, ClientOptions, ConnectError, LearnerClient, SecuredChannel,
-    SelectorClient, WeightsStream,
+    SelectorClient, Watcher, WeightsStream,
 };
 pub use dataset::{EpisodeSummary, Metric, TepSample, ACTION_DIM, OBS_DIM};
 pub use hub::{PublishError, WeightHub};

@@ -7,11 +7,11 @@
 //! health turns NOT_SERVING, open `WatchWeights` streams end cleanly, and in-flight unary calls
 //! finish before the function returns.
 
-use std::collections::VecDeque;
+use std::collections::{HashMap, VecDeque};
 use std::future::Future;
 use std::net::SocketAddr;
 use std::pin::Pin;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use futures_util::Stream;
@@ -187,6 +187,8 @@ impl From<CheckpointSaved> for pb::SaveCheckpointResponse {
 pub struct LearnerService<B> {
     backend: Arc<B>,
     shutdown: watch::Receiver<bool>,
+    /// Actor id → (host name, peer address) of the latest `WatchWeights` call naming that actor.
+    watchers: Mutex<HashMap<u32, (String, String)>>,
 }
 
 type WeightsStream = Pin<Box<dyn Stream<Item = Result<pb::WeightsUpdate, Status>> + Send>>;
@@ -197,7 +199,16 @@ impl<B: LearnerBackend> Learner for LearnerService<B> {
         &self,
         _: Request<pb::GetLearnerStatusRequest>,
     ) -> Result<Response<pb::LearnerStatus>, Status> {
-        Ok(Response::new(self.backend.status().await?.into()))
+        let mut status = self.backend.status().await?;
+        let watchers = self.watchers.lock().unwrap_or_else(|e| e.into_inner());
+        for actor in &mut status.actors {
+            if let Some((host, address)) = watchers.get(&actor.actor_id) {
+                actor.host.clone_from(host);
+                actor.address.clone_from(address);
+            }
+        }
+        drop(watchers);
+        Ok(Response::new(status.into()))
     }
 
     type WatchWeightsStream = WeightsStream;
@@ -206,8 +217,25 @@ impl<B: LearnerBackend> Learner for LearnerService<B> {
         &self,
         request: Request<pb::WatchWeightsRequest>,
     ) -> Result<Response<WeightsStream>, Status> {
+        let peer = request
+            .remote_addr()
+            .map(|a| a.to_string())
+            .unwrap_or_default();
+        let request = request.into_inner();
+        if let Some(actor_id) = request.actor_id {
+            if request.host.len() > crate::status::MAX_HOST_BYTES {
+                return Err(Status::invalid_argument(format!(
+                    "host is {} bytes, the limit is {}",
+                    request.host.len(),
+                    crate::status::MAX_HOST_BYTES
+                )));
+            }
+            self.watchers
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .insert(actor_id, (request.host, peer));
+        }
         let mut kinds = request
-            .into_inner()
             .kinds
             .into_iter()
             .map(WeightsKind::try_from)
@@ -332,6 +360,7 @@ pub async fn serve_learner_with<B: LearnerBackend>(
     let service = LearnerServer::new(LearnerService {
         backend: Arc::new(backend),
         shutdown: shutdown_rx,
+        watchers: Mutex::default(),
     })
     .max_decoding_message_size(options.max_message_bytes)
     .max_encoding_message_size(options.max_message_bytes);

@@ -37,6 +37,10 @@ pub struct ActorStats {
     pub transitions_dropped: u64,
     /// Finished episodes the actor could not deliver to every receiver (selector, learner).
     pub episodes_dropped: u64,
+    /// Host name the actor gave when it subscribed to the weights; empty until it has.
+    pub host: String,
+    /// Address (`ip:port`) the actor's weight stream comes from, as the learner sees it.
+    pub address: String,
 }
 
 /// Training progress of the learner (`Learner.GetStatus`).
@@ -270,6 +274,20 @@ fn non_negative(field: &str, value: f64) -> Result<f64, Status> {
     }
 }
 
+/// Longest host name or address accepted in a status message (a DNS name is at most 253).
+pub const MAX_HOST_BYTES: usize = 255;
+
+fn bounded_text(field: &str, value: String) -> Result<String, Status> {
+    if value.len() <= MAX_HOST_BYTES {
+        Ok(value)
+    } else {
+        Err(Status::invalid_argument(format!(
+            "{field} is {} bytes, the limit is {MAX_HOST_BYTES}",
+            value.len()
+        )))
+    }
+}
+
 impl TryFrom<pb::TaskSuccess> for TaskSuccess {
     type Error = Status;
     fn try_from(m: pb::TaskSuccess) -> Result<Self, Status> {
@@ -329,6 +347,8 @@ impl TryFrom<pb::ActorStats> for ActorStats {
             transition_batches_dropped: m.transition_batches_dropped,
             transitions_dropped: m.transitions_dropped,
             episodes_dropped: m.episodes_dropped,
+            host: bounded_text(&format!("actors[{id}].host"), m.host)?,
+            address: bounded_text(&format!("actors[{id}].address"), m.address)?,
         })
     }
 }
@@ -344,6 +364,8 @@ impl From<ActorStats> for pb::ActorStats {
             transition_batches_dropped: d.transition_batches_dropped,
             transitions_dropped: d.transitions_dropped,
             episodes_dropped: d.episodes_dropped,
+            host: d.host,
+            address: d.address,
         }
     }
 }

@@ -13,7 +13,7 @@ use terl_wire::{
     connect_learner, connect_learner_with, connect_selector, serve_learner, serve_learner_with,
     serve_selector, weights_crc32, ActorStats, CheckpointRequest, CheckpointSaved, ClientOptions,
     LearnerBackend, LearnerStatus, PriorityStats, SelectorBackend, SelectorStatus, ServeOptions,
-    TaskSuccess, Tensor, WeightHub, Weights, WeightsKind,
+    TaskSuccess, Tensor, Watcher, WeightHub, Weights, WeightsKind,
 };
 use tokio::net::TcpListener;
 use tokio::sync::oneshot;
@@ -38,6 +38,8 @@ fn learner_status() -> LearnerStatus {
             transition_batches_dropped: 3,
             transitions_dropped: 192,
             episodes_dropped: 2,
+            host: String::new(),
+            address: String::new(),
         }],
         replay_size: 50_000,
         replay_capacity: 1_000_000,
@@ -264,6 +266,54 @@ async fn weight_stream_delivers_in_order_and_latest_to_late_subscriber() {
     assert!(end.is_none() || end.unwrap().is_err());
 }
 
+/// An actor that names itself when it subscribes to the weights is listed with its host name and
+/// the address its stream comes from; a host name over the limit is refused at the edge.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn status_lists_the_host_and_address_of_a_watching_actor() {
+    let server = start_learner(WeightHub::new()).await;
+    let addr = server.addr.to_string();
+    let options = ClientOptions {
+        watcher: Some(Watcher {
+            actor_id: 1,
+            host: "node-7".into(),
+        }),
+        ..ClientOptions::default()
+    };
+    let mut client = connect_learner(&addr).await.unwrap();
+    // Before the actor subscribes, its host is unknown.
+    assert_eq!(client.status().await.unwrap().actors[0].host, "");
+    let mut actor = connect_learner_with(&addr, options).await.unwrap();
+    let _stream = actor.watch_weights(&[WeightsKind::Policy]).await.unwrap();
+    let status = client.status().await.unwrap();
+    let listed = &status.actors[0];
+    assert_eq!(listed.host, "node-7");
+    let (ip, port) = listed.address.rsplit_once(':').expect("ip:port");
+    assert_eq!(ip, "127.0.0.1");
+    assert!(port.parse::<u16>().unwrap() > 0);
+    assert_ne!(
+        port,
+        server.addr.port().to_string(),
+        "the client's port, not the server's"
+    );
+
+    let mut raw = pb::learner_client::LearnerClient::connect(format!("http://{addr}"))
+        .await
+        .unwrap();
+    let Err(err) = raw
+        .watch_weights(pb::WatchWeightsRequest {
+            kinds: vec![],
+            actor_id: Some(2),
+            host: "h".repeat(256),
+        })
+        .await
+    else {
+        panic!("an oversized host name is accepted");
+    };
+    assert_eq!(err.code(), Code::InvalidArgument);
+    assert!(err.message().contains("host"), "{err}");
+    server.stop().await;
+}
+
 /// A learner that sends whatever messages a test gives it, valid or not.
 struct RawLearner {
     updates: Vec<pb::WeightsUpdate>,
@@ -362,7 +412,10 @@ async fn bad_messages_are_rejected_at_the_edge_with_invalid_argument() {
     let mut client = connect_learner(&server.addr.to_string()).await.unwrap();
     let status = client
         .raw()
-        .watch_weights(pb::WatchWeightsRequest { kinds: vec![1, 7] })
+        .watch_weights(pb::WatchWeightsRequest {
+            kinds: vec![1, 7],
+            ..Default::default()
+        })
         .await
         .unwrap_err();
     assert_eq!(status.code(), Code::InvalidArgument);

@@ -211,6 +211,8 @@ fn valid_bodies() -> Vec<Vec<u8>> {
         .encode_to_vec(),
         pb::WatchWeightsRequest {
             kinds: vec![1, 2, 3],
+            actor_id: Some(4),
+            host: "actor-host".into(),
         }
         .encode_to_vec(),
         pb::GetLearnerStatusRequest::default().encode_to_vec(),
@@ -276,7 +278,7 @@ proptest! {
         label in "[./\\\\a-z]{0,8}\\.\\./[a-z]{0,8}",
     ) {
         let s = servers();
-        let watch = pb::WatchWeightsRequest { kinds: vec![1, kind] }.encode_to_vec();
+        let watch = pb::WatchWeightsRequest { kinds: vec![1, kind], ..Default::default() }.encode_to_vec();
         let result = s.rt.block_on(call(&s.learner, PATHS[2].0, watch));
         prop_assert_eq!(result.as_ref().map_err(|e| e.code()), Err(Code::InvalidArgument));
         check_alive(s, result)?;

@@ -198,9 +198,42 @@ pub(crate) fn transition_of(
     })
 }
 
-pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()> {
+/// The environment loop of one actor. `claimed` receives the actor id once it is held (the
+/// configured one, or with [`ActorConfig::auto_id`] the lowest free one).
+/// Holds the actor id: the configured one, or with `auto_id` the lowest id below
+/// `num_actors` that no live process holds.
+fn claim(
+    transport: &RunTransport,
+    config: &ActorConfig,
+) -> anyhow::Result<(u16, terl_transport::ActorClaim)> {
+    if !config.auto_id {
+        let id = u16::try_from(config.actor_id).context("actor id above 65535")?;
+        return Ok((id, transport.claim_actor_id(id)?));
+    }
+    let max = u16::try_from(config.num_actors).context("more than 65535 actors")?;
+    for id in 0..max {
+        match transport.claim_actor_id(id) {
+            Ok(claim) => {
+                tracing::info!(actor_id = id, "took the lowest free actor id");
+                return Ok((id, claim));
+            }
+            Err(terl_transport::TransportError::IdInUse { .. }) => continue,
+            Err(e) => return Err(e.into()),
+        }
+    }
+    anyhow::bail!(
+        "all {max} actor ids of run {} are held by live actors; start the learner and selector \
+         with a larger --num-actors to run more",
+        config.run_id
+    )
+}
+
+pub(crate) fn run(
+    config: &ActorConfig,
+    mailbox: &Mailbox,
+    claimed: tokio::sync::oneshot::Sender<usize>,
+) -> anyhow::Result<()> {
     let run = &config.run;
-    let actor_id = u16::try_from(config.actor_id).context("actor id above 65535")?;
     let tasks = terl_runtime::resolve_tasks(&run.tasks)?;
     let transport_config = TransportConfig {
         buffer_batches: run.cluster.buffer_batches,
@@ -209,22 +242,35 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
         zenoh: run.cluster.zenoh.clone(),
         ..TransportConfig::new(config.run_id.clone(), config.num_actors)
     };
-    let transport = RunTransport::open(transport_config, &format!("actor-{actor_id}"))?;
+    let role = if config.auto_id {
+        "actor-auto".to_owned()
+    } else {
+        format!("actor-{}", config.actor_id)
+    };
+    let transport = RunTransport::open(transport_config, &role)?;
     // One process per actor id and run, held until this function returns.
-    let _claim = transport.claim_actor_id(actor_id)?;
-    let mine = RunConfig::actor_env_tasks(
-        tasks.len(),
-        config.actor_id,
-        config.num_actors,
-        run.envs_per_actor(),
-    );
+    let (actor_id, _claim) = claim(&transport, config)?;
+    let _ = claimed.send(usize::from(actor_id));
+    // An actor with a fixed id steps its share of the cluster's environments; one that took
+    // any free id (a replica of a scaled Deployment) steps every task, so task shares stay
+    // equal for any number of replicas.
+    let mine = if config.auto_id {
+        RunConfig::actor_env_tasks(tasks.len(), 0, 1, run.envs_per_actor())
+    } else {
+        RunConfig::actor_env_tasks(
+            tasks.len(),
+            config.actor_id,
+            config.num_actors,
+            run.envs_per_actor(),
+        )
+    };
     let my_names: Vec<&str> = mine.iter().map(|&t| tasks[t]).collect();
     let num_envs = my_names.len();
     let mut env = VecEnv::new(&my_names, run.variation_seed)?;
     let seed = run
         .train
         .seed
-        .wrapping_add(7919 * (config.actor_id as u64 + 1));
+        .wrapping_add(7919 * (u64::from(actor_id) + 1));
     env.reset_all_seeded(seed)?;
     let global_task: Vec<u16> = env
         .env_tasks()
@@ -314,7 +360,7 @@ pub(crate) fn run(config: &ActorConfig, mailbox: &Mailbox) -> anyhow::Result<()>
                  environments and checking for it with back-off"
             );
             match wait_for_learner(
-                &transitions,
+                &*transitions,
                 || {
                     transport.cleanup_dead_nodes();
                 },

@@ -33,7 +33,12 @@ use terl_wire::{Weights, WeightsKind};
 pub struct ActorConfig {
     pub run: RunConfig,
     pub run_id: String,
+    /// This actor's id, below `num_actors` (ignored with `auto_id`).
     pub actor_id: usize,
+    /// Take the lowest actor id no live actor of the run holds, and step every task (for
+    /// replicas of one Kubernetes Deployment, which cannot be told apart). `num_actors` is then
+    /// the most actors the run takes.
+    pub auto_id: bool,
     pub num_actors: usize,
     /// The learner's gRPC address (`host:port`).
     pub learner_addr: String,
@@ -54,6 +59,7 @@ impl ActorConfig {
             run,
             run_id,
             actor_id,
+            auto_id: false,
             num_actors,
             learner_addr,
             client_security: terl_wire::ClientSecurity::default(),
@@ -113,7 +119,7 @@ pub async fn run(
     shutdown: impl Future<Output = ()> + Send,
 ) -> anyhow::Result<()> {
     anyhow::ensure!(
-        config.actor_id < config.num_actors,
+        config.auto_id || config.actor_id < config.num_actors,
         "actor id {} must be below the number of actors {}",
         config.actor_id,
         config.num_actors
@@ -123,36 +129,55 @@ pub async fn run(
         Algorithm::Mtsac => vec![WeightsKind::Policy],
         Algorithm::Terl => vec![WeightsKind::Policy, WeightsKind::Planner],
     };
-    let follower = {
-        let mailbox = Arc::clone(&mailbox);
-        let options = terl_wire::ClientOptions {
-            max_message_bytes: config.run.cluster.max_message_bytes(),
-            security: config.client_security.clone(),
-        };
-        tokio::spawn(terl_wire::follow_weights_with(
-            config.learner_addr.clone(),
-            kinds,
-            options,
-            move |w| post(&mailbox, w),
-        ))
-    };
+    let (claimed_tx, claimed_rx) = tokio::sync::oneshot::channel();
     let (done_tx, mut done_rx) = tokio::sync::watch::channel(false);
+    let max_message_bytes = config.run.cluster.max_message_bytes();
+    let (learner_addr, security) = (config.learner_addr.clone(), config.client_security.clone());
     let env_thread = {
         let mailbox = Arc::clone(&mailbox);
         std::thread::Builder::new()
             .name("envs".into())
             .spawn(move || {
-                let result = envloop::run(&config, &mailbox);
+                let result = envloop::run(&config, &mailbox, claimed_tx);
                 let _ = done_tx.send(true);
                 result
             })?
     };
-    tokio::select! {
-        () = shutdown => {}
-        _ = done_rx.wait_for(|done| *done) => {}
+    // Weights are followed once the actor holds its id, under which the learner lists it.
+    let follow = |actor_id: usize| {
+        let mailbox = Arc::clone(&mailbox);
+        let options = terl_wire::ClientOptions {
+            max_message_bytes,
+            security: security.clone(),
+            watcher: Some(terl_wire::Watcher {
+                actor_id: actor_id as u32,
+                host: terl_runtime::host_name(),
+            }),
+        };
+        tokio::spawn(terl_wire::follow_weights_with(
+            learner_addr.clone(),
+            kinds.clone(),
+            options,
+            move |w| post(&mailbox, w),
+        ))
+    };
+    tokio::pin!(shutdown);
+    let claimed = tokio::select! {
+        () = &mut shutdown => None,
+        _ = done_rx.wait_for(|done| *done) => None,
+        Ok(actor_id) = claimed_rx => Some(actor_id),
+    };
+    let follower = claimed.map(follow);
+    if follower.is_some() {
+        tokio::select! {
+            () = &mut shutdown => {}
+            _ = done_rx.wait_for(|done| *done) => {}
+        }
     }
     mailbox.stop.store(true, Ordering::Relaxed);
-    follower.abort();
+    if let Some(follower) = follower {
+        follower.abort();
+    }
     tokio::task::spawn_blocking(move || env_thread.join())
         .await?
         .map_err(|_| anyhow::anyhow!("environment thread panicked"))?

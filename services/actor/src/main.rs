@@ -17,9 +17,11 @@ struct Args {
     /// Run id: names the shared-memory services.
     #[arg(long)]
     run_id: String,
-    /// This actor's id, 0..num-actors (decides its share of the tasks).
-    #[arg(long)]
-    actor_id: usize,
+    /// This actor's id, 0..num-actors (decides its share of the tasks), or `auto`: the lowest
+    /// id no live actor of the run holds, stepping every task (for the replicas of a scaled
+    /// Kubernetes Deployment; `--num-actors` is then the most replicas the run takes).
+    #[arg(long, value_parser = parse_actor_id, value_name = "ID|auto")]
+    actor_id: ActorIdArg,
     #[arg(long, default_value_t = 1)]
     num_actors: usize,
     /// The learner's gRPC address (weights stream).
@@ -39,6 +41,21 @@ struct Args {
     zenoh_connect: Vec<String>,
 }
 
+#[derive(Debug, Clone, Copy)]
+enum ActorIdArg {
+    Auto,
+    Id(usize),
+}
+
+fn parse_actor_id(s: &str) -> Result<ActorIdArg, String> {
+    if s == "auto" {
+        return Ok(ActorIdArg::Auto);
+    }
+    s.parse()
+        .map(ActorIdArg::Id)
+        .map_err(|_| format!("{s:?} is neither an actor id (0, 1, ...) nor `auto`"))
+}
+
 #[tokio::main(flavor = "current_thread")]
 async fn main() -> anyhow::Result<()> {
     terl_runtime::init_tracing();
@@ -51,8 +68,13 @@ async fn main() -> anyhow::Result<()> {
     let client_security = run
         .cluster
         .client_security(terl_runtime::token_from_env())?;
+    let (actor_id, auto_id) = match a.actor_id {
+        ActorIdArg::Auto => (0, true),
+        ActorIdArg::Id(id) => (id, false),
+    };
     let mut config =
-        terl_actor::ActorConfig::new(run, a.run_id, a.actor_id, a.num_actors, a.learner_addr);
+        terl_actor::ActorConfig::new(run, a.run_id, actor_id, a.num_actors, a.learner_addr);
+    config.auto_id = auto_id;
     config.client_security = client_security;
     terl_actor::run(config, terl_runtime::shutdown_signal()).await
 }

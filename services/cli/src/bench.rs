@@ -31,8 +31,39 @@ pub enum BenchCommand {
         /// Also measure this transport beside shared memory: `zenoh` (loopback TCP).
         #[arg(long, value_enum)]
         transport: Option<BenchTransport>,
+        /// With `--transport zenoh`: also measure between two network namespaces (a veth
+        /// pair, as between two hosts): the transition stream and the weight broadcast's
+        /// latency. Needs root; everything it creates is removed at the end.
+        #[arg(long, requires = "transport")]
+        netns: bool,
+        /// Weight versions published in the `--netns` broadcast measurement.
+        #[arg(long, default_value_t = 30)]
+        versions: u64,
+        /// gRPC subscribers of the `--netns` broadcast measurement.
+        #[arg(long, default_value_t = 8)]
+        subscribers: usize,
         #[arg(long)]
         json: bool,
+    },
+    /// The actors' half of `transport --netns` (run inside the namespace by it).
+    #[command(hide = true)]
+    TransportPublish {
+        #[arg(long)]
+        connect: String,
+        #[arg(long)]
+        run_id: String,
+        #[arg(long)]
+        publishers: usize,
+        #[arg(long)]
+        seconds: f64,
+    },
+    /// The subscribers' half of `transport --netns` (run inside the namespace by it).
+    #[command(hide = true)]
+    BroadcastSubscribe {
+        #[arg(long)]
+        addr: String,
+        #[arg(long)]
+        subscribers: usize,
     },
     /// Latency from publishing a new 3×400 policy version to its receipt by every one of N
     /// subscribed gRPC clients (p50/p95/max).
@@ -123,10 +154,26 @@ pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
             println!("{}", serde_json::to_string_pretty(&report)?);
             Ok(ExitCode::SUCCESS)
         }
+        BenchCommand::TransportPublish {
+            connect,
+            run_id,
+            publishers,
+            seconds,
+        } => {
+            crate::bench_netns::publish(&connect, &run_id, publishers, seconds)?;
+            Ok(ExitCode::SUCCESS)
+        }
+        BenchCommand::BroadcastSubscribe { addr, subscribers } => {
+            crate::bench_netns::subscribe(&addr, subscribers)?;
+            Ok(ExitCode::SUCCESS)
+        }
         BenchCommand::Transport {
             publishers,
             seconds,
             transport,
+            netns,
+            versions,
+            subscribers,
             ..
         } => {
             anyhow::ensure!(
@@ -153,13 +200,36 @@ pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
                 )),
                 None => None,
             };
-            let zenoh_ok = zenoh.as_ref().is_none_or(|(a, b)| {
-                a.lost_batches == 0
-                    && b.lost_batches == 0
-                    && a.out_of_order == 0
-                    && b.out_of_order == 0
-            });
+            let across = if netns {
+                anyhow::ensure!(versions >= 1, "--versions must be at least 1");
+                anyhow::ensure!(subscribers >= 1, "--subscribers must be at least 1");
+                let ns = crate::bench_netns::Namespace::create()?;
+                let one = crate::bench_netns::transport_across(&ns, 1, seconds)?;
+                let many = crate::bench_netns::transport_across(&ns, publishers, seconds)?;
+                let broadcast = crate::bench_netns::broadcast_across(&ns, subscribers, versions)?;
+                Some((one, many, broadcast))
+            } else {
+                None
+            };
+            let broadcast_loopback = if netns {
+                Some(terl_wire::bench::broadcast_latency(subscribers, versions)?)
+            } else {
+                None
+            };
+            let lossless = |r: &terl_transport::bench::ShmBenchReport| {
+                r.lost_batches == 0 && r.out_of_order == 0
+            };
+            let zenoh_ok = zenoh
+                .as_ref()
+                .is_none_or(|(a, b)| lossless(a) && lossless(b))
+                && across
+                    .as_ref()
+                    .is_none_or(|(a, b, _)| lossless(a) && lossless(b));
             let report = serde_json::json!({
+                "zenoh_netns_1_publisher": across.as_ref().map(|z| &z.0),
+                "zenoh_netns_n_publishers": across.as_ref().map(|z| &z.1),
+                "grpc_broadcast_netns": across.as_ref().map(|z| &z.2),
+                "grpc_broadcast_loopback": broadcast_loopback,
                 "zenoh_1_publisher": zenoh.as_ref().map(|z| &z.0),
                 "zenoh_n_publishers": zenoh.as_ref().map(|z| &z.1),
                 "shm_1_publisher": one,

@@ -1,6 +1,7 @@
 //! `terl`: the command line of the terl system.
 
 mod bench;
+mod bench_netns;
 mod bench_tep;
 mod charts;
 mod cluster;
@@ -8,6 +9,7 @@ mod env;
 mod eval;
 mod report;
 mod results;
+mod router;
 mod status;
 mod train;
 
@@ -47,6 +49,9 @@ enum Command {
     /// per-task breakdown and learning curves (results.md, PNG/SVG), and each cluster run's
     /// training-episode table (report.md, learning-curves.svg).
     Report(report::ReportArgs),
+    /// Zenoh's router, for clusters whose processes run with `[cluster.zenoh] mode = "client"`
+    /// (e.g. the Kubernetes manifests in deploy/k8s); stops on SIGINT/SIGTERM.
+    ZenohRouter(router::RouterArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -76,5 +81,6 @@ fn run(cli: Cli) -> Result<std::process::ExitCode> {
         Command::Status(a) => status::run(a),
         Command::Cluster(c) => cluster::run(c),
         Command::Report(a) => report::run(a),
+        Command::ZenohRouter(a) => router::run(a),
     }
 }

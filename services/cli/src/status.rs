@@ -184,8 +184,13 @@ fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyho
         );
     }
     for a in &l.actors {
+        let host = if a.host.is_empty() {
+            String::new()
+        } else {
+            format!("  on {} ({})", a.host, a.address)
+        };
         println!(
-            "actor {:<3} env steps {:>10} ({:>6.0}/s)  acts with policy v{}  last seen {:.1}s ago  dropped: {} transitions ({} batches), {} episodes",
+            "actor {:<3} env steps {:>10} ({:>6.0}/s)  acts with policy v{}  last seen {:.1}s ago  dropped: {} transitions ({} batches), {} episodes{host}",
             a.actor_id, a.env_steps, a.env_steps_per_second, a.policy_version, a.seconds_since_seen,
             a.transitions_dropped, a.transition_batches_dropped, a.episodes_dropped
         );

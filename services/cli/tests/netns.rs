@@ -254,6 +254,16 @@ fn actor_in_another_namespace_trains_over_zenoh_and_survives_a_link_outage() {
         },
     );
 
+    // Status lists the actor with its host name and the address it reaches the learner from.
+    let actor = &before["learner"]["actors"][0];
+    let host = std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap();
+    assert_eq!(actor["host"].as_str(), Some(host.trim()), "{before}");
+    let address = actor["address"].as_str().unwrap_or_default();
+    assert!(
+        address.starts_with(&format!("{addr_b}:")),
+        "the actor's address {address:?} is not in its namespace ({addr_b})"
+    );
+
     // The link goes down for a few seconds, then up again.
     ip(&["-n", &ns_b, "link", "set", &vb, "down"]).unwrap();
     std::thread::sleep(Duration::from_secs(5));

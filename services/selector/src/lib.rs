@@ -552,6 +552,7 @@ pub async fn run(
             let options = terl_wire::ClientOptions {
                 max_message_bytes: config.run.cluster.max_message_bytes(),
                 security: config.client_security.clone(),
+                watcher: None,
             };
             Some(tokio::spawn(terl_wire::follow_weights_with(
                 addr.clone(),
