@@ -16,6 +16,9 @@ mod common;
 
 use common::{service_binaries, workspace};
 
+/// The learner and selector serve a non-loopback address here, which needs a token.
+const TOKEN: &str = "netns-test-token-0123456789abcdef";
+
 /// Namespaces and processes of one test run; removed on drop.
 struct Net {
     namespaces: Vec<String>,
@@ -59,6 +62,7 @@ impl Net {
             .arg(bin)
             .args(args)
             .env("RUST_LOG", "info")
+            .env("TERL_TOKEN", TOKEN)
             .stdout(Stdio::null())
             .stderr(log)
             .spawn()
@@ -75,11 +79,19 @@ fn wait_for_file(path: &Path) -> String {
                 return text.trim().to_string();
             }
         }
-        assert!(
-            start.elapsed() < Duration::from_secs(60),
-            "{} never appeared",
-            path.display()
-        );
+        if start.elapsed() > Duration::from_secs(60) {
+            let dir = path.parent().unwrap();
+            let logs: Vec<String> = std::fs::read_dir(dir)
+                .unwrap()
+                .flatten()
+                .filter(|e| e.path().extension().is_some_and(|x| x == "log"))
+                .map(|e| {
+                    let text = std::fs::read_to_string(e.path()).unwrap_or_default();
+                    format!("--- {}\n{text}", e.path().display())
+                })
+                .collect();
+            panic!("{} never appeared\n{}", path.display(), logs.join("\n"));
+        }
         std::thread::sleep(Duration::from_millis(50));
     }
 }
@@ -87,6 +99,7 @@ fn wait_for_file(path: &Path) -> String {
 fn status(ns: &str, learner: &str, selector: &str) -> Option<Value> {
     let out = Command::new("ip")
         .args(["netns", "exec", ns, env!("CARGO_BIN_EXE_terl")])
+        .env("TERL_TOKEN", TOKEN)
         .args([
             "status",
             "--json",
