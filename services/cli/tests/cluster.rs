@@ -1098,7 +1098,10 @@ fn launcher_refuses_bad_or_locked_run_ids_and_reports_a_start_up_failure_with_it
         .args(["-s", "KILL", "--", &format!("-{}", holder.id())])
         .status()
         .unwrap();
-    assert!(killed.success(), "kill of the lock holder's group: {killed}");
+    assert!(
+        killed.success(),
+        "kill of the lock holder's group: {killed}"
+    );
     holder.wait().unwrap();
     assert_eq!(code, Some(2), "{err}");
     assert!(err.contains("is in use by another launcher"), "{err}");
