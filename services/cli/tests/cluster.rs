@@ -1091,10 +1091,17 @@ fn launcher_refuses_bad_or_locked_run_ids_and_reports_a_start_up_failure_with_it
             .is_ok_and(|s| !s.success())
     });
     let (code, err) = run(&["--run-id", &id]);
-    Command::new("kill")
-        .args(["-KILL", &format!("-{}", holder.id())])
+    // The process group goes as a whole: `-s KILL -- -<pgid>`. (procps' kill reads
+    // `-KILL -<pgid>` as `kill(-<first digit>, SIGKILL)`, and with a pgid starting with 1
+    // that is kill(-1): every process the test may signal.)
+    let killed = Command::new("kill")
+        .args(["-s", "KILL", "--", &format!("-{}", holder.id())])
         .status()
         .unwrap();
+    assert!(
+        killed.success(),
+        "kill of the lock holder's group: {killed}"
+    );
     holder.wait().unwrap();
     assert_eq!(code, Some(2), "{err}");
     assert!(err.contains("is in use by another launcher"), "{err}");

@@ -93,7 +93,15 @@ pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
     }))
 }
 
+/// Container-to-goal distance of success, m.
+const SUCCESS_RADIUS: f64 = 0.12;
+
 impl StickPush {
+    /// Gripper open and the stick lifted 1 cm above its start (contacts aside).
+    fn held(&self, scene: &Scene, obs: &[f64; OBS_DIM]) -> bool {
+        obs[3] > 0.0 && obs[6] - 0.01 > scene.obj_init_pos[2]
+    }
+
     /// Python's `touching_main_object`: both pads press on the stick (positive summed normal
     /// force over their contacts with it). A contact outside the constraint set has address
     /// -1, which Python's indexing reads as the last constraint force.
@@ -141,8 +149,10 @@ impl Task for StickPush {
         self.parts.objects(scene, [0.0, 0.09, 0.0], out);
     }
 
-    fn reads_contacts(&self) -> bool {
-        true
+    fn reads_contacts(&self, scene: &Scene, obs: &[f64; OBS_DIM]) -> bool {
+        // `evaluate` reads contact forces only when the rest of its success rule holds.
+        let container = [obs[11], obs[12], obs[13]];
+        self.held(scene, obs) && dist(container, scene.target_pos) <= SUCCESS_RADIUS
     }
 
     fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], action: &[f32; ACT_DIM]) -> Eval {
@@ -176,8 +186,9 @@ impl Task for StickPush {
         }
         // Success needs the stick held (contact on both pads, gripper open > 0, lifted by 1 cm)
         // and the container within 12 cm of the goal.
-        let held = tcp_opened > 0.0 && obs[6] - 0.01 > stick_init[2];
-        let success = container_to_target <= 0.12 && held && self.touching_stick(scene);
+        let success = container_to_target <= SUCCESS_RADIUS
+            && self.held(scene, obs)
+            && self.touching_stick(scene);
         Eval { reward, success }
     }
 }
