@@ -43,19 +43,125 @@ fn ip(args: &[&str]) -> Result<()> {
     Ok(())
 }
 
+/// Namespaces of this bench are `terl-bench-<pid of the bench>`.
+const NS_PREFIX: &str = "terl-bench-";
+
+/// The host's end of the veth pair of the bench with process id `pid` (at most 15 bytes).
+fn host_dev(pid: u32) -> String {
+    format!("tbh{}", pid % 1_000_000)
+}
+
+/// The benches' namespaces in `ip netns list` output (`name` or `name (id: N)` per line)
+/// whose process is not `alive`, with that process id.
+pub fn stale_namespaces(list: &str, alive: impl Fn(u32) -> bool) -> Vec<(String, u32)> {
+    list.lines()
+        .filter_map(|line| line.split_whitespace().next())
+        .filter_map(|name| {
+            let pid = name.strip_prefix(NS_PREFIX)?.parse::<u32>().ok()?;
+            (!alive(pid)).then(|| (name.to_string(), pid))
+        })
+        .collect()
+}
+
+/// Removes what a bench killed before it could clean up (SIGKILL, a crash) left behind: the
+/// namespaces `terl-bench-<pid>` of processes that no longer run, and their veth pairs.
+/// Returns the namespaces removed; each is also logged.
+pub fn remove_stale() -> Vec<String> {
+    let Ok(out) = Command::new("ip").args(["netns", "list"]).output() else {
+        return Vec::new();
+    };
+    let list = String::from_utf8_lossy(&out.stdout);
+    let alive = |pid: u32| std::path::Path::new(&format!("/proc/{pid}")).exists();
+    let mut removed = Vec::new();
+    for (name, pid) in stale_namespaces(&list, alive) {
+        let _ = ip(&["link", "del", &host_dev(pid)]);
+        match ip(&["netns", "del", &name]) {
+            Ok(()) => {
+                tracing::warn!(
+                    "removed network namespace {name}, left behind by an earlier bench \
+                     (process {pid}) that was killed"
+                );
+                removed.push(name);
+            }
+            Err(e) => tracing::warn!("cannot remove the stale namespace {name}: {e:#}"),
+        }
+    }
+    removed
+}
+
+/// Until the process exits, SIGINT, SIGTERM and SIGHUP remove the namespace `name` and the
+/// veth `host_dev` (whichever exist) before the process exits with 128 + the signal's
+/// number, as it would have without the handler. Installed once per process.
+fn remove_on_signal(name: String, host_dev: String) -> Result<()> {
+    use tokio::signal::unix::{signal, SignalKind};
+    let (ready_tx, ready_rx) = std::sync::mpsc::channel::<std::io::Result<()>>();
+    std::thread::Builder::new()
+        .name("netns-signals".into())
+        .spawn(move || {
+            let runtime = match tokio::runtime::Builder::new_current_thread()
+                .enable_io()
+                .build()
+            {
+                Ok(r) => r,
+                Err(e) => {
+                    let _ = ready_tx.send(Err(e));
+                    return;
+                }
+            };
+            runtime.block_on(async move {
+                let kinds = [
+                    (SignalKind::interrupt(), 2),
+                    (SignalKind::terminate(), 15),
+                    (SignalKind::hangup(), 1),
+                ];
+                let mut streams = Vec::new();
+                for (kind, number) in kinds {
+                    match signal(kind) {
+                        Ok(s) => streams.push((s, number)),
+                        Err(e) => {
+                            let _ = ready_tx.send(Err(e));
+                            return;
+                        }
+                    }
+                }
+                let _ = ready_tx.send(Ok(()));
+                let received =
+                    futures_util::future::select_all(streams.iter_mut().map(|(s, number)| {
+                        Box::pin(async move { s.recv().await.map(|_| *number) })
+                    }))
+                    .await
+                    .0;
+                let _ = ip(&["netns", "del", &name]);
+                let _ = ip(&["link", "del", &host_dev]);
+                let number = received.unwrap_or(15);
+                eprintln!("terl: signal {number}; removed the network namespace {name}");
+                std::process::exit(128 + number);
+            });
+        })?;
+    ready_rx
+        .recv()
+        .context("the signal thread ended")?
+        .context("cannot install the signal handlers")?;
+    Ok(())
+}
+
 impl Namespace {
-    /// Creates `terl-bench-<pid>` and a veth pair to it with addresses in 10.215.x.0/24.
+    /// Creates `terl-bench-<pid>` and a veth pair to it with addresses in 10.215.x.0/24,
+    /// first removing what killed benches left behind ([`remove_stale`]). From here until
+    /// the process exits, SIGINT/SIGTERM/SIGHUP remove both before exiting.
     ///
     /// # Errors
     /// Namespaces cannot be made (not root, no `ip`), naming the command that failed.
     pub fn create() -> Result<Self> {
         let pid = std::process::id();
-        let name = format!("terl-bench-{pid}");
+        let name = format!("{NS_PREFIX}{pid}");
+        remove_stale();
+        remove_on_signal(name.clone(), host_dev(pid))?;
         ip(&["netns", "add", &name]).context("creating a network namespace needs root")?;
         let octet = (1 + pid % 250) as u8;
         let ns = Self {
             name,
-            host_dev: format!("tbh{}", pid % 1_000_000),
+            host_dev: host_dev(pid),
             host_ip: Ipv4Addr::new(10, 215, octet, 1),
             ns_ip: Ipv4Addr::new(10, 215, octet, 2),
         };
@@ -367,4 +473,20 @@ pub fn subscribe(addr: &str, subscribers: usize) -> Result<()> {
         }
         Ok(())
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stale_namespaces_are_the_benches_whose_process_is_gone() {
+        let list =
+            "terl-bench-12 (id: 3)\nterl-bench-40\nterl-a-12\nterl-bench-x1\nother (id: 0)\n";
+        let stale = stale_namespaces(list, |pid| pid == 40);
+        assert_eq!(stale, vec![("terl-bench-12".to_string(), 12)]);
+        assert!(stale_namespaces(list, |_| true).is_empty());
+        assert_eq!(stale_namespaces("", |_| false), vec![]);
+        assert_eq!(host_dev(1_234_567), "tbh234567");
+    }
 }
