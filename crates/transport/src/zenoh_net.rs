@@ -65,6 +65,11 @@ pub const HEADER_BYTES: usize = 16;
 pub const ACK_BYTES: usize = 24;
 /// How long a new port waits for the answers to its liveliness query (limits, receivers).
 const QUERY_TIMEOUT: Duration = Duration::from_secs(2);
+/// How long a claimed actor id's token is given to reach the other processes before the
+/// claimant checks for competing claims.
+pub const CLAIM_SETTLE: Duration = Duration::from_millis(200);
+/// Claims of one actor id before giving up while other processes claim it at the same time.
+pub const CLAIM_ATTEMPTS: u32 = 5;
 /// How long a sink waits for Zenoh to route to a newly seen receiver.
 const MATCH_TIMEOUT: Duration = Duration::from_secs(5);
 /// Slice of a blocked send between checks of the cancel flag.
@@ -169,37 +174,64 @@ impl ZenohTransport {
     }
 
     /// Claims `actor_id` on this run for as long as the returned [`ZenohClaim`] lives: the
-    /// liveliness token `terl/<run_id>/claims/actor-<id>`, declared after asking every
-    /// reachable process whether it holds it. A killed holder's token disappears with its
-    /// session (at once on a closed connection, after Zenoh's 10 s lease when its host
-    /// vanished). Errors with [`TransportError::IdInUse`] while a live process holds it.
+    /// liveliness token `terl/<run_id>/claims/actor-<id>/<session id>`. A killed holder's
+    /// token disappears with its session (at once on a closed connection, after Zenoh's 10 s
+    /// lease when its host vanished). Errors with [`TransportError::IdInUse`] while a live
+    /// process holds it.
+    ///
+    /// Two processes claiming the same id at the same instant never both get it: each
+    /// declares its token first, lets it reach the others ([`CLAIM_SETTLE`]) and only then
+    /// asks every reachable process for the id's tokens; of two such claims at least one sees
+    /// the other's token, and whoever sees another holder withdraws. A claimant that withdrew
+    /// tries again after a random pause while no token of the id is seen, up to
+    /// [`CLAIM_ATTEMPTS`] times.
     pub fn claim_actor_id(&self, actor_id: u16) -> Result<ZenohClaim, TransportError> {
-        let key = format!("terl/{}/claims/actor-{actor_id}", self.config.run_id);
+        let prefix = format!("terl/{}/claims/actor-{actor_id}", self.config.run_id);
+        let key = format!("{prefix}/{}", self.session.zid());
+        let in_use = || TransportError::IdInUse {
+            what: format!("actor id {actor_id}"),
+            run_id: self.config.run_id.clone(),
+            service: prefix.clone(),
+        };
+        for attempt in 0..CLAIM_ATTEMPTS {
+            if self.other_holders(&prefix, &key)? {
+                return Err(in_use());
+            }
+            let token = self
+                .session
+                .liveliness()
+                .declare_token(&key)
+                .wait()
+                .map_err(|e| zenoh_err("declare token", &key, e))?;
+            std::thread::sleep(CLAIM_SETTLE);
+            if !self.other_holders(&prefix, &key)? {
+                return Ok(ZenohClaim { key, _token: token });
+            }
+            drop(token);
+            let pause = rand::random::<u64>() % (50 * (u64::from(attempt) + 1));
+            std::thread::sleep(CLAIM_SETTLE + Duration::from_millis(pause));
+        }
+        Err(in_use())
+    }
+
+    /// Whether a live token under `prefix/*` other than `mine` exists, asked of every
+    /// reachable process.
+    fn other_holders(&self, prefix: &str, mine: &str) -> Result<bool, TransportError> {
+        let query = format!("{prefix}/*");
         let replies = self
             .session
             .liveliness()
-            .get(&key)
+            .get(&query)
             .timeout(QUERY_TIMEOUT)
             .wait()
-            .map_err(|e| zenoh_err("liveliness query", &key, e))?;
+            .map_err(|e| zenoh_err("liveliness query", &query, e))?;
         let mut held = false;
         while let Ok(reply) = replies.recv() {
-            held |= reply.result().is_ok();
+            if let Ok(sample) = reply.result() {
+                held |= sample.key_expr().as_str() != mine;
+            }
         }
-        if held {
-            return Err(TransportError::IdInUse {
-                what: format!("actor id {actor_id}"),
-                run_id: self.config.run_id.clone(),
-                service: key,
-            });
-        }
-        let token = self
-            .session
-            .liveliness()
-            .declare_token(&key)
-            .wait()
-            .map_err(|e| zenoh_err("declare token", &key, e))?;
-        Ok(ZenohClaim { key, _token: token })
+        Ok(held)
     }
 
     fn key(&self, topic: crate::Topic, rest: &str) -> String {

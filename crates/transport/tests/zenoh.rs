@@ -263,6 +263,46 @@ fn a_second_actor_with_the_same_id_is_refused() {
     eventually("actor id 3 released", || second.claim_actor_id(3).is_ok());
 }
 
+/// Actors started at the same instant with `--actor-id auto` each take the lowest id they
+/// can claim: every one ends with an id of its own, never two with the same.
+#[test]
+fn simultaneous_claims_end_with_distinct_ids() {
+    let mesh = Mesh::default();
+    let make = mesh.make();
+    let cfg = TransportConfig::new(unique_run("race"), 4);
+    let sessions: Vec<_> = (0..3).map(|_| make(&cfg, "actor-auto")).collect();
+    let start = std::sync::Barrier::new(sessions.len());
+    let claims: Vec<Option<(u16, ZenohClaim)>> = std::thread::scope(|s| {
+        let handles: Vec<_> = sessions
+            .iter()
+            .map(|t| {
+                let start = &start;
+                s.spawn(move || {
+                    start.wait();
+                    for id in 0..4u16 {
+                        match t.claim_actor_id(id) {
+                            Ok(claim) => return Some((id, claim)),
+                            Err(TransportError::IdInUse { .. }) => continue,
+                            Err(e) => panic!("claim of {id}: {e}"),
+                        }
+                    }
+                    None
+                })
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    let mut ids: Vec<u16> = claims.iter().flatten().map(|(id, _)| *id).collect();
+    assert_eq!(ids.len(), sessions.len(), "some got no id: {ids:?}");
+    ids.sort_unstable();
+    ids.dedup();
+    assert_eq!(
+        ids.len(),
+        sessions.len(),
+        "an id was given twice: {claims:?}"
+    );
+}
+
 /// The run file's choice opens the matching engine.
 #[test]
 fn run_transport_opens_the_configured_engine() {
