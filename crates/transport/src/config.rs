@@ -87,10 +87,11 @@ pub struct ZenohConfig {
 }
 
 impl ZenohConfig {
-    /// Checks the endpoint syntax (`<proto>/<address>`; only `tcp` is built in).
+    /// Checks the endpoint syntax: `tcp/<host>:<port>` (only TCP is built in), the port a
+    /// number up to 65535, optionally followed by Zenoh's `?config` / `#metadata`.
     pub fn validate(&self) -> Result<(), TransportError> {
         for endpoint in self.listen.iter().chain(&self.connect) {
-            if !endpoint.starts_with("tcp/") || endpoint.len() <= 4 {
+            if !endpoint_is_tcp_host_port(endpoint) {
                 return Err(TransportError::Config(format!(
                     "zenoh endpoint {endpoint:?} must look like tcp/<host>:<port> (only TCP is \
                      built in)"
@@ -105,6 +106,27 @@ impl ZenohConfig {
         }
         Ok(())
     }
+}
+
+/// `tcp/<host>:<port>[?...][#...]` with a non-empty host (a name, an IPv4 address or a
+/// bracketed IPv6 address) and a port in 0..=65535.
+fn endpoint_is_tcp_host_port(endpoint: &str) -> bool {
+    let Some(address) = endpoint.strip_prefix("tcp/") else {
+        return false;
+    };
+    let address = address.split(['?', '#']).next().unwrap_or_default();
+    let Some((host, port)) = address.rsplit_once(':') else {
+        return false;
+    };
+    let host_ok = if let Some(inner) = host.strip_prefix('[') {
+        inner.strip_suffix(']').is_some_and(|h| !h.is_empty())
+    } else {
+        !host.is_empty() && !host.contains([':', '[', ']', '/'])
+    };
+    host_ok
+        && !port.is_empty()
+        && port.bytes().all(|b| b.is_ascii_digit())
+        && port.parse::<u16>().is_ok()
 }
 
 impl Default for TransportConfig {
@@ -254,6 +276,38 @@ mod tests {
             ..TransportConfig::new("r", 1)
         };
         assert!(cfg.validate().is_err());
+    }
+
+    #[test]
+    fn zenoh_endpoints_need_tcp_host_and_port() {
+        let with = |endpoint: &str| ZenohConfig {
+            listen: vec![endpoint.to_string()],
+            ..ZenohConfig::default()
+        };
+        for good in [
+            "tcp/0.0.0.0:7447",
+            "tcp/terl-zenoh:7447",
+            "tcp/[::1]:0",
+            "tcp/10.0.0.1:65535",
+            "tcp/[fe80::1]:7447#iface=eth0",
+        ] {
+            assert!(with(good).validate().is_ok(), "{good}");
+        }
+        for bad in [
+            "",
+            "tcp/",
+            "udp/0.0.0.0:7447",
+            "tcp/127.0.0.1:99999",
+            "tcp/127.0.0.1",
+            "tcp/:7447",
+            "tcp/127.0.0.1:",
+            "tcp/127.0.0.1:74x7",
+            "tcp/::1:7447",
+            "tcp/[]:7447",
+        ] {
+            let err = with(bad).validate().unwrap_err().to_string();
+            assert!(err.contains("tcp/<host>:<port>"), "{bad:?}: {err}");
+        }
     }
 
     #[test]
