@@ -93,6 +93,8 @@ pub struct LearnerStatus {
     pub resumed_at_update: u64,
     /// Checkpoints that could not be written since this learner started.
     pub checkpoint_failures: u64,
+    /// Transition batches lost in transit: gaps in the actors' sequence numbers, summed.
+    pub transition_batches_missed: u64,
 }
 
 /// Statistics of PTR priorities.
@@ -425,6 +427,7 @@ impl TryFrom<pb::LearnerStatus> for LearnerStatus {
             resumed_from: m.resumed_from,
             resumed_at_update: m.resumed_at_update,
             checkpoint_failures: m.checkpoint_failures,
+            transition_batches_missed: m.transition_batches_missed,
         })
     }
 }
@@ -464,6 +467,7 @@ impl From<LearnerStatus> for pb::LearnerStatus {
             resumed_from: d.resumed_from,
             resumed_at_update: d.resumed_at_update,
             checkpoint_failures: d.checkpoint_failures,
+            transition_batches_missed: d.transition_batches_missed,
         }
     }
 }

@@ -72,6 +72,7 @@ fn learner_status() -> LearnerStatus {
         resumed_from: "runs/test/checkpoints/update-0000000100.safetensors".into(),
         resumed_at_update: 100,
         checkpoint_failures: 1,
+        transition_batches_missed: 6,
     }
 }
 

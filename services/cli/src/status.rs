@@ -200,6 +200,12 @@ fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyho
         l.transitions_dropped, l.transition_batches_dropped, l.episodes_dropped,
         l.selected_samples_dropped, l.selected_batches_dropped
     );
+    if l.transition_batches_missed > 0 {
+        println!(
+            "lost      {} transition batches in transit (a connection to an actor's host closed with them in flight)",
+            l.transition_batches_missed
+        );
+    }
     let tasks: Vec<String> = l
         .task_success
         .iter()

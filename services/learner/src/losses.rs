@@ -25,6 +25,8 @@ pub(crate) struct Inbound {
     selected: LossTracker,
     /// Totals already logged, so each increase is logged once.
     logged: (u64, u64, u64),
+    /// Transition batches missed already logged.
+    missed_logged: u64,
 }
 
 impl Inbound {
@@ -79,6 +81,16 @@ impl Inbound {
         let s = self.selected.total().reported;
         status.selected_batches_dropped = s.messages;
         status.selected_samples_dropped = s.items;
+        let missed = self.transitions.total().missed;
+        status.transition_batches_missed = missed;
+        if missed > self.missed_logged {
+            self.missed_logged = missed;
+            tracing::warn!(
+                transition_batches_missed = missed,
+                "transition batches lost in transit (gaps in the actors' sequence numbers: a \
+                 connection to an actor's host closed with batches in flight; totals so far)"
+            );
+        }
         let now = (t.items, status.episodes_dropped, s.items);
         if now != self.logged {
             self.logged = now;
@@ -98,6 +110,23 @@ impl Inbound {
 mod tests {
     use super::*;
     use terl_transport::Losses;
+
+    /// Batches that never arrived although sent (a gap in an actor's sequence numbers) are
+    /// in the status, summed over actors.
+    #[test]
+    fn gaps_in_sequence_numbers_reach_the_status() {
+        let mut inbound = Inbound::default();
+        for (actor, sequence) in [(0u16, 0u64), (0, 1), (0, 4), (1, 0), (1, 2), (0, 5)] {
+            let mut b = TransitionBatch::EMPTY;
+            b.actor_id = actor;
+            b.sequence = sequence;
+            inbound.batch(&b);
+        }
+        let mut status = LearnerStatus::default();
+        inbound.fill(&mut status);
+        assert_eq!(status.transition_batches_missed, 3);
+        assert_eq!(status.transition_batches_dropped, 0);
+    }
 
     #[test]
     fn stamps_reach_the_status_per_actor_and_summed() {
