@@ -120,8 +120,10 @@ impl core::fmt::Debug for ZenohTransport {
 
 impl ZenohTransport {
     /// Opens a Zenoh session from `config.zenoh` (mode, listen and connect endpoints). In
-    /// peer mode this waits until every `connect` endpoint is reachable; in client mode it
-    /// fails when none is. `role` only names the process in logs.
+    /// peer mode the session opens even when no `connect` endpoint is reachable (after Zenoh's
+    /// scouting delay, about 0.5 s), so a peer started while the others are unreachable sees
+    /// none of them at first; in client mode it fails when none is reachable. `role` only
+    /// names the process in logs.
     pub fn open(config: TransportConfig, role: &str) -> Result<Self, TransportError> {
         config.validate()?;
         config.zenoh.validate()?;
