@@ -68,6 +68,8 @@ const QUERY_TIMEOUT: Duration = Duration::from_secs(2);
 /// How long a claimed actor id's token is given to reach the other processes before the
 /// claimant checks for competing claims.
 pub const CLAIM_SETTLE: Duration = Duration::from_millis(200);
+/// How long a peer waits to meet the run's other peers before claiming an actor id.
+pub const PEER_WAIT: Duration = Duration::from_secs(10);
 /// Claims of one actor id before giving up while other processes claim it at the same time.
 pub const CLAIM_ATTEMPTS: u32 = 5;
 /// How long a sink waits for Zenoh to route to a newly seen receiver.
@@ -188,6 +190,21 @@ impl ZenohTransport {
     /// tries again after a random pause while no token of the id is seen, up to
     /// [`CLAIM_ATTEMPTS`] times.
     pub fn claim_actor_id(&self, actor_id: u16) -> Result<ZenohClaim, TransportError> {
+        // A peer asks only the peers it is connected to: right after opening it may not have
+        // met them yet, and would take an id a live actor holds.
+        if self.config.zenoh.mode == ZenohMode::Peer && !self.config.zenoh.connect.is_empty() {
+            let peers = self.settled_peers(PEER_WAIT);
+            if peers == 0 {
+                return Err(TransportError::Timeout {
+                    what: format!(
+                        "a Zenoh peer at {:?}, to check that actor id {actor_id} is free (start \
+                         the learner first)",
+                        self.config.zenoh.connect
+                    ),
+                    after: PEER_WAIT,
+                });
+            }
+        }
         let prefix = format!("terl/{}/claims/actor-{actor_id}", self.config.run_id);
         let key = format!("{prefix}/{}", self.session.zid());
         let in_use = || TransportError::IdInUse {
@@ -214,6 +231,25 @@ impl ZenohTransport {
             std::thread::sleep(CLAIM_SETTLE + Duration::from_millis(pause));
         }
         Err(in_use())
+    }
+
+    /// Waits until this session is connected to at least one peer and the number of peers
+    /// has not changed for 300 ms (gossip has brought the rest), at most `limit`; returns the
+    /// number of peers.
+    fn settled_peers(&self, limit: Duration) -> usize {
+        let start = Instant::now();
+        let (mut count, mut since) = (usize::MAX, Instant::now());
+        loop {
+            let now = self.session.info().peers_zid().wait().count();
+            if now != count {
+                (count, since) = (now, Instant::now());
+            }
+            let settled = count > 0 && since.elapsed() >= Duration::from_millis(300);
+            if settled || start.elapsed() >= limit {
+                return count;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
     }
 
     /// Whether a live token under `prefix/*` other than `mine` exists, asked of every
@@ -886,6 +922,19 @@ impl<M: Message> ZenohSource<M> {
                 .congestion_control(CongestionControl::Block)
                 .wait()
                 .map_err(|e| zenoh_err("declare publisher", &key, e))?;
+            // As for a sink's data link: the first puts of a new publisher can be dropped
+            // until Zenoh routes it to the subscriber (a client learns of it through its
+            // router), and a sender whose first acks are all lost waits for credit forever.
+            let start = Instant::now();
+            while start.elapsed() < MATCH_TIMEOUT
+                && !publisher
+                    .matching_status()
+                    .wait()
+                    .map_err(|e| zenoh_err("matching status", &key, e))?
+                    .matching()
+            {
+                std::thread::sleep(Duration::from_millis(1));
+            }
             self.ack_publishers.insert(incoming.sender, publisher);
         }
         let mut ack = [0u8; ACK_BYTES];

@@ -303,6 +303,42 @@ fn simultaneous_claims_end_with_distinct_ids() {
     );
 }
 
+/// A peer that has just opened never takes an id a live actor holds, however soon after
+/// opening it claims (a claim that asked before the new peer had met the others took it).
+#[test]
+fn a_new_peer_never_takes_an_id_a_live_actor_holds() {
+    let mesh = Mesh::default();
+    let make = mesh.make();
+    let cfg = TransportConfig::new(unique_run("held"), 2);
+    let _learner = make(&cfg, "learner");
+    let holder = make(&cfg, "actor-0");
+    let _claim = holder.claim_actor_id(0).unwrap();
+    for _ in 0..3 {
+        let newcomer = make(&cfg, "actor-auto");
+        let err = newcomer.claim_actor_id(0).unwrap_err();
+        assert!(matches!(err, TransportError::IdInUse { .. }), "{err}");
+    }
+}
+
+/// A peer that reaches none of its `connect` endpoints refuses to claim an id it cannot
+/// check, naming the endpoint, instead of taking it blindly.
+#[test]
+fn a_peer_that_reaches_nobody_refuses_to_claim() {
+    let cfg = TransportConfig {
+        zenoh: ZenohConfig {
+            mode: ZenohMode::Peer,
+            listen: vec![format!("tcp/127.0.0.1:{}", free_port())],
+            connect: vec![format!("tcp/127.0.0.1:{}", free_port())],
+            multicast_scouting: false,
+        },
+        ..TransportConfig::new(unique_run("alone"), 2)
+    };
+    let lonely = ZenohTransport::open(cfg.clone(), "actor-auto").unwrap();
+    let err = lonely.claim_actor_id(0).unwrap_err();
+    assert!(matches!(err, TransportError::Timeout { .. }), "{err}");
+    assert!(err.to_string().contains(&cfg.zenoh.connect[0]), "{err}");
+}
+
 /// The run file's choice opens the matching engine.
 #[test]
 fn run_transport_opens_the_configured_engine() {
