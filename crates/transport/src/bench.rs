@@ -125,54 +125,31 @@ pub fn throughput(
         let mut handles = Vec::with_capacity(publishers);
         for actor in 0..publishers {
             let (config, stop, ready, finished) = (&config, &stop, &ready, &finished);
-            handles.push(scope.spawn(move || -> Result<(u64, u64), TransportError> {
-                let result = (|| {
-                    let transport =
-                        RunTransport::open(config.clone(), &format!("bench-actor-{actor}"))?;
-                    let sink = transport.sink::<TransitionBatch>()?;
-                    sink.wait_for_receivers(1, Duration::from_secs(10))?;
-                    Ok((transport, sink))
-                })();
-                ready.wait();
-                let (_transport, mut sink) = match result {
-                    Ok(v) => v,
-                    Err(e) => {
-                        finished.fetch_add(1, Ordering::Release);
-                        return Err(e);
-                    }
-                };
-                let mut batch = filled_batch(actor as u16);
-                let mut sent = 0u64;
-                let outcome = loop {
-                    if stop.load(Ordering::Relaxed) {
-                        break Ok(());
-                    }
-                    batch.sequence = sent;
-                    match sink.send(&batch) {
-                        Ok(_) => sent += 1,
-                        Err(e) => break Err(e),
-                    }
-                };
-                let full = sink.stats().full_events;
-                finished.fetch_add(1, Ordering::Release);
-                outcome.map(|()| (sent, full))
-            }));
+            handles.push(
+                scope.spawn(move || -> Result<PublishReport, TransportError> {
+                    let result = open_publisher(config, actor);
+                    ready.wait();
+                    let (_transport, mut sink) = match result {
+                        Ok(v) => v,
+                        Err(e) => {
+                            finished.fetch_add(1, Ordering::Release);
+                            return Err(e);
+                        }
+                    };
+                    let outcome = send_until(&mut *sink, actor, || stop.load(Ordering::Relaxed));
+                    finished.fetch_add(1, Ordering::Release);
+                    outcome
+                }),
+            );
         }
 
         ready.wait();
         let start = Instant::now();
         let mut out = TransitionBatch::empty();
-        let mut next_seq = vec![0u64; publishers];
-        let (mut received, mut transitions, mut out_of_order) = (0u64, 0u64, 0u64);
+        let mut tally = Tally::new(publishers);
         let elapsed = loop {
             if source.try_receive_into(&mut out)? {
-                received += 1;
-                transitions += u64::from(out.len);
-                let expected = &mut next_seq[out.actor_id as usize % publishers];
-                if out.sequence != *expected {
-                    out_of_order += 1;
-                }
-                *expected = out.sequence + 1;
+                tally.count(&out);
                 continue;
             }
             if !stop.load(Ordering::Relaxed) {
@@ -187,8 +164,7 @@ pub fn throughput(
                 let mut quiet = Instant::now();
                 while quiet.elapsed() < DRAIN_QUIET {
                     if source.try_receive_into(&mut out)? {
-                        received += 1;
-                        transitions += u64::from(out.len);
+                        tally.count(&out);
                         last = start.elapsed();
                         quiet = Instant::now();
                     } else {
@@ -199,35 +175,105 @@ pub fn throughput(
             }
         };
 
-        let mut sent = 0;
-        let mut full_events = 0;
-        for handle in handles {
-            let (s, f) = handle.join().expect("bench publisher panicked")?;
-            sent += s;
-            full_events += f;
+        let sent = PublishReport::total(
+            handles
+                .into_iter()
+                .map(|h| h.join().expect("bench publisher panicked")),
+        )?;
+        let transport = match kind {
+            TransportKind::Shm => "iceoryx2",
+            TransportKind::Zenoh => "zenoh-tcp-loopback",
+        };
+        Ok(tally.report(transport, elapsed.as_secs_f64(), sent))
+    })
+}
+
+/// What a receiver counted.
+struct Tally {
+    /// Next expected sequence number per publisher.
+    next_seq: Vec<u64>,
+    received: u64,
+    transitions: u64,
+    /// Batches received out of per-publisher order.
+    out_of_order: u64,
+}
+
+impl Tally {
+    fn new(publishers: usize) -> Self {
+        Self {
+            next_seq: vec![0; publishers],
+            received: 0,
+            transitions: 0,
+            out_of_order: 0,
         }
-        let secs = elapsed.as_secs_f64();
-        let per_sec = transitions as f64 / secs;
-        Ok(ShmBenchReport {
-            transport: match kind {
-                TransportKind::Shm => "iceoryx2",
-                TransportKind::Zenoh => "zenoh-tcp-loopback",
-            }
-            .into(),
-            publishers,
+    }
+
+    fn count(&mut self, batch: &TransitionBatch) {
+        self.received += 1;
+        self.transitions += u64::from(batch.len);
+        let publishers = self.next_seq.len();
+        let expected = &mut self.next_seq[batch.actor_id as usize % publishers];
+        if batch.sequence != *expected {
+            self.out_of_order += 1;
+        }
+        *expected = batch.sequence + 1;
+    }
+
+    /// The report of a measurement over `secs` seconds in which the publishers sent `sent`.
+    fn report(self, transport: &str, secs: f64, sent: PublishReport) -> ShmBenchReport {
+        let per_sec = if secs > 0.0 {
+            self.transitions as f64 / secs
+        } else {
+            0.0
+        };
+        ShmBenchReport {
+            transport: transport.to_owned(),
+            publishers: self.next_seq.len(),
             obs_dim: OBS_DIM,
             transitions_per_batch: TRANSITIONS_PER_BATCH,
             transition_bytes: core::mem::size_of::<Transition>(),
             seconds: secs,
-            batches_sent: sent,
-            batches_received: received,
-            transitions_received: transitions,
-            lost_batches: sent.saturating_sub(received),
-            out_of_order,
-            full_events,
+            batches_sent: sent.batches_sent,
+            batches_received: self.received,
+            transitions_received: self.transitions,
+            lost_batches: sent.batches_sent.saturating_sub(self.received),
+            out_of_order: self.out_of_order,
+            full_events: sent.full_events,
             transitions_per_sec: per_sec,
             gigabytes_per_sec: per_sec * core::mem::size_of::<Transition>() as f64 / 1e9,
-        })
+        }
+    }
+}
+
+type Publisher = (
+    RunTransport,
+    Box<dyn crate::channel::MessageSink<TransitionBatch>>,
+);
+
+/// A publisher's own session and sink, once the receiver is there (at most 10 s).
+fn open_publisher(config: &TransportConfig, actor: usize) -> Result<Publisher, TransportError> {
+    let transport = RunTransport::open(config.clone(), &format!("bench-actor-{actor}"))?;
+    let sink = transport.sink::<TransitionBatch>()?;
+    sink.wait_for_receivers(1, Duration::from_secs(10))?;
+    Ok((transport, sink))
+}
+
+/// Sends full batches numbered 0, 1, … under `Block` until `done()`.
+fn send_until(
+    sink: &mut dyn crate::channel::MessageSink<TransitionBatch>,
+    actor: usize,
+    mut done: impl FnMut() -> bool,
+) -> Result<PublishReport, TransportError> {
+    let mut batch = filled_batch(actor as u16);
+    let mut sent = 0u64;
+    while !done() {
+        batch.sequence = sent;
+        sink.send(&batch)?;
+        sent += 1;
+    }
+    Ok(PublishReport {
+        batches_sent: sent,
+        full_events: sink.stats().full_events,
     })
 }
 
@@ -237,6 +283,27 @@ pub struct PublishReport {
     pub batches_sent: u64,
     /// Sends that met a full receiver and waited (back-pressure, not loss).
     pub full_events: u64,
+}
+
+impl PublishReport {
+    /// The sum of the publishers' reports, or the first error.
+    fn total(
+        reports: impl IntoIterator<Item = Result<Self, TransportError>>,
+    ) -> Result<Self, TransportError> {
+        reports.into_iter().try_fold(
+            Self {
+                batches_sent: 0,
+                full_events: 0,
+            },
+            |total, r| {
+                let r = r?;
+                Ok(Self {
+                    batches_sent: total.batches_sent + r.batches_sent,
+                    full_events: total.full_events + r.full_events,
+                })
+            },
+        )
+    }
 }
 
 fn remote_config(run_id: &str, publishers: usize, zenoh: ZenohConfig) -> TransportConfig {
@@ -277,48 +344,27 @@ pub fn zenoh_publish(
             .map(|actor| {
                 let (config, ready) = (&config, &ready);
                 scope.spawn(move || -> Result<PublishReport, TransportError> {
-                    let opened = (|| {
-                        let transport =
-                            RunTransport::open(config.clone(), &format!("bench-actor-{actor}"))?;
-                        let sink = transport.sink::<TransitionBatch>()?;
-                        sink.wait_for_receivers(1, Duration::from_secs(10))?;
-                        Ok((transport, sink))
-                    })();
+                    let opened = open_publisher(config, actor);
                     ready.wait();
                     let (_transport, mut sink) = opened?;
-                    let mut batch = filled_batch(actor as u16);
                     let start = Instant::now();
-                    let mut sent = 0u64;
-                    while start.elapsed() < duration {
-                        batch.sequence = sent;
-                        sink.send(&batch)?;
-                        sent += 1;
-                    }
-                    Ok(PublishReport {
-                        batches_sent: sent,
-                        full_events: sink.stats().full_events,
-                    })
+                    send_until(&mut *sink, actor, || start.elapsed() >= duration)
                 })
             })
             .collect();
-        let mut total = PublishReport {
-            batches_sent: 0,
-            full_events: 0,
-        };
-        for handle in handles {
-            let r = handle.join().expect("bench publisher panicked")?;
-            total.batches_sent += r.batches_sent;
-            total.full_events += r.full_events;
-        }
-        Ok(total)
+        PublishReport::total(
+            handles
+                .into_iter()
+                .map(|h| h.join().expect("bench publisher panicked")),
+        )
     })
 }
 
 /// Receiving half of a measurement between hosts: a Zenoh peer listening on `listen` takes
 /// batches from `publishers` remote publishers ([`zenoh_publish`]) until `publisher_done`
 /// returns what they sent and nothing more has arrived for 500 ms. `publisher_done` is first
-/// called once the session listens (start the publishers there) and then polled. The rate is over the span
-/// from the first to the last batch received; loss is sent minus received.
+/// called once the session listens (start the publishers there) and then polled. The rate is
+/// over the span from the first to the last batch received; loss is sent minus received.
 ///
 /// # Errors
 /// A session that cannot open, or `publisher_done` failing (the publishing process failed).
@@ -340,8 +386,7 @@ pub fn zenoh_receive(
     let learner = RunTransport::open(config, "bench-learner")?;
     let mut source = learner.source::<TransitionBatch>()?;
     let mut out = TransitionBatch::empty();
-    let mut next_seq = vec![0u64; publishers];
-    let (mut received, mut transitions, mut out_of_order) = (0u64, 0u64, 0u64);
+    let mut tally = Tally::new(publishers);
     let (mut first, mut last) = (None::<Instant>, Instant::now());
     let mut done: Option<(PublishReport, Instant)> = None;
     loop {
@@ -349,13 +394,7 @@ pub fn zenoh_receive(
             let now = Instant::now();
             first.get_or_insert(now);
             last = now;
-            received += 1;
-            transitions += u64::from(out.len);
-            let expected = &mut next_seq[out.actor_id as usize % publishers];
-            if out.sequence != *expected {
-                out_of_order += 1;
-            }
-            *expected = out.sequence + 1;
+            tally.count(&out);
             continue;
         }
         match &done {
@@ -371,27 +410,7 @@ pub fn zenoh_receive(
     }
     let (sent, _) = done.expect("loop ends after the publishers");
     let secs = first.map_or(0.0, |f| last.duration_since(f).as_secs_f64());
-    let per_sec = if secs > 0.0 {
-        transitions as f64 / secs
-    } else {
-        0.0
-    };
-    Ok(ShmBenchReport {
-        transport: label.to_owned(),
-        publishers,
-        obs_dim: OBS_DIM,
-        transitions_per_batch: TRANSITIONS_PER_BATCH,
-        transition_bytes: core::mem::size_of::<Transition>(),
-        seconds: secs,
-        batches_sent: sent.batches_sent,
-        batches_received: received,
-        transitions_received: transitions,
-        lost_batches: sent.batches_sent.saturating_sub(received),
-        out_of_order,
-        full_events: sent.full_events,
-        transitions_per_sec: per_sec,
-        gigabytes_per_sec: per_sec * core::mem::size_of::<Transition>() as f64 / 1e9,
-    })
+    Ok(tally.report(label, secs, sent))
 }
 
 #[cfg(test)]

@@ -44,7 +44,7 @@
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard, OnceLock};
 use std::time::{Duration, Instant};
 
 use crossbeam_channel::{Receiver, Sender, TrySendError};
@@ -109,6 +109,8 @@ pub struct ZenohTransport {
     config: TransportConfig,
     session: Session,
     cancel: Arc<AtomicBool>,
+    /// Peers this session had met when it first claimed an actor id (peer mode).
+    peers_met: Arc<OnceLock<usize>>,
 }
 
 impl core::fmt::Debug for ZenohTransport {
@@ -165,6 +167,7 @@ impl ZenohTransport {
             config,
             session,
             cancel: Arc::default(),
+            peers_met: Arc::default(),
         })
     }
 
@@ -191,10 +194,16 @@ impl ZenohTransport {
     /// [`CLAIM_ATTEMPTS`] times.
     pub fn claim_actor_id(&self, actor_id: u16) -> Result<ZenohClaim, TransportError> {
         // A peer asks only the peers it is connected to: right after opening it may not have
-        // met them yet, and would take an id a live actor holds.
-        if self.config.zenoh.mode == ZenohMode::Peer && !self.config.zenoh.connect.is_empty() {
+        // met them yet, and would take an id a live actor holds. Waited for once per session
+        // (an auto actor claims id after id).
+        let must_meet = self.config.zenoh.mode == ZenohMode::Peer
+            && !self.config.zenoh.connect.is_empty()
+            && self.peers_met.get().is_none();
+        if must_meet {
             let peers = self.settled_peers(PEER_WAIT);
-            if peers == 0 {
+            if peers > 0 {
+                let _ = self.peers_met.set(peers);
+            } else {
                 return Err(TransportError::Timeout {
                     what: format!(
                         "a Zenoh peer at {:?}, to check that actor id {actor_id} is free (start \
@@ -216,12 +225,7 @@ impl ZenohTransport {
             if self.other_holders(&prefix, &key)? {
                 return Err(in_use());
             }
-            let token = self
-                .session
-                .liveliness()
-                .declare_token(&key)
-                .wait()
-                .map_err(|e| zenoh_err("declare token", &key, e))?;
+            let token = self.declare_token(&key)?;
             std::thread::sleep(CLAIM_SETTLE);
             if !self.other_holders(&prefix, &key)? {
                 return Ok(ZenohClaim { key, _token: token });
@@ -255,6 +259,11 @@ impl ZenohTransport {
     /// Whether a live token under `prefix/*` other than `mine` exists, asked of every
     /// reachable process.
     fn other_holders(&self, prefix: &str, mine: &str) -> Result<bool, TransportError> {
+        Ok(self.live_tokens(prefix)?.iter().any(|key| key != mine))
+    }
+
+    /// Keys of the live tokens under `prefix/*`, asked of every reachable process.
+    fn live_tokens(&self, prefix: &str) -> Result<Vec<String>, TransportError> {
         let query = format!("{prefix}/*");
         let replies = self
             .session
@@ -263,13 +272,22 @@ impl ZenohTransport {
             .timeout(QUERY_TIMEOUT)
             .wait()
             .map_err(|e| zenoh_err("liveliness query", &query, e))?;
-        let mut held = false;
+        let mut keys = vec![];
         while let Ok(reply) = replies.recv() {
             if let Ok(sample) = reply.result() {
-                held |= sample.key_expr().as_str() != mine;
+                keys.push(sample.key_expr().as_str().to_owned());
             }
         }
-        Ok(held)
+        Ok(keys)
+    }
+
+    /// Declares the liveliness token `key`, alive until dropped.
+    fn declare_token(&self, key: &str) -> Result<LivelinessToken, TransportError> {
+        self.session
+            .liveliness()
+            .declare_token(key)
+            .wait()
+            .map_err(|e| zenoh_err("declare token", key, e))
     }
 
     fn key(&self, topic: crate::Topic, rest: &str) -> String {
@@ -278,22 +296,10 @@ impl ZenohTransport {
 
     /// Ids of the live tokens under `prefix/*`, asked of every reachable process.
     fn query_tokens(&self, prefix: &str) -> Result<Vec<u64>, TransportError> {
-        let key = format!("{prefix}/*");
-        let replies = self
-            .session
-            .liveliness()
-            .get(&key)
-            .timeout(QUERY_TIMEOUT)
-            .wait()
-            .map_err(|e| zenoh_err("liveliness query", &key, e))?;
         let mut ids = vec![];
-        while let Ok(reply) = replies.recv() {
-            if let Ok(sample) = reply.result() {
-                if let Some(id) = token_id(sample.key_expr().as_str()) {
-                    if !ids.contains(&id) {
-                        ids.push(id);
-                    }
-                }
+        for id in self.live_tokens(prefix)?.iter().filter_map(|k| token_id(k)) {
+            if !ids.contains(&id) {
+                ids.push(id);
             }
         }
         Ok(ids)
@@ -330,13 +336,7 @@ impl ZenohTransport {
             }
         };
         let key = format!("{prefix}/{id:016x}");
-        let token = self
-            .session
-            .liveliness()
-            .declare_token(&key)
-            .wait()
-            .map_err(|e| zenoh_err("declare token", &key, e))?;
-        Ok((id, token))
+        Ok((id, self.declare_token(&key)?))
     }
 
     /// Follows the live tokens under `prefix/*` into `peers` (id → generation) and wakes
@@ -478,6 +478,30 @@ impl ZenohTransport {
             _data: data,
             _senders: senders,
         })
+    }
+}
+
+/// Waits until Zenoh routes `publisher`'s puts to a matching subscriber (a declaration travels
+/// separately from the liveliness token that announced it), polling every millisecond, at most
+/// [`MATCH_TIMEOUT`] or until `give_up` says so. `Ok(false)`: not routed.
+fn wait_until_routed(
+    publisher: &Publisher<'static>,
+    label: &str,
+    mut give_up: impl FnMut() -> bool,
+) -> Result<bool, TransportError> {
+    let start = Instant::now();
+    loop {
+        let status = publisher
+            .matching_status()
+            .wait()
+            .map_err(|e| zenoh_err("matching status", label, e))?;
+        if status.matching() {
+            return Ok(true);
+        }
+        if give_up() || start.elapsed() >= MATCH_TIMEOUT {
+            return Ok(false);
+        }
+        std::thread::sleep(Duration::from_millis(1));
     }
 }
 
@@ -711,27 +735,16 @@ impl<M: Message> ZenohSink<M> {
     /// declaration travels separately from its liveliness token). `Ok(false)`: the receiver
     /// went away or never matched within [`MATCH_TIMEOUT`].
     fn matched(&mut self, receiver: u64) -> Result<bool, TransportError> {
-        let start = Instant::now();
-        loop {
-            let link = self.links.get_mut(&receiver).expect("link exists");
-            if link.matched {
-                return Ok(true);
-            }
-            let status = link
-                .publisher
-                .matching_status()
-                .wait()
-                .map_err(|e| zenoh_err("matching status", &self.label, e))?;
-            if status.matching() {
-                link.matched = true;
-                return Ok(true);
-            }
-            let gone = !lock(&self.shared.state).peers.contains_key(&receiver);
-            if gone || start.elapsed() >= MATCH_TIMEOUT || self.cancel.load(Ordering::Relaxed) {
-                return Ok(false);
-            }
-            std::thread::sleep(Duration::from_millis(1));
+        let link = self.links.get(&receiver).expect("link exists");
+        if link.matched {
+            return Ok(true);
         }
+        let (shared, cancel) = (&self.shared, &self.cancel);
+        let matched = wait_until_routed(&link.publisher, &self.label, || {
+            !lock(&shared.state).peers.contains_key(&receiver) || cancel.load(Ordering::Relaxed)
+        })?;
+        self.links.get_mut(&receiver).expect("link exists").matched = matched;
+        Ok(matched)
     }
 
     /// Waits (per the policy) until `receiver` can take one more message of this link.
@@ -925,16 +938,7 @@ impl<M: Message> ZenohSource<M> {
             // As for a sink's data link: the first puts of a new publisher can be dropped
             // until Zenoh routes it to the subscriber (a client learns of it through its
             // router), and a sender whose first acks are all lost waits for credit forever.
-            let start = Instant::now();
-            while start.elapsed() < MATCH_TIMEOUT
-                && !publisher
-                    .matching_status()
-                    .wait()
-                    .map_err(|e| zenoh_err("matching status", &key, e))?
-                    .matching()
-            {
-                std::thread::sleep(Duration::from_millis(1));
-            }
+            wait_until_routed(&publisher, &key, || false)?;
             self.ack_publishers.insert(incoming.sender, publisher);
         }
         let mut ack = [0u8; ACK_BYTES];
