@@ -10,6 +10,7 @@
 mod config;
 pub mod eval;
 mod metaworld_vec;
+pub mod service;
 
 pub use config::{token_from_env, Algorithm, ClusterConfig, OnCheckpointError, RunConfig};
 pub use metaworld_vec::MetaWorldVec;
@@ -155,12 +156,19 @@ pub fn host_name() -> String {
 }
 
 /// Initialises `tracing` for a service binary: `RUST_LOG` or `info`, to stderr (colours only on
-/// a terminal).
+/// a terminal). Log lines carry the service's span (`learner{run=..}`, `selector{run=..}`,
+/// `actor{id=..}`) before the message.
 pub fn init_tracing() {
+    init_tracing_with_default("info");
+}
+
+/// [`init_tracing`] with another default filter when `RUST_LOG` is unset (the `terl` command
+/// line: `warn`). Does nothing when a subscriber is already set.
+pub fn init_tracing_with_default(default_filter: &str) {
     let _ = tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_filter)),
         )
         .with_writer(std::io::stderr)
         // Plain text when logs go to a file (the launcher writes runs/<id>/*.log).

@@ -3,7 +3,7 @@
 
 use std::time::Duration;
 
-use crate::channel::{Message, MessageSink, MessageSource, Transport};
+use crate::channel::{Message, MessageSink, MessageSource, ServiceTransport, Transport};
 use crate::config::{TransportConfig, TransportKind};
 use crate::error::TransportError;
 use crate::ipc::{SenderClaim, ShmTransport};
@@ -92,5 +92,21 @@ impl Transport for RunTransport {
             Self::Shm(t) => t.cancel_blocked_sends(),
             Self::Zenoh(t) => t.cancel_blocked_sends(),
         }
+    }
+}
+
+impl ServiceTransport for RunTransport {
+    type Claim = ActorClaim;
+
+    fn claim_actor_id(&self, actor_id: u16) -> Result<ActorClaim, TransportError> {
+        RunTransport::claim_actor_id(self, actor_id)
+    }
+
+    fn cleanup_dead_nodes(&self) -> crate::StaleCleanup {
+        RunTransport::cleanup_dead_nodes(self)
+    }
+
+    fn wait(&self, cycle: Duration) -> bool {
+        RunTransport::wait(self, cycle)
     }
 }

@@ -184,3 +184,24 @@ pub trait Transport: Debug {
     /// (now or later) returns `TransportError::Cancelled` instead of waiting.
     fn cancel_blocked_sends(&self);
 }
+
+/// What a service needs of its transport beyond sinks and sources: holding an actor id,
+/// removing what dead processes left, and the main loop's wait. [`crate::RunTransport`]
+/// (shared memory or Zenoh, one per process) and [`crate::MemoryTransport`] (every service of
+/// a test in one process, on one [`crate::memory::MemoryBus`]) implement it, so the learner,
+/// selector and actor loops run unchanged over either.
+pub trait ServiceTransport: Transport + Send + Sync + 'static {
+    /// An actor id held for as long as this value lives.
+    type Claim: Send + Debug;
+
+    /// Claims `actor_id` on this run so no two actors stream under one id; errors with
+    /// [`TransportError::IdInUse`] while another live holder has it.
+    fn claim_actor_id(&self, actor_id: u16) -> Result<Self::Claim, TransportError>;
+
+    /// Removes the resources dead processes left (e.g. a killed learner's subscription, so it
+    /// shows as no receiver); what was removed.
+    fn cleanup_dead_nodes(&self) -> crate::StaleCleanup;
+
+    /// Sleeps for `cycle`; `false` when the process should stop.
+    fn wait(&self, cycle: Duration) -> bool;
+}

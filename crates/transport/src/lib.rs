@@ -33,7 +33,7 @@ pub use actor_to_selector::{EpisodeSummary, TrajectoryStep, MAX_EPISODE_STEPS};
 pub use any::{ActorClaim, RunTransport};
 pub use channel::{
     EpisodeSink, EpisodeSource, Message, MessageSink, MessageSource, SelectedSink, SelectedSource,
-    Topic, TransitionSink, TransitionSource, Transport,
+    ServiceTransport, Topic, TransitionSink, TransitionSource, Transport,
 };
 pub use config::{ServiceLimits, TransportConfig, TransportKind, ZenohConfig, ZenohMode};
 pub use error::TransportError;
@@ -42,6 +42,6 @@ pub use flow::{
     Staleness, StatsSnapshot, TransportStats,
 };
 pub use ipc::{SenderClaim, ShmSink, ShmSource, ShmTransport, StaleCleanup};
-pub use memory::MemoryTransport;
+pub use memory::{MemoryBus, MemoryClaim, MemoryTransport};
 pub use selector_to_learner::{SelectedBatch, SelectedSample, SELECTED_PER_BATCH};
 pub use zenoh_net::{ZenohClaim, ZenohRouter, ZenohSink, ZenohSource, ZenohTransport};

@@ -6,14 +6,14 @@
 //! same way, publisher/subscriber limits are enforced, and run ids keep streams apart.
 
 use std::any::Any;
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use crossbeam_channel::{Receiver, SendTimeoutError, Sender, TrySendError};
 
-use crate::channel::{Message, MessageSink, MessageSource, Transport};
+use crate::channel::{Message, MessageSink, MessageSource, ServiceTransport, Transport};
 use crate::config::TransportConfig;
 use crate::error::TransportError;
 use crate::flow::{OverflowPolicy, SendOutcome, StatsSnapshot, TransportStats};
@@ -23,6 +23,8 @@ use crate::flow::{OverflowPolicy, SendOutcome, StatsSnapshot, TransportStats};
 pub struct MemoryBus {
     topics: Arc<Mutex<HashMap<String, TopicState>>>,
     next_id: Arc<AtomicU64>,
+    /// Actor ids held, as `terl/<run_id>/claims/actor-<id>`.
+    claims: Arc<Mutex<HashSet<String>>>,
 }
 
 #[derive(Default)]
@@ -150,6 +152,55 @@ impl Transport for MemoryTransport {
 
     fn cancel_blocked_sends(&self) {
         self.cancel.store(true, Ordering::Relaxed);
+    }
+}
+
+impl ServiceTransport for MemoryTransport {
+    type Claim = MemoryClaim;
+
+    /// Like the shared-memory claim: one holder per actor id and run on this bus, released
+    /// when the [`MemoryClaim`] is dropped.
+    fn claim_actor_id(&self, actor_id: u16) -> Result<MemoryClaim, TransportError> {
+        let label = format!("terl/{}/claims/actor-{actor_id}", self.config.run_id);
+        let mut claims = self.bus.claims.lock().unwrap_or_else(|e| e.into_inner());
+        if !claims.insert(label.clone()) {
+            return Err(TransportError::IdInUse {
+                what: format!("actor id {actor_id}"),
+                run_id: self.config.run_id.clone(),
+                service: label,
+            });
+        }
+        Ok(MemoryClaim {
+            claims: Arc::clone(&self.bus.claims),
+            label,
+        })
+    }
+
+    /// Nothing to do: in one process nothing outlives its holder.
+    fn cleanup_dead_nodes(&self) -> crate::StaleCleanup {
+        crate::StaleCleanup::default()
+    }
+
+    fn wait(&self, cycle: Duration) -> bool {
+        std::thread::sleep(cycle);
+        true
+    }
+}
+
+/// An actor id held on a [`MemoryBus`] (see [`MemoryTransport`]'s `claim_actor_id`);
+/// released when dropped.
+#[derive(Debug)]
+pub struct MemoryClaim {
+    claims: Arc<Mutex<HashSet<String>>>,
+    label: String,
+}
+
+impl Drop for MemoryClaim {
+    fn drop(&mut self) {
+        self.claims
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .remove(&self.label);
     }
 }
 
@@ -325,5 +376,31 @@ impl<M: Message> Drop for MemorySource<M> {
         if let Some(state) = self.bus.lock().get_mut(&self.label) {
             state.subscribers.retain(|(id, _)| *id != self.id);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// One holder per actor id and run on a bus; another run on the same bus, or the same id
+    /// after the holder dropped its claim, is free.
+    #[test]
+    fn an_actor_id_is_held_once_per_run_until_the_claim_is_dropped() {
+        let bus = MemoryBus::default();
+        let a = MemoryTransport::on_bus(bus.clone(), TransportConfig::new("claims-a", 2)).unwrap();
+        let b = MemoryTransport::on_bus(bus.clone(), TransportConfig::new("claims-a", 2)).unwrap();
+        let other = MemoryTransport::on_bus(bus, TransportConfig::new("claims-b", 2)).unwrap();
+        let held = a.claim_actor_id(0).unwrap();
+        match b.claim_actor_id(0) {
+            Err(TransportError::IdInUse { what, run_id, .. }) => {
+                assert_eq!((what.as_str(), run_id.as_str()), ("actor id 0", "claims-a"));
+            }
+            other => panic!("{other:?}"),
+        }
+        let _one = b.claim_actor_id(1).unwrap();
+        let _elsewhere = other.claim_actor_id(0).unwrap();
+        drop(held);
+        let _again = b.claim_actor_id(0).unwrap();
     }
 }

@@ -12,8 +12,8 @@ use terl_rl::{Policy, PolicySpec};
 use terl_runtime::{Algorithm, RunConfig};
 use terl_sim::VecEnv;
 use terl_transport::{
-    flags, EpisodeSummary, Message, MessageSink, RunTransport, TrajectoryStep, Transition,
-    TransitionBatch, Transport, TransportConfig, TransportError, ACTION_DIM, OBS_DIM,
+    flags, EpisodeSummary, Message, MessageSink, ServiceTransport, TrajectoryStep, Transition,
+    TransitionBatch, Transport, TransportError, ACTION_DIM, OBS_DIM,
 };
 
 use crate::{ActorConfig, Mailbox};
@@ -202,10 +202,10 @@ pub(crate) fn transition_of(
 /// configured one, or with [`ActorConfig::auto_id`] the lowest free one).
 /// Holds the actor id: the configured one, or with `auto_id` the lowest id below
 /// `num_actors` that no live process holds.
-fn claim(
-    transport: &RunTransport,
+fn claim<T: ServiceTransport>(
+    transport: &T,
     config: &ActorConfig,
-) -> anyhow::Result<(u16, terl_transport::ActorClaim)> {
+) -> anyhow::Result<(u16, T::Claim)> {
     if !config.auto_id {
         let id = u16::try_from(config.actor_id).context("actor id above 65535")?;
         return Ok((id, transport.claim_actor_id(id)?));
@@ -228,28 +228,17 @@ fn claim(
     )
 }
 
-pub(crate) fn run(
+pub(crate) fn run<T: ServiceTransport>(
     config: &ActorConfig,
+    transport: &T,
     mailbox: &Mailbox,
     claimed: tokio::sync::oneshot::Sender<usize>,
 ) -> anyhow::Result<()> {
     let run = &config.run;
     let tasks = terl_runtime::resolve_tasks(&run.tasks)?;
-    let transport_config = TransportConfig {
-        buffer_batches: run.cluster.buffer_batches,
-        block_timeout: Duration::from_secs_f64(run.cluster.block_timeout_secs),
-        transport: run.cluster.transport,
-        zenoh: run.cluster.zenoh.clone(),
-        ..TransportConfig::new(config.run_id.clone(), config.num_actors)
-    };
-    let role = if config.auto_id {
-        "actor-auto".to_owned()
-    } else {
-        format!("actor-{}", config.actor_id)
-    };
-    let transport = RunTransport::open(transport_config, &role)?;
-    // One process per actor id and run, held until this function returns.
-    let (actor_id, _claim) = claim(&transport, config)?;
+    // One actor per actor id and run, held until this function returns.
+    let (actor_id, _claim) = claim(transport, config)?;
+    tracing::Span::current().record("id", actor_id);
     let _ = claimed.send(usize::from(actor_id));
     // An actor with a fixed id steps its share of the cluster's environments; one that took
     // any free id (a replica of a scaled Deployment) steps every task, so task shares stay
@@ -574,8 +563,11 @@ mod tests {
         terl_transport::memory::MemorySink<TransitionBatch>,
         std::sync::Arc<Mailbox>,
     ) {
-        let t = terl_transport::memory::MemoryTransport::new(TransportConfig::new("pause-test", 1))
-            .unwrap();
+        let t = terl_transport::memory::MemoryTransport::new(terl_transport::TransportConfig::new(
+            "pause-test",
+            1,
+        ))
+        .unwrap();
         let sink = t.memory_sink::<TransitionBatch>().unwrap();
         (t, sink, std::sync::Arc::default())
     }

@@ -27,6 +27,7 @@ use std::sync::{Arc, Mutex};
 
 use terl_runtime::{Algorithm, RunConfig};
 use terl_wire::{Weights, WeightsKind};
+use tracing::Instrument;
 
 /// Everything an actor needs to start.
 #[derive(Debug, Clone)]
@@ -113,10 +114,35 @@ fn post(mailbox: &Mailbox, weights: Weights) {
     }
 }
 
-/// Runs the actor until `shutdown` completes or the environment loop fails.
-pub async fn run(
+/// Runs the actor on `transport` (the run's streams: [`terl_transport::RunTransport`] in the
+/// binary, a [`terl_transport::MemoryTransport`] on a shared bus in tests) until `shutdown`
+/// completes or the environment loop fails. Follows the learner's weights at
+/// `config.learner_addr` once it holds its actor id; logs inside an `actor{id=<actor id>}`
+/// span (with `auto_id`, the id is filled in once taken).
+///
+/// # Errors
+/// An actor id at or above `num_actors`, an id another live actor holds, or the environment
+/// loop's error.
+pub async fn run<T: terl_transport::ServiceTransport>(
     config: ActorConfig,
+    transport: T,
     shutdown: impl Future<Output = ()> + Send,
+) -> anyhow::Result<()> {
+    let span = if config.auto_id {
+        tracing::info_span!("actor", id = tracing::field::Empty)
+    } else {
+        tracing::info_span!("actor", id = config.actor_id)
+    };
+    run_in_span(config, transport, shutdown, span.clone())
+        .instrument(span)
+        .await
+}
+
+async fn run_in_span<T: terl_transport::ServiceTransport>(
+    config: ActorConfig,
+    transport: T,
+    shutdown: impl Future<Output = ()> + Send,
+    span: tracing::Span,
 ) -> anyhow::Result<()> {
     anyhow::ensure!(
         config.auto_id || config.actor_id < config.num_actors,
@@ -130,18 +156,13 @@ pub async fn run(
         Algorithm::Terl => vec![WeightsKind::Policy, WeightsKind::Planner],
     };
     let (claimed_tx, claimed_rx) = tokio::sync::oneshot::channel();
-    let (done_tx, mut done_rx) = tokio::sync::watch::channel(false);
     let max_message_bytes = config.run.cluster.max_message_bytes();
     let (learner_addr, security) = (config.learner_addr.clone(), config.client_security.clone());
-    let env_thread = {
+    let mut env_thread = {
         let mailbox = Arc::clone(&mailbox);
-        std::thread::Builder::new()
-            .name("envs".into())
-            .spawn(move || {
-                let result = envloop::run(&config, &mailbox, claimed_tx);
-                let _ = done_tx.send(true);
-                result
-            })?
+        terl_runtime::service::Worker::spawn("envs", "environment thread", span, move || {
+            envloop::run(&config, &transport, &mailbox, claimed_tx)
+        })?
     };
     // Weights are followed once the actor holds its id, under which the learner lists it.
     let follow = |actor_id: usize| {
@@ -154,31 +175,32 @@ pub async fn run(
                 host: terl_runtime::host_name(),
             }),
         };
-        tokio::spawn(terl_wire::follow_weights_with(
-            learner_addr.clone(),
-            kinds.clone(),
-            options,
-            move |w| post(&mailbox, w),
-        ))
+        tokio::spawn(
+            terl_wire::follow_weights_with(
+                learner_addr.clone(),
+                kinds.clone(),
+                options,
+                move |w| post(&mailbox, w),
+            )
+            .in_current_span(),
+        )
     };
     tokio::pin!(shutdown);
     let claimed = tokio::select! {
         () = &mut shutdown => None,
-        _ = done_rx.wait_for(|done| *done) => None,
+        () = env_thread.stopped() => None,
         Ok(actor_id) = claimed_rx => Some(actor_id),
     };
     let follower = claimed.map(follow);
     if follower.is_some() {
         tokio::select! {
             () = &mut shutdown => {}
-            _ = done_rx.wait_for(|done| *done) => {}
+            () = env_thread.stopped() => {}
         }
     }
     mailbox.stop.store(true, Ordering::Relaxed);
     if let Some(follower) = follower {
         follower.abort();
     }
-    tokio::task::spawn_blocking(move || env_thread.join())
-        .await?
-        .map_err(|_| anyhow::anyhow!("environment thread panicked"))?
+    env_thread.join().await
 }

@@ -76,5 +76,14 @@ async fn main() -> anyhow::Result<()> {
         terl_actor::ActorConfig::new(run, a.run_id, actor_id, a.num_actors, a.learner_addr);
     config.auto_id = auto_id;
     config.client_security = client_security;
-    terl_actor::run(config, terl_runtime::shutdown_signal()).await
+    let role = if auto_id {
+        "actor-auto".to_owned()
+    } else {
+        format!("actor-{actor_id}")
+    };
+    let transport = terl_runtime::service::open_transport(
+        terl_runtime::service::transport_config(&config.run, &config.run_id, config.num_actors),
+        &role,
+    )?;
+    terl_actor::run(config, transport, terl_runtime::shutdown_signal()).await
 }

@@ -19,10 +19,14 @@
 //! written its final checkpoint and dropped its shared-memory node.
 
 mod checkpoint;
+mod checkpointing;
 mod dataset;
 mod losses;
 mod metrics;
 mod planner;
+mod publisher;
+mod staging;
+mod status;
 mod trainer;
 
 use std::future::Future;
@@ -33,6 +37,7 @@ use std::time::Instant;
 use anyhow::Context;
 use terl_wire::{CheckpointRequest, CheckpointSaved, LearnerBackend, LearnerStatus, WeightHub};
 use tonic::Status;
+use tracing::Instrument;
 
 pub use trainer::CheckpointJob;
 
@@ -106,27 +111,55 @@ pub(crate) fn to_weights(
     )?)
 }
 
-/// Runs the learner until `shutdown` completes or the trainer fails.
-pub async fn run(
-    config: LearnerConfig,
-    shutdown: impl Future<Output = ()> + Send,
-) -> anyhow::Result<()> {
-    // Weights that would not fit a gRPC message fail here, naming the run-file key, rather than
-    // at the first publication after minutes of training.
+/// Start-up checks that need neither a listener nor a transport: the task list resolves and
+/// the networks' weights fit a gRPC message (refused naming the run-file key that raises the
+/// limit, rather than at the first publication after minutes of training). The binary calls
+/// it before it listens; [`run`] calls it again before it announces its address.
+///
+/// # Errors
+/// An unknown task, or a weight message over `[cluster] max_message_mib`.
+pub fn check_start_up(config: &LearnerConfig) -> anyhow::Result<()> {
     let num_tasks = terl_runtime::resolve_tasks(&config.run.tasks)?.len();
     config.run.check_weight_messages(num_tasks)?;
-    let max_message_bytes = config.run.cluster.max_message_bytes();
-    let listener = terl_wire::bind_secured(config.addr, &config.server_security)
+    Ok(())
+}
+
+/// Runs the learner on `listener` (already bound, e.g. by [`terl_wire::bind_secured`]) and
+/// `transport` (the run's streams: [`terl_transport::RunTransport`] in the binary, a
+/// [`terl_transport::MemoryTransport`] on a shared bus in tests) until `shutdown` completes or
+/// the trainer stops (training budget reached, or an error). Writes `<run_dir>/learner.addr`;
+/// logs inside a `learner{run=<run id>}` span.
+///
+/// # Errors
+/// A failed start-up check (before the address file is written), the trainer's error, or the
+/// gRPC server's.
+pub async fn run<T: terl_transport::ServiceTransport>(
+    config: LearnerConfig,
+    listener: tokio::net::TcpListener,
+    transport: T,
+    shutdown: impl Future<Output = ()> + Send,
+) -> anyhow::Result<()> {
+    let span = tracing::info_span!("learner", run = %config.run_id);
+    run_in_span(config, listener, transport, shutdown, span.clone())
+        .instrument(span)
         .await
-        .with_context(|| format!("cannot listen on {}", config.addr))?;
+}
+
+async fn run_in_span<T: terl_transport::ServiceTransport>(
+    config: LearnerConfig,
+    listener: tokio::net::TcpListener,
+    transport: T,
+    shutdown: impl Future<Output = ()> + Send,
+    span: tracing::Span,
+) -> anyhow::Result<()> {
+    check_start_up(&config)?;
+    let max_message_bytes = config.run.cluster.max_message_bytes();
     let serve_options = terl_wire::ServeOptions {
         max_message_bytes,
         security: config.server_security.clone(),
         ..terl_wire::ServeOptions::default()
     };
-    let addr = listener.local_addr()?;
-    let addr_file = terl_runtime::write_addr_file(&config.run_dir, "learner", addr)?;
-    tracing::info!(%addr, file = %addr_file.display(), run_id = %config.run_id, "learner listening");
+    terl_runtime::service::announce(&listener, &config.run_dir, "learner", &config.run_id)?;
 
     let shared = Arc::new(Shared {
         started: Instant::now(),
@@ -138,34 +171,23 @@ pub async fn run(
     });
     let hub = WeightHub::with_max_message_bytes(max_message_bytes);
     let (checkpoint_tx, checkpoint_rx) = mpsc::channel();
-    let (done_tx, mut done_rx) = tokio::sync::watch::channel(false);
-    let trainer = {
+    let mut trainer = {
         let (shared, hub) = (Arc::clone(&shared), hub.clone());
-        std::thread::Builder::new()
-            .name("trainer".into())
-            .spawn(move || {
-                let result = trainer::run(&config, &shared, &hub, &checkpoint_rx);
-                let _ = done_tx.send(true);
-                result
-            })?
+        terl_runtime::service::Worker::spawn("trainer", "trainer thread", span, move || {
+            trainer::run(&config, &transport, &shared, &hub, &checkpoint_rx)
+        })?
     };
     let backend = Backend {
         shared: Arc::clone(&shared),
         hub,
         checkpoints: Mutex::new(checkpoint_tx),
     };
-    let stop_serving = async {
-        tokio::select! {
-            () = shutdown => {}
-            _ = done_rx.wait_for(|done| *done) => tracing::info!("trainer stopped; shutting down"),
-        }
-    };
-    let served =
-        terl_wire::serve_learner_with(listener, backend, stop_serving, serve_options).await;
+    let served = terl_runtime::service::serve_until(shutdown, &mut trainer, |stop| {
+        terl_wire::serve_learner_with(listener, backend, stop, serve_options)
+    })
+    .await;
     shared.stop.store(true, Ordering::Relaxed);
-    let trained = tokio::task::spawn_blocking(move || trainer.join())
-        .await?
-        .map_err(|_| anyhow::anyhow!("trainer thread panicked"))?;
+    let trained = trainer.join().await;
     served.context("gRPC server")?;
     trained
 }
@@ -198,8 +220,16 @@ mod tests {
             .enable_all()
             .build()
             .unwrap();
+        assert!(check_start_up(&config).is_err());
+        let transport = terl_transport::MemoryTransport::new(
+            terl_runtime::service::transport_config(&config.run, &config.run_id, 1),
+        )
+        .unwrap();
         let e = rt
-            .block_on(super::run(config, std::future::pending()))
+            .block_on(async {
+                let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+                super::run(config, listener, transport, std::future::pending()).await
+            })
             .unwrap_err()
             .to_string();
         assert!(

@@ -1,7 +1,9 @@
-//! `terl-learner`: parse arguments, then [`terl_learner::run`] until SIGINT/SIGTERM.
+//! `terl-learner`: parse arguments, check the networks fit a message, listen, open the run's
+//! transport, then [`terl_learner::run`] until SIGINT/SIGTERM.
 
 use std::path::PathBuf;
 
+use anyhow::Context;
 use clap::Parser;
 
 #[derive(Debug, Parser)]
@@ -70,5 +72,14 @@ async fn main() -> anyhow::Result<()> {
         .cluster
         .server_security(terl_runtime::token_from_env())?;
     config.resume = a.resume;
-    terl_learner::run(config, terl_runtime::shutdown_signal()).await
+    // Refused before listening: weights that would not fit a gRPC message.
+    terl_learner::check_start_up(&config)?;
+    let listener = terl_wire::bind_secured(config.addr, &config.server_security)
+        .await
+        .with_context(|| format!("cannot listen on {}", config.addr))?;
+    let transport = terl_runtime::service::open_transport(
+        terl_runtime::service::transport_config(&config.run, &config.run_id, config.num_actors),
+        "learner",
+    )?;
+    terl_learner::run(config, listener, transport, terl_runtime::shutdown_signal()).await
 }

@@ -27,11 +27,12 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use terl_runtime::Algorithm;
 use terl_transport::{
-    EpisodeSummary, LossTracker, Message, MessageSink, RunTransport, SelectedBatch, SelectedSample,
-    Transport, TransportConfig, TransportError, ACTION_DIM, OBS_DIM, SELECTED_PER_BATCH,
+    EpisodeSummary, LossTracker, Message, MessageSink, SelectedBatch, SelectedSample,
+    ServiceTransport, Transport, TransportError, ACTION_DIM, OBS_DIM, SELECTED_PER_BATCH,
 };
 use terl_wire::{PriorityStats, SelectorBackend, SelectorStatus, TaskSuccess, WeightsKind};
 use tonic::Status;
+use tracing::Instrument;
 
 mod evaluator;
 pub mod scoring;
@@ -275,15 +276,12 @@ impl Selecting {
     }
 }
 
-fn receive_loop(config: &SelectorConfig, shared: &Shared) -> anyhow::Result<()> {
+fn receive_loop<T: Transport>(
+    config: &SelectorConfig,
+    transport: &T,
+    shared: &Shared,
+) -> anyhow::Result<()> {
     let run = &config.run;
-    let transport_config = TransportConfig {
-        block_timeout: Duration::from_secs_f64(run.cluster.block_timeout_secs),
-        transport: run.cluster.transport,
-        zenoh: run.cluster.zenoh.clone(),
-        ..TransportConfig::new(config.run_id.clone(), config.num_actors)
-    };
-    let transport = RunTransport::open(transport_config, "selector")?;
     let mut episodes = transport.source::<EpisodeSummary>()?;
     let tasks: Vec<&str> = terl_runtime::resolve_tasks(&run.tasks)?;
     let mut selecting = if run.algorithm == Algorithm::Terl {
@@ -488,10 +486,33 @@ fn resume_from_logs(
     Ok(replayed)
 }
 
-/// Runs the selector until `shutdown` completes or receiving fails.
-pub async fn run(
+/// Runs the selector on `listener` (already bound, e.g. by [`terl_wire::bind_secured`]) and
+/// `transport` (the run's streams: [`terl_transport::RunTransport`] in the binary, a
+/// [`terl_transport::MemoryTransport`] on a shared bus in tests) until `shutdown` completes or
+/// receiving fails. Writes `<run_dir>/selector.addr`; logs inside a `selector{run=<run id>}`
+/// span.
+///
+/// # Errors
+/// `algorithm = "terl"` without the learner's address, an unknown task, the receive loop's
+/// error or the gRPC server's.
+pub async fn run<T: ServiceTransport>(
     config: SelectorConfig,
+    listener: tokio::net::TcpListener,
+    transport: T,
     shutdown: impl Future<Output = ()> + Send,
+) -> anyhow::Result<()> {
+    let span = tracing::info_span!("selector", run = %config.run_id);
+    run_in_span(config, listener, transport, shutdown, span.clone())
+        .instrument(span)
+        .await
+}
+
+async fn run_in_span<T: ServiceTransport>(
+    config: SelectorConfig,
+    listener: tokio::net::TcpListener,
+    transport: T,
+    shutdown: impl Future<Output = ()> + Send,
+    span: tracing::Span,
 ) -> anyhow::Result<()> {
     anyhow::ensure!(
         config.run.algorithm == Algorithm::Mtsac || config.learner_addr.is_some(),
@@ -502,16 +523,11 @@ pub async fn run(
         .into_iter()
         .map(str::to_owned)
         .collect();
-    let listener = terl_wire::bind_secured(config.addr, &config.server_security)
-        .await
-        .with_context(|| format!("cannot listen on {}", config.addr))?;
     let serve_options = terl_wire::ServeOptions {
         security: config.server_security.clone(),
         ..terl_wire::ServeOptions::default()
     };
-    let addr = listener.local_addr()?;
-    let addr_file = terl_runtime::write_addr_file(&config.run_dir, "selector", addr)?;
-    tracing::info!(%addr, file = %addr_file.display(), run_id = %config.run_id, "selector listening");
+    terl_runtime::service::announce(&listener, &config.run_dir, "selector", &config.run_id)?;
     let shared = Arc::new(Shared {
         started: Instant::now(),
         run_id: config.run_id.clone(),
@@ -554,11 +570,8 @@ pub async fn run(
                 security: config.client_security.clone(),
                 watcher: None,
             };
-            Some(tokio::spawn(terl_wire::follow_weights_with(
-                addr.clone(),
-                kinds,
-                options,
-                move |w| {
+            Some(tokio::spawn(
+                terl_wire::follow_weights_with(addr.clone(), kinds, options, move |w| {
                     let (kind, version) = (w.kind(), w.version());
                     let flat: Vec<f32> = w.into_flat();
                     if kind == WeightsKind::Policy && evaluating {
@@ -575,53 +588,40 @@ pub async fn run(
                             _ => slots.policy = Some((version, flat)),
                         }
                     }
-                },
-            )))
+                })
+                .in_current_span(),
+            ))
         }
         _ => None,
     };
     let evaluator = match (&config.learner_addr, evaluating) {
         (Some(addr), true) => {
             let (shared, addr, config) = (Arc::clone(&shared), addr.clone(), config.clone());
+            let span = span.clone();
             Some(
                 std::thread::Builder::new()
                     .name("evaluator".into())
-                    .spawn(move || evaluator::run(&config, &shared, &addr))?,
+                    .spawn(move || span.in_scope(|| evaluator::run(&config, &shared, &addr)))?,
             )
         }
         _ => None,
     };
-    let (done_tx, mut done_rx) = tokio::sync::watch::channel(false);
-    let receiver = {
+    let mut receiver = {
         let shared = Arc::clone(&shared);
-        std::thread::Builder::new()
-            .name("episodes".into())
-            .spawn(move || {
-                let result = receive_loop(&config, &shared);
-                let _ = done_tx.send(true);
-                result
-            })?
+        terl_runtime::service::Worker::spawn("episodes", "episode receiver", span, move || {
+            receive_loop(&config, &transport, &shared)
+        })?
     };
-    let stop_serving = async {
-        tokio::select! {
-            () = shutdown => {}
-            _ = done_rx.wait_for(|done| *done) => tracing::warn!("episode receiver stopped"),
-        }
-    };
-    let served = terl_wire::serve_selector_with(
-        listener,
-        Backend(Arc::clone(&shared)),
-        stop_serving,
-        serve_options,
-    )
+    let backend = Backend(Arc::clone(&shared));
+    let served = terl_runtime::service::serve_until(shutdown, &mut receiver, |stop| {
+        terl_wire::serve_selector_with(listener, backend, stop, serve_options)
+    })
     .await;
     shared.stop.store(true, Ordering::Relaxed);
     if let Some(f) = follower {
         f.abort();
     }
-    let received = tokio::task::spawn_blocking(move || receiver.join())
-        .await?
-        .map_err(|_| anyhow::anyhow!("episode receiver panicked"))?;
+    let received = receiver.join().await;
     if let Some(e) = evaluator {
         // The evaluator sees `stop` within one environment step or one status poll.
         if tokio::task::spawn_blocking(move || e.join())

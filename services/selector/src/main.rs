@@ -2,6 +2,7 @@
 
 use std::path::PathBuf;
 
+use anyhow::Context;
 use clap::Parser;
 
 #[derive(Debug, Parser)]
@@ -66,5 +67,12 @@ async fn main() -> anyhow::Result<()> {
     config.server_security = cluster.server_security(terl_runtime::token_from_env())?;
     config.client_security = cluster.client_security(terl_runtime::token_from_env())?;
     config.resume = a.resume;
-    terl_selector::run(config, terl_runtime::shutdown_signal()).await
+    let listener = terl_wire::bind_secured(config.addr, &config.server_security)
+        .await
+        .with_context(|| format!("cannot listen on {}", config.addr))?;
+    let transport = terl_runtime::service::open_transport(
+        terl_runtime::service::transport_config(&config.run, &config.run_id, config.num_actors),
+        "selector",
+    )?;
+    terl_selector::run(config, listener, transport, terl_runtime::shutdown_signal()).await
 }

@@ -1,0 +1,198 @@
+//! The skeleton the three cluster services share: announce the already-bound gRPC listener
+//! (address file under the run folder), run the CPU-bound work on its own thread inside the
+//! service's tracing span, serve until the shutdown future completes or the work stops, then
+//! stop and join the work.
+//!
+//! The binaries bind ([`terl_wire::bind_secured`]) and open their transport; tests bind
+//! `127.0.0.1:0` and hand every service of a cluster the same in-memory bus.
+
+use std::future::Future;
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use tokio::net::TcpListener;
+use tracing::Instrument;
+
+/// The [`TransportConfig`](terl_transport::TransportConfig) of a service of `run`: the run's
+/// `[cluster]` transport, queue sizes and block timeout, streams named after `run_id`, sized
+/// for `num_actors`.
+pub fn transport_config(
+    run: &crate::RunConfig,
+    run_id: &str,
+    num_actors: usize,
+) -> terl_transport::TransportConfig {
+    terl_transport::TransportConfig {
+        buffer_batches: run.cluster.buffer_batches,
+        block_timeout: std::time::Duration::from_secs_f64(run.cluster.block_timeout_secs),
+        transport: run.cluster.transport,
+        zenoh: run.cluster.zenoh.clone(),
+        ..terl_transport::TransportConfig::new(run_id.to_owned(), num_actors)
+    }
+}
+
+/// Opens the run's transport for `role` (`learner`, `selector`, `actor-3`) with `config`, on a
+/// plain thread outside the caller's async runtime: Zenoh's blocking calls refuse to run on
+/// a tokio current-thread runtime, which the selector and actor binaries use. Blocks the
+/// caller until opened (start-up only).
+///
+/// # Errors
+/// The transport cannot be opened (see [`terl_transport::RunTransport::open`]).
+pub fn open_transport(
+    config: terl_transport::TransportConfig,
+    role: &str,
+) -> anyhow::Result<terl_transport::RunTransport> {
+    std::thread::scope(|s| {
+        s.spawn(|| terl_transport::RunTransport::open(config, role))
+            .join()
+            .map_err(|_| anyhow::anyhow!("opening the transport panicked"))?
+            .map_err(anyhow::Error::from)
+    })
+}
+
+/// Writes `<run_dir>/<service>.addr` for the listener's address and logs
+/// "`<service>` listening"; the address and the file.
+///
+/// # Errors
+/// The listener has no local address, or the file cannot be written.
+pub fn announce(
+    listener: &TcpListener,
+    run_dir: &Path,
+    service: &str,
+    run_id: &str,
+) -> anyhow::Result<(SocketAddr, PathBuf)> {
+    let addr = listener.local_addr()?;
+    let file = crate::write_addr_file(run_dir, service, addr)?;
+    tracing::info!(%addr, file = %file.display(), run_id, "{service} listening");
+    Ok((addr, file))
+}
+
+/// A service's CPU-bound loop on its own named thread, inside a tracing span.
+#[derive(Debug)]
+pub struct Worker {
+    /// What the logs and errors call it ("trainer thread", "episode receiver", ...).
+    what: String,
+    handle: std::thread::JoinHandle<anyhow::Result<()>>,
+    done: tokio::sync::watch::Receiver<bool>,
+}
+
+impl Worker {
+    /// Starts `work` on a thread named `thread` inside `span`. `what` names it in logs and in
+    /// the error when it panics.
+    ///
+    /// # Errors
+    /// The thread cannot be spawned.
+    pub fn spawn(
+        thread: &str,
+        what: &str,
+        span: tracing::Span,
+        work: impl FnOnce() -> anyhow::Result<()> + Send + 'static,
+    ) -> anyhow::Result<Self> {
+        let (done_tx, done) = tokio::sync::watch::channel(false);
+        let handle = std::thread::Builder::new()
+            .name(thread.into())
+            .spawn(move || {
+                let result = span.in_scope(work);
+                let _ = done_tx.send(true);
+                result
+            })
+            .with_context(|| format!("cannot start the {what}"))?;
+        Ok(Self {
+            what: what.to_owned(),
+            handle,
+            done,
+        })
+    }
+
+    /// Completes once the work has returned (or panicked).
+    pub async fn stopped(&mut self) {
+        // An error means the sender is gone: the thread ended (a panic unwinds past the send).
+        let _ = self.done.wait_for(|done| *done).await;
+    }
+
+    /// Waits for the thread without blocking the runtime; the work's result.
+    ///
+    /// # Errors
+    /// The work's error, or "`<what>` panicked".
+    pub async fn join(self) -> anyhow::Result<()> {
+        let what = self.what;
+        let handle = self.handle;
+        tokio::task::spawn_blocking(move || handle.join())
+            .await?
+            .map_err(|_| anyhow::anyhow!("{what} panicked"))?
+    }
+}
+
+/// The future that ends a gRPC server (see [`serve_until`]).
+pub type StopServing<'a> = std::pin::Pin<Box<dyn Future<Output = ()> + Send + 'a>>;
+
+/// Serves until `shutdown` completes or `worker` stops (logged), whichever is first:
+/// `serve` gets the future that ends serving. Returns what `serve` returned; the caller then
+/// tells its worker to stop and [`Worker::join`]s it.
+pub async fn serve_until<'a, F, E>(
+    shutdown: impl Future<Output = ()> + Send + 'a,
+    worker: &'a mut Worker,
+    serve: impl FnOnce(StopServing<'a>) -> F,
+) -> Result<(), E>
+where
+    F: Future<Output = Result<(), E>>,
+{
+    let what = worker.what.clone();
+    let stop_serving = async move {
+        tokio::select! {
+            () = shutdown => {}
+            () = worker.stopped() => tracing::info!("{what} stopped; shutting down"),
+        }
+    };
+    serve(Box::pin(stop_serving.in_current_span())).await
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The worker's error comes back from `join`, its panic as an error naming it, and serving
+    /// ends as soon as the worker stops.
+    #[test]
+    fn serving_ends_when_the_worker_stops_and_join_returns_its_outcome() {
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        rt.block_on(async {
+            let mut w = Worker::spawn("w", "test worker", tracing::Span::none(), || {
+                anyhow::bail!("work failed")
+            })
+            .unwrap();
+            let served: Result<(), ()> =
+                serve_until(std::future::pending(), &mut w, |stop| async move {
+                    stop.await;
+                    Ok(())
+                })
+                .await;
+            assert!(served.is_ok());
+            let e = w.join().await.unwrap_err().to_string();
+            assert_eq!(e, "work failed");
+
+            let w = Worker::spawn("w", "test worker", tracing::Span::none(), || panic!("boom"))
+                .unwrap();
+            let e = w.join().await.unwrap_err().to_string();
+            assert_eq!(e, "test worker panicked");
+        });
+    }
+
+    #[test]
+    fn announce_writes_the_address_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        rt.block_on(async {
+            let l = TcpListener::bind("127.0.0.1:0").await.unwrap();
+            let (addr, file) = announce(&l, dir.path(), "learner", "r").unwrap();
+            assert_eq!(file, dir.path().join("learner.addr"));
+            assert_eq!(std::fs::read_to_string(file).unwrap(), format!("{addr}\n"));
+        });
+    }
+}
