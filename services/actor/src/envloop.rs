@@ -13,7 +13,7 @@ use terl_runtime::{Algorithm, RunConfig};
 use terl_sim::VecEnv;
 use terl_transport::{
     flags, EpisodeSummary, Message, MessageSink, ServiceTransport, TrajectoryStep, Transition,
-    TransitionBatch, Transport, TransportError, ACTION_DIM, OBS_DIM,
+    TransitionBatch, TransportError, ACTION_DIM, OBS_DIM,
 };
 
 use crate::{ActorConfig, Mailbox};

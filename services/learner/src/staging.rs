@@ -178,9 +178,7 @@ pub(crate) fn ingest(
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use terl_transport::{
-        MessageSink, Transition, Transport, TransportConfig, ACTION_DIM, OBS_DIM,
-    };
+    use terl_transport::{Transition, Transport, TransportConfig, ACTION_DIM, OBS_DIM};
 
     /// A batch of `n` finite transitions of `task` from `actor`.
     pub(crate) fn batch(actor: u16, task: u16, n: usize, policy_version: u64) -> TransitionBatch {

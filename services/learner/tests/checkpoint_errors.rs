@@ -8,10 +8,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use terl_transport::{
-    MemoryBus, MemoryTransport, MessageSink, Transition, TransitionBatch, Transport, ACTION_DIM,
-    OBS_DIM,
-};
+use terl_transport::{MemoryBus, MemoryTransport, Transition, TransitionBatch, Transport, OBS_DIM};
 
 const LIMIT: Duration = Duration::from_secs(120);
 
