@@ -85,7 +85,7 @@ impl Checkpoints {
         snapshot: impl FnOnce() -> anyhow::Result<Snapshot>,
         tool_file: impl FnOnce() -> anyhow::Result<Option<ToolFile>>,
     ) -> anyhow::Result<()> {
-        if !self.every.is_some_and(|every| self.last.elapsed() >= every) {
+        if self.every.is_none_or(|every| self.last.elapsed() < every) {
             return Ok(());
         }
         self.last = Instant::now();

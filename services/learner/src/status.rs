@@ -145,6 +145,7 @@ pub(crate) struct Shown {
 }
 
 /// The `GetStatus` answer (without uptime) at `now`.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn snapshot(
     run_id: &str,
     tasks: &[&str],
