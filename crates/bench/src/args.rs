@@ -150,8 +150,23 @@ mod tests {
     #[test]
     fn flags_set_the_config() {
         let sac = Sac::parse_from([
-            "sac", "--hidden", "256", "--layers", "2", "--batch", "256", "--threads", "1",
-            "--seconds", "0.5", "--obs-dim", "41", "--num-tasks", "2", "--act-dim", "3",
+            "sac",
+            "--hidden",
+            "256",
+            "--layers",
+            "2",
+            "--batch",
+            "256",
+            "--threads",
+            "1",
+            "--seconds",
+            "0.5",
+            "--obs-dim",
+            "41",
+            "--num-tasks",
+            "2",
+            "--act-dim",
+            "3",
         ])
         .args
         .config()

@@ -243,10 +243,7 @@ impl Tally {
     }
 }
 
-type Publisher = (
-    RunTransport,
-    Box<dyn MessageSink<TransitionBatch>>,
-);
+type Publisher = (RunTransport, Box<dyn MessageSink<TransitionBatch>>);
 
 /// A publisher's own session and sink, once the receiver is there (at most 10 s).
 fn open_publisher(config: &TransportConfig, actor: usize) -> Result<Publisher, TransportError> {

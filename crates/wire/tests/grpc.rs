@@ -677,12 +677,17 @@ async fn python_grpcio_reflection_and_health_clients_work() {
 /// `FileContainingSymbol` finds it.
 async fn reflect(addr: SocketAddr, symbols: &[&str]) -> (Vec<String>, Vec<bool>) {
     use tonic_reflection::pb::v1::{
-        server_reflection_client::ServerReflectionClient, server_reflection_request::MessageRequest,
-        server_reflection_response::MessageResponse, ServerReflectionRequest,
+        server_reflection_client::ServerReflectionClient,
+        server_reflection_request::MessageRequest, server_reflection_response::MessageResponse,
+        ServerReflectionRequest,
     };
-    let mut client = ServerReflectionClient::connect(format!("http://{addr}"))
-        .await
-        .unwrap();
+    let mut client = ServerReflectionClient::new(
+        tonic::transport::Endpoint::from_shared(format!("http://{addr}"))
+            .unwrap()
+            .connect()
+            .await
+            .unwrap(),
+    );
     let request = |message: MessageRequest| ServerReflectionRequest {
         host: String::new(),
         message_request: Some(message),
@@ -736,7 +741,10 @@ async fn reflection_of_production_servers_has_no_bench_service() {
     }
     let learner = start_learner(WeightHub::new()).await;
     let selector = start_selector().await;
-    for (server, service) in [(&learner, "terl.v1.Learner"), (&selector, "terl.v1.Selector")] {
+    for (server, service) in [
+        (&learner, "terl.v1.Learner"),
+        (&selector, "terl.v1.Selector"),
+    ] {
         let symbols = [
             service,
             "terl.v1.TransitionBench",
@@ -753,7 +761,11 @@ async fn reflection_of_production_servers_has_no_bench_service() {
         expected.sort();
         assert_eq!(listed, expected, "{service}");
         // The served service resolves (the check can tell found from missing); no bench symbol does.
-        assert_eq!(found, vec![true, false, false, false], "{service}: {symbols:?}");
+        assert_eq!(
+            found,
+            vec![true, false, false, false],
+            "{service}: {symbols:?}"
+        );
     }
     learner.stop().await;
     selector.stop().await;
