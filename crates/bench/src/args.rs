@@ -206,7 +206,7 @@ mod tests {
             let argv = ["tep"].iter().chain(extra).copied();
             Tep::parse_from(argv).args.config(39, 4).unwrap_err().0
         };
-        assert!(tep(&["--seconds", "-1"]).contains("--seconds"));
+        assert!(tep(&["--seconds=-1"]).contains("--seconds"));
         assert!(tep(&["--threads", "0"]).contains("--threads"));
         assert!(tep(&["--batch", "0"]).contains("--batch"));
         // Unknown flags and missing values are clap's errors, not silently ignored.
