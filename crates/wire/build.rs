@@ -10,7 +10,6 @@ const PROTOS: &[&str] = &[
     "terl/v1/learner.proto",
     "terl/v1/selector.proto",
     "terl/v1/dataset.proto",
-    "terl/v1/bench.proto",
 ];
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

@@ -12,7 +12,7 @@ PYTHON=${PYTHON:-.deps/bench-venv/bin/python}
 # A busy-waiting OpenMP pool collapses when other processes share the cores; passive waiting
 # is what PyTorch should get on a shared machine (measured: 3.3 vs 19.3 updates/s, 2x256 b256).
 export OMP_WAIT_POLICY=${OMP_WAIT_POLICY:-PASSIVE}
-cargo build --release -q -p terl-rl --example sac_bench
+cargo build --release -q -p terl-bench --example sac_bench
 BIN=${CARGO_TARGET_DIR:-target}/release/examples/sac_bench
 for round in $(seq "$ROUNDS"); do
   for cfg in "3 400 1280" "3 400 256" "2 256 256"; do

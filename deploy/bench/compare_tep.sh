@@ -16,7 +16,7 @@ TARGET=${CARGO_TARGET_DIR:-target}
 # A busy-waiting OpenMP pool collapses when other processes share the cores; passive waiting
 # is what PyTorch should get on a shared machine (see compare_sac.sh).
 export OMP_WAIT_POLICY=${OMP_WAIT_POLICY:-PASSIVE}
-cargo build --release -q -p terl-rl --example tep_bench
+cargo build --release -q -p terl-bench --example tep_bench
 mkdir -p "$(dirname "$RUNS")"
 : >"$RUNS"
 for round in $(seq "$ROUNDS"); do

@@ -1,9 +1,10 @@
 //! Multi-task SAC (MTSAC), pure: no I/O except the explicit checkpoint functions.
 //!
 //! Why this crate exists: it is the learning core shared by the single-process trainer, the
-//! learner service and the benchmarks. It owns the algorithm and its data (replay), not where
-//! data comes from: environments plug in through [`env::VecEnvironment`], weights leave as flat
-//! `f32` vectors or named tensors, and losses are plain functions of a [`Batch`].
+//! learner service and the benchmarks (crate `terl-bench`). It owns the algorithm and its data
+//! (replay), not where data comes from: environments plug in through [`env::VecEnvironment`],
+//! weights leave as flat `f32` vectors or named tensors, and losses are plain functions of a
+//! [`Batch`].
 //!
 //! - [`SacConfig`]: every hyper-parameter, serde/TOML;
 //! - [`Sac`]: networks, optimisers and the update (critics, actor, per-task temperature, targets);
@@ -14,13 +15,9 @@
 //! - [`ptr`]: PTR selection (GAE, priority, ranking in batches, success gate);
 //! - [`tep`], [`tep_buffer`]: the TEP planner (F, AN, targets, update) and its dataset buffer;
 //! - [`guidance`]: the TERL guidance rule and goal states;
-//! - [`value`]: `V(s)` and policy entropy from published weights, for PTR scoring;
-//! - [`bench`]: update throughput, achieved GFLOP/s against faer's GEMM rate, inference latency;
-//! - [`bench_tep`]: the same for the TEP update, and planner latency.
+//! - [`value`]: `V(s)` and policy entropy from published weights, for PTR scoring.
 
 pub mod batch;
-pub mod bench;
-pub mod bench_tep;
 pub mod config;
 pub mod env;
 pub mod error;

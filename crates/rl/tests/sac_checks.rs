@@ -404,25 +404,6 @@ fn terminal_transitions_do_not_bootstrap_but_truncated_ones_do() {
 }
 
 #[test]
-fn the_benchmark_runs_and_counts_flops_consistently() {
-    let cfg = terl_rl::bench::SacBenchConfig {
-        obs_dim: 12,
-        hidden: 32,
-        layers: 2,
-        batch: 64,
-        threads: 1,
-        seconds: 0.2,
-        num_tasks: 3,
-        ..Default::default()
-    };
-    let report = terl_rl::bench::sac_bench(&cfg).unwrap();
-    assert!(report.updates >= 3 && report.updates_per_s > 0.0);
-    assert!(report.gemm_gflops > 0.0 && report.inference_batch8_us > 0.0);
-    let json = serde_json::to_string(&report).unwrap();
-    assert!(json.contains("\"updates_per_s\""));
-}
-
-#[test]
 fn inference_policy_matches_the_training_network() {
     let cfg = SacConfig {
         obs_dim: 5,

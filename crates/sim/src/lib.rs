@@ -9,7 +9,6 @@ pub mod mujoco;
 
 pub use error::{Result, SimError};
 pub use mujoco::Simulation;
-pub mod bench;
 pub mod metaworld;
 pub mod trace;
 pub mod vec_env;

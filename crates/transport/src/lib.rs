@@ -12,7 +12,6 @@
 pub mod actor_to_learner;
 pub mod actor_to_selector;
 pub mod any;
-pub mod bench;
 pub mod channel;
 pub mod config;
 pub mod error;

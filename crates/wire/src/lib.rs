@@ -8,9 +8,8 @@
 //! helpers ([`serve_learner`], [`serve_selector`]: service + `grpc.health.v1` + reflection v1 and
 //! v1alpha), the client helpers ([`connect_learner`], [`LearnerClient::watch_weights`]), the
 //! control plane's access control ([`ServerSecurity`], [`ClientSecurity`]: a token on every RPC,
-//! optional TLS) and the gRPC side of the transport benchmarks ([`bench`]).
+//! optional TLS). The benchmarks' gRPC service is not part of this contract (crate `terl-bench`).
 
-pub mod bench;
 mod client;
 mod dataset;
 mod hub;

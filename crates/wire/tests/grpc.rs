@@ -179,6 +179,29 @@ async fn start_selector() -> Running {
     start(TestSelector, |l, b, s| Box::pin(serve_selector(l, b, s))).await
 }
 
+/// A 3×400 policy (39 obs + 10 task one-hot → 400 → 400 → 400 → 8): 344 008 parameters,
+/// about 1.4 MB on the wire.
+fn policy_3x400(version: u64) -> Weights {
+    let layers = [49, 400, 400, 400, 8];
+    let tensors = layers
+        .windows(2)
+        .enumerate()
+        .flat_map(|(i, pair)| {
+            let (fan_in, fan_out) = (pair[0], pair[1]);
+            [
+                Tensor::new(
+                    format!("actor.{i}.weight"),
+                    vec![fan_out, fan_in],
+                    vec![version as f32 * 1e-3; fan_in * fan_out],
+                )
+                .unwrap(),
+                Tensor::new(format!("actor.{i}.bias"), vec![fan_out], vec![0.5; fan_out]).unwrap(),
+            ]
+        })
+        .collect();
+    Weights::new(WeightsKind::Policy, version, version * 100, tensors).unwrap()
+}
+
 fn weights(kind: WeightsKind, version: u64) -> Weights {
     let tensors = vec![
         Tensor::new("l0.weight", vec![3, 2], vec![version as f32; 6]).unwrap(),
@@ -447,11 +470,7 @@ async fn oversized_messages_fail_with_resource_exhausted_not_a_crash() {
     };
     let mut client = connect_learner_with(&addr, small).await.unwrap();
     let mut stream = client.watch_weights(&[WeightsKind::Policy]).await.unwrap();
-    hub.publish(&terl_wire::bench::policy_weights(
-        1,
-        &terl_wire::bench::POLICY_LAYERS,
-    ))
-    .unwrap();
+    hub.publish(&policy_3x400(1)).unwrap();
     let status = tokio::time::timeout(WAIT, stream.next())
         .await
         .unwrap()
@@ -649,6 +668,104 @@ async fn python_grpcio_reflection_and_health_clients_work() {
         assert_eq!(report["status_run_id"], "test-run", "{report}");
         assert_eq!(report["health"][""], "SERVING", "{report}");
         assert_eq!(report["health"][service], "SERVING", "{report}");
+    }
+    learner.stop().await;
+    selector.stop().await;
+}
+
+/// Reflection of one server: the services it lists, and for each symbol whether
+/// `FileContainingSymbol` finds it.
+async fn reflect(addr: SocketAddr, symbols: &[&str]) -> (Vec<String>, Vec<bool>) {
+    use tonic_reflection::pb::v1::{
+        server_reflection_client::ServerReflectionClient,
+        server_reflection_request::MessageRequest, server_reflection_response::MessageResponse,
+        ServerReflectionRequest,
+    };
+    let mut client = ServerReflectionClient::new(
+        tonic::transport::Endpoint::from_shared(format!("http://{addr}"))
+            .unwrap()
+            .connect()
+            .await
+            .unwrap(),
+    );
+    let request = |message: MessageRequest| ServerReflectionRequest {
+        host: String::new(),
+        message_request: Some(message),
+    };
+    let requests: Vec<_> = std::iter::once(request(MessageRequest::ListServices(String::new())))
+        .chain(
+            symbols
+                .iter()
+                .map(|s| request(MessageRequest::FileContainingSymbol(s.to_string()))),
+        )
+        .collect();
+    let mut replies = client
+        .server_reflection_info(futures_util::stream::iter(requests))
+        .await
+        .unwrap()
+        .into_inner();
+    let mut listed = Vec::new();
+    let mut found = Vec::new();
+    while let Some(reply) = tokio::time::timeout(WAIT, replies.next()).await.unwrap() {
+        match reply.unwrap().message_response.unwrap() {
+            MessageResponse::ListServicesResponse(list) => {
+                listed.extend(list.service.into_iter().map(|s| s.name));
+            }
+            MessageResponse::FileDescriptorResponse(files) => {
+                found.push(!files.file_descriptor_proto.is_empty());
+            }
+            MessageResponse::ErrorResponse(_) => found.push(false),
+            other => panic!("unexpected reflection reply {other:?}"),
+        }
+        if found.len() == symbols.len() {
+            break;
+        }
+    }
+    listed.sort();
+    (listed, found)
+}
+
+/// The benchmarks' gRPC service and messages live in their own package (`terl.bench.v1`, crate
+/// terl-bench), not in the production contract: reflection of the learner and the selector
+/// neither lists nor resolves them, and the descriptor set they serve does not hold them.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn reflection_of_production_servers_has_no_bench_service() {
+    for name in ["bench.proto", "TransitionBench", "TransitionStreamSummary"] {
+        let bytes = name.as_bytes();
+        assert!(
+            !terl_wire::FILE_DESCRIPTOR_SET
+                .windows(bytes.len())
+                .any(|w| w == bytes),
+            "{name} is in the production descriptor set"
+        );
+    }
+    let learner = start_learner(WeightHub::new()).await;
+    let selector = start_selector().await;
+    for (server, service) in [
+        (&learner, "terl.v1.Learner"),
+        (&selector, "terl.v1.Selector"),
+    ] {
+        let symbols = [
+            service,
+            "terl.v1.TransitionBench",
+            "terl.bench.v1.TransitionBench",
+            "terl.v1.TransitionStreamSummary",
+        ];
+        let (listed, found) = reflect(server.addr, &symbols).await;
+        let mut expected = vec![
+            service,
+            "grpc.health.v1.Health",
+            "grpc.reflection.v1.ServerReflection",
+            "grpc.reflection.v1alpha.ServerReflection",
+        ];
+        expected.sort();
+        assert_eq!(listed, expected, "{service}");
+        // The served service resolves (the check can tell found from missing); no bench symbol does.
+        assert_eq!(
+            found,
+            vec![true, false, false, false],
+            "{service}: {symbols:?}"
+        );
     }
     learner.stop().await;
     selector.stop().await;

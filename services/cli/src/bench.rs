@@ -1,9 +1,11 @@
-//! `terl bench ...`: benchmarks that print one JSON object.
+//! `terl bench ...`: benchmarks that print one JSON object. The measurements are crate
+//! `terl-bench`'s; this module parses the flags and prints the reports.
 
 use std::process::ExitCode;
 
 use anyhow::Result;
 use clap::Subcommand;
+use terl_bench::args::{SacArgs, TepUpdateArgs};
 
 #[derive(Debug, Subcommand)]
 pub enum BenchCommand {
@@ -78,47 +80,13 @@ pub enum BenchCommand {
     },
     /// Full SAC updates per second, achieved GFLOP/s against the same-run GEMM rate, and
     /// batch-8 policy inference latency.
-    Sac {
-        /// Policy input width: observation plus one-hot task id (39 + 10 for MT10).
-        #[arg(long, default_value_t = 49)]
-        obs_dim: usize,
-        #[arg(long, default_value_t = 4)]
-        act_dim: usize,
-        /// Width of every hidden layer.
-        #[arg(long, default_value_t = 400)]
-        hidden: usize,
-        /// Number of hidden layers.
-        #[arg(long, default_value_t = 3)]
-        layers: usize,
-        #[arg(long, default_value_t = 1280)]
-        batch: usize,
-        #[arg(long, default_value_t = 2)]
-        threads: usize,
-        #[arg(long, default_value_t = 5.0)]
-        seconds: f64,
-        /// Tasks in the one-hot part of obs-dim.
-        #[arg(long, default_value_t = 10)]
-        num_tasks: usize,
-        #[arg(long)]
-        json: bool,
-    },
+    Sac(SacArgs),
     /// Full TEP updates per second (F and AN losses, both Adam steps, both targets), achieved
     /// GFLOP/s against the same-run GEMM rate, and the actor-side cost of guidance with E
     /// Meta-World environments (step time with and without it, alternating rounds).
     Tep {
-        #[arg(long, default_value_t = 1024)]
-        batch: usize,
-        #[arg(long, default_value_t = 2)]
-        threads: usize,
-        /// Seconds of timed updates, and of each guidance variant.
-        #[arg(long, default_value_t = 5.0)]
-        seconds: f64,
-        /// Width of every hidden layer of F and AN.
-        #[arg(long, default_value_t = 512)]
-        hidden: usize,
-        /// Number of hidden layers of F and AN.
-        #[arg(long, default_value_t = 3)]
-        layers: usize,
+        #[command(flatten)]
+        update: TepUpdateArgs,
         /// Environments of the guided actor.
         #[arg(long, default_value_t = 8)]
         envs: usize,
@@ -150,7 +118,7 @@ pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
                 "--seconds must be positive"
             );
             let tasks = terl_runtime::resolve_tasks(&tasks)?;
-            let report = terl_sim::bench::env_bench(&tasks, seconds)?;
+            let report = terl_bench::env::env_bench(&tasks, seconds)?;
             println!("{}", serde_json::to_string_pretty(&report)?);
             Ok(ExitCode::SUCCESS)
         }
@@ -181,18 +149,18 @@ pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
                 "--seconds must be positive"
             );
             anyhow::ensure!(publishers >= 1, "--publishers must be at least 1");
-            let one = terl_transport::bench::shm_throughput(1, seconds)?;
-            let many = terl_transport::bench::shm_throughput(publishers, seconds)?;
-            let grpc = terl_wire::bench::grpc_transition_stream(seconds)?;
+            let one = terl_bench::transport::shm_throughput(1, seconds)?;
+            let many = terl_bench::transport::shm_throughput(publishers, seconds)?;
+            let grpc = terl_bench::grpc::grpc_transition_stream(seconds)?;
             let best_shm = one.transitions_per_sec.min(many.transitions_per_sec);
             let zenoh = match transport {
                 Some(BenchTransport::Zenoh) => Some((
-                    terl_transport::bench::throughput(
+                    terl_bench::transport::throughput(
                         terl_transport::TransportKind::Zenoh,
                         1,
                         seconds,
                     )?,
-                    terl_transport::bench::throughput(
+                    terl_bench::transport::throughput(
                         terl_transport::TransportKind::Zenoh,
                         publishers,
                         seconds,
@@ -212,11 +180,11 @@ pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
                 None
             };
             let broadcast_loopback = if netns {
-                Some(terl_wire::bench::broadcast_latency(subscribers, versions)?)
+                Some(terl_bench::grpc::broadcast_latency(subscribers, versions)?)
             } else {
                 None
             };
-            let lossless = |r: &terl_transport::bench::ShmBenchReport| {
+            let lossless = |r: &terl_bench::transport::ShmBenchReport| {
                 r.lost_batches == 0 && r.out_of_order == 0
             };
             let zenoh_ok = zenoh
@@ -249,76 +217,30 @@ pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
         } => {
             anyhow::ensure!(subscribers >= 1, "--subscribers must be at least 1");
             anyhow::ensure!(versions >= 1, "--versions must be at least 1");
-            let report = terl_wire::bench::broadcast_latency(subscribers, versions)?;
+            let report = terl_bench::grpc::broadcast_latency(subscribers, versions)?;
             println!("{}", serde_json::to_string_pretty(&report)?);
             Ok(ExitCode::SUCCESS)
         }
-        BenchCommand::Sac {
-            obs_dim,
-            act_dim,
-            hidden,
-            layers,
-            batch,
-            threads,
-            seconds,
-            num_tasks,
-            ..
-        } => {
-            anyhow::ensure!(
-                seconds > 0.0 && seconds.is_finite(),
-                "--seconds must be positive"
-            );
-            anyhow::ensure!(threads > 0, "--threads must be at least 1");
-            anyhow::ensure!(
-                num_tasks < obs_dim,
-                "--num-tasks must be smaller than --obs-dim (it is part of it)"
-            );
-            let cfg = terl_rl::bench::SacBenchConfig {
-                obs_dim,
-                act_dim,
-                hidden,
-                layers,
-                batch,
-                threads,
-                seconds,
-                num_tasks,
-            };
-            let report = terl_rl::bench::sac_bench(&cfg)?;
+        BenchCommand::Sac(args) => {
+            let report = terl_bench::sac::sac_bench(&args.config()?)?;
             println!("{}", serde_json::to_string_pretty(&report)?);
             Ok(ExitCode::SUCCESS)
         }
         BenchCommand::Tep {
-            batch,
-            threads,
-            seconds,
-            hidden,
-            layers,
+            update,
             envs,
             tasks,
             policy_hidden,
             no_guidance,
             ..
         } => {
-            anyhow::ensure!(
-                seconds > 0.0 && seconds.is_finite(),
-                "--seconds must be positive"
-            );
-            anyhow::ensure!(threads > 0, "--threads must be at least 1");
-            anyhow::ensure!(batch > 0, "--batch must be at least 1");
+            let cfg = update.config(terl_sim::OBS_DIM, terl_sim::ACT_DIM)?;
             anyhow::ensure!(envs > 0, "--envs must be at least 1");
             anyhow::ensure!(policy_hidden > 0, "--policy-hidden must be at least 1");
-            let cfg = terl_rl::bench_tep::TepBenchConfig {
-                obs_dim: terl_sim::OBS_DIM,
-                act_dim: terl_sim::ACT_DIM,
-                hidden,
-                layers,
-                batch,
-                threads,
-                seconds,
-            };
+            let seconds = cfg.seconds;
             let tep_cfg = cfg.tep_config()?;
             let tasks = terl_runtime::resolve_tasks(&tasks)?;
-            let mut report = terl_rl::bench_tep::tep_bench(&cfg)?;
+            let mut report = terl_bench::tep::tep_bench(&cfg)?;
             if !no_guidance {
                 report.guidance = Some(crate::bench_tep::guidance_overhead(
                     &tasks,

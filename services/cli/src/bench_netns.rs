@@ -13,7 +13,7 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use anyhow::{bail, Context, Result};
 use serde::Serialize;
-use terl_transport::bench::{PublishReport, ShmBenchReport};
+use terl_bench::transport::{PublishReport, ShmBenchReport};
 use terl_transport::TransportError;
 use terl_wire::{
     ClientOptions, ClientSecurity, ServeOptions, ServerSecurity, Token, WeightHub, WeightsKind,
@@ -237,7 +237,7 @@ pub fn transport_across(ns: &Namespace, publishers: usize, seconds: f64) -> Resu
             .spawn()?)
     };
     let fail = |msg: String| TransportError::Config(msg);
-    let report = terl_transport::bench::zenoh_receive(
+    let report = terl_bench::transport::zenoh_receive(
         &endpoint,
         &run_id,
         publishers,
@@ -278,7 +278,7 @@ pub fn transport_across(ns: &Namespace, publishers: usize, seconds: f64) -> Resu
 /// The actors' half of [`transport_across`] (`terl bench transport-publish`, inside the
 /// namespace): prints what was sent as JSON.
 pub fn publish(connect: &str, run_id: &str, publishers: usize, seconds: f64) -> Result<()> {
-    let report = terl_transport::bench::zenoh_publish(connect, run_id, publishers, seconds)?;
+    let report = terl_bench::transport::zenoh_publish(connect, run_id, publishers, seconds)?;
     println!("{}", serde_json::to_string(&report)?);
     Ok(())
 }
@@ -338,7 +338,7 @@ async fn broadcast_across_async(
     let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
     let server = tokio::spawn(terl_wire::serve_learner_with(
         listener,
-        terl_wire::bench::HubOnly(hub.clone()),
+        terl_bench::grpc::HubOnly(hub.clone()),
         async {
             let _ = stopped.await;
         },
@@ -379,9 +379,9 @@ async fn broadcast_across_async(
             tokio::time::sleep(Duration::from_millis(5)).await;
         }
         let prepared: Vec<_> = (1..=versions)
-            .map(|v| terl_wire::bench::policy_weights(v, &terl_wire::bench::POLICY_LAYERS))
+            .map(|v| terl_bench::grpc::policy_weights(v, &terl_bench::grpc::POLICY_LAYERS))
             .collect();
-        let encoded = prepared.first().map_or(0, terl_wire::bench::encoded_len);
+        let encoded = prepared.first().map_or(0, terl_bench::grpc::encoded_len);
         let mut latencies = Vec::new();
         let (mut skipped, mut last_seen) = (0u64, vec![0u64; subscribers]);
         for weights in prepared {
@@ -417,8 +417,8 @@ async fn broadcast_across_async(
             versions,
             encoded_bytes_per_version: encoded,
             samples: latencies.len(),
-            latency_ms_p50: terl_wire::bench::percentile(&latencies, 0.50),
-            latency_ms_p95: terl_wire::bench::percentile(&latencies, 0.95),
+            latency_ms_p50: terl_bench::grpc::percentile(&latencies, 0.50),
+            latency_ms_p95: terl_bench::grpc::percentile(&latencies, 0.95),
             latency_ms_max: latencies.last().copied().unwrap_or(0.0),
             skipped,
         })

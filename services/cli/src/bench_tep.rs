@@ -1,5 +1,5 @@
-//! `terl bench tep`: the TEP update benchmark of `terl_rl::bench_tep` plus the actor-side cost
-//! of guidance, which needs real Meta-World environments (hence here, not in `terl-rl`).
+//! `terl bench tep`: the TEP update benchmark of `terl_bench::tep` plus the actor-side cost
+//! of guidance, which needs real Meta-World environments (measured here, in the CLI).
 //!
 //! The actor step is what `terl-actor`'s loop does per step: `Policy::act` on E observations,
 //! then `VecEnv::step`. With guidance it also runs `BatchGuidance::apply`, exactly as the actor
@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 use anyhow::Result;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use terl_rl::bench_tep::{median, GuidanceOverhead};
+use terl_bench::tep::{median, GuidanceOverhead};
 use terl_rl::guidance::{guidance_probability, BatchGuidance, GoalTarget, GuidanceConfig};
 use terl_rl::{Policy, PolicySpec, Tep, TepConfig};
 use terl_sim::{VecEnv, ACT_DIM, OBS_DIM};

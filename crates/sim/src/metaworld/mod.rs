@@ -212,7 +212,7 @@ impl Env {
 
     /// Physics only: the action's mocap move and gripper control, then the frame-skipped
     /// `mj_step`s, without observation, reward or bookkeeping. The lower bound of a step's
-    /// cost, used by the benchmark.
+    /// cost, used by the benchmark (`terl bench env`, crate `terl-bench`).
     pub fn physics_only_step(&mut self, action: &[f32; ACT_DIM]) {
         self.scene
             .apply_xyz_action([action[0], action[1], action[2]]);

@@ -5,7 +5,7 @@ use faer::{Accum, MatMut, MatRef, Par};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::time::Instant;
-use terl_rl::bench::SacBenchConfig;
+use terl_bench::sac::SacBenchConfig;
 use terl_rl::{Policy, Sac};
 
 fn main() {

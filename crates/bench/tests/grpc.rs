@@ -1,7 +1,7 @@
 //! The gRPC benchmarks run end to end and produce sane, serialisable reports (no timing floors:
 //! the numbers are the benchmark's output).
 
-use terl_wire::bench::{broadcast_latency_async, grpc_transition_stream_async};
+use terl_bench::grpc::{broadcast_latency_async, grpc_transition_stream_async};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn transition_stream_bench_counts_every_transition() {

@@ -7,17 +7,13 @@
 //! is then the fraction of the update spent in useful GEMM work. `deploy/bench/sac_torch.py`
 //! prints the same fields for PyTorch.
 
-use crate::batch::Batch;
-use crate::config::SacConfig;
-use crate::error::SacError;
-use crate::policy::Policy;
-use crate::sac::Sac;
 use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
+use terl_rl::{Batch, Policy, Sac, SacConfig, SacError};
 
 /// What to measure. `obs_dim` is the policy's input width, observation plus one-hot task id
 /// (49 = Meta-World's 39 + MT10's 10 tasks).

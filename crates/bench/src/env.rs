@@ -11,9 +11,9 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
-use crate::error::Result;
-use crate::metaworld::{goal_variations, Env, ACT_DIM, MAX_PATH_LENGTH};
-use crate::vec_env::VecEnv;
+use terl_sim::metaworld::{goal_variations, Env, ACT_DIM, MAX_PATH_LENGTH};
+use terl_sim::vec_env::VecEnv;
+use terl_sim::Result;
 
 /// One task's numbers.
 #[derive(Debug, Clone, Serialize)]

@@ -13,14 +13,13 @@ use tokio::net::TcpListener;
 use tokio::sync::mpsc;
 use tonic::{Request, Response, Status, Streaming};
 
+use terl_wire::{
+    connect_learner, serve_learner, CheckpointRequest, CheckpointSaved, LearnerBackend,
+    LearnerStatus, ServeOptions, Tensor, WeightHub, Weights, WeightsKind, ACTION_DIM, OBS_DIM,
+};
+
 use crate::pb;
 use crate::pb::transition_bench_server::{TransitionBench, TransitionBenchServer};
-use crate::server::{
-    base_router, CheckpointRequest, CheckpointSaved, LearnerBackend, ServeOptions,
-};
-use crate::status::LearnerStatus;
-use crate::weights::{Tensor, Weights, WeightsKind};
-use crate::{connect_learner, serve_learner, WeightHub, ACTION_DIM, OBS_DIM};
 
 /// Bytes of one transition in the fixed shared-memory layout: obs and next_obs (2 × 39 f32),
 /// action (4 f32), reward (f32), task (u32), flags (u32), policy version (u64).
@@ -32,9 +31,9 @@ pub enum BenchError {
     #[error("runtime: {0}")]
     Io(#[from] std::io::Error),
     #[error("server: {0}")]
-    Serve(#[from] crate::ServeError),
+    Serve(#[from] terl_wire::ServeError),
     #[error("client: {0}")]
-    Connect(#[from] crate::ConnectError),
+    Connect(#[from] terl_wire::ConnectError),
     #[error("rpc: {0}")]
     Rpc(#[from] Status),
     #[error("{0}")]
@@ -131,15 +130,17 @@ pub async fn grpc_transition_stream_async(
 ) -> Result<TransitionStreamReport, BenchError> {
     let listener = TcpListener::bind("127.0.0.1:0").await?;
     let addr = listener.local_addr()?;
+    // The production servers' transport settings (window sizes, message limit, no delay), on a
+    // plain server: no token or TLS to check, no health or reflection to serve.
     let options = ServeOptions::default();
-    let (health_reporter, health) = tonic_health::server::health_reporter();
-    drop(health_reporter);
     let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
-    let name = <TransitionBenchServer<CountingSink> as tonic::server::NamedService>::NAME;
-    let router = base_router(&options, name, health)?.add_service(
-        TransitionBenchServer::new(CountingSink)
-            .max_decoding_message_size(options.max_message_bytes),
-    );
+    let router = tonic::transport::Server::builder()
+        .initial_stream_window_size(options.stream_window_bytes)
+        .initial_connection_window_size(options.connection_window_bytes)
+        .add_service(
+            TransitionBenchServer::new(CountingSink)
+                .max_decoding_message_size(options.max_message_bytes),
+        );
     let server = tokio::spawn(async move {
         let incoming =
             tonic::transport::server::TcpIncoming::from(listener).with_nodelay(Some(true));
@@ -314,7 +315,7 @@ pub async fn broadcast_latency_async(
         .collect();
     let parameters = prepared.first().map_or(0, Weights::parameter_count);
     let encoded_bytes_per_version = prepared.first().map_or(0, |w| {
-        prost::Message::encoded_len(&pb::WeightsUpdate::from(w))
+        prost::Message::encoded_len(&terl_wire::pb::WeightsUpdate::from(w))
     });
     let mut latencies_ms = Vec::with_capacity(subscribers * versions as usize);
     let mut skipped = 0u64;
@@ -372,7 +373,7 @@ pub async fn broadcast_latency_async(
 
 /// Bytes of `weights` as one `WeightsUpdate` message on the wire.
 pub fn encoded_len(weights: &Weights) -> usize {
-    prost::Message::encoded_len(&pb::WeightsUpdate::from(weights))
+    prost::Message::encoded_len(&terl_wire::pb::WeightsUpdate::from(weights))
 }
 
 /// Nearest-rank percentile of sorted values (0 for none).

@@ -10,14 +10,12 @@
 //! The actor-side cost of guidance needs real environments and lives in the CLI (`terl bench
 //! tep`), which fills [`TepBenchReport::guidance`] with a [`GuidanceOverhead`].
 
-use crate::bench::{alternate, square_gemm_gflops, GemmKind, GemmOp};
-use crate::error::SacError;
-use crate::tep::{Planner, Tep, TepConfig};
-use crate::tep_buffer::TepBatch;
+use crate::sac::{alternate, square_gemm_gflops, GemmKind, GemmOp};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
+use terl_rl::{Planner, SacError, Tep, TepBatch, TepConfig};
 
 /// What to measure: the planner's networks (F: `2·obs_dim + act_dim → hidden^layers → 1`, AN:
 /// `2·obs_dim → hidden^layers → act_dim`), the batch and the update's threads.
@@ -90,7 +88,7 @@ pub struct GuidanceOverhead {
     pub rounds: usize,
     /// Median time of one actor step (`Policy::act` + `VecEnv::step` for all envs), in µs.
     pub step_us_without: f64,
-    /// The same with guidance as the actor runs it ([`crate::guidance::BatchGuidance`]) at the
+    /// The same with guidance as the actor runs it ([`terl_rl::guidance::BatchGuidance`]) at the
     /// start of guidance (`N = 0`, `σ^N = 1`: F on every row, AN on the guided ones).
     pub step_us_with: f64,
     /// Median over rounds of `(with − without) / without`.

@@ -12,13 +12,11 @@ use std::time::{Duration, Instant};
 
 use serde::{Deserialize, Serialize};
 
-use crate::actor_to_learner::{Transition, TransitionBatch, TRANSITIONS_PER_BATCH};
-use crate::any::RunTransport;
-use crate::channel::{Message, Transport};
-use crate::config::{TransportConfig, TransportKind, ZenohConfig};
-use crate::error::TransportError;
-use crate::flow::OverflowPolicy;
-use crate::OBS_DIM;
+use terl_transport::{
+    Message, MessageSink, OverflowPolicy, RunTransport, Transition, TransitionBatch, Transport,
+    TransportConfig, TransportError, TransportKind, ZenohConfig, ZenohMode, OBS_DIM,
+    TRANSITIONS_PER_BATCH,
+};
 
 /// Result of one [`shm_throughput`] run.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -245,10 +243,7 @@ impl Tally {
     }
 }
 
-type Publisher = (
-    RunTransport,
-    Box<dyn crate::channel::MessageSink<TransitionBatch>>,
-);
+type Publisher = (RunTransport, Box<dyn MessageSink<TransitionBatch>>);
 
 /// A publisher's own session and sink, once the receiver is there (at most 10 s).
 fn open_publisher(config: &TransportConfig, actor: usize) -> Result<Publisher, TransportError> {
@@ -260,7 +255,7 @@ fn open_publisher(config: &TransportConfig, actor: usize) -> Result<Publisher, T
 
 /// Sends full batches numbered 0, 1, … under `Block` until `done()`.
 fn send_until(
-    sink: &mut dyn crate::channel::MessageSink<TransitionBatch>,
+    sink: &mut dyn MessageSink<TransitionBatch>,
     actor: usize,
     mut done: impl FnMut() -> bool,
 ) -> Result<PublishReport, TransportError> {
@@ -332,7 +327,7 @@ pub fn zenoh_publish(
         run_id,
         publishers,
         ZenohConfig {
-            mode: crate::ZenohMode::Client,
+            mode: ZenohMode::Client,
             connect: vec![connect.to_owned()],
             ..ZenohConfig::default()
         },

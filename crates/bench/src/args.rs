@@ -1,0 +1,216 @@
+//! Command-line arguments shared by `terl bench sac`/`tep` (services/cli) and this crate's
+//! examples (`sac_bench`, `tep_bench`), so both parse the same flags with the same defaults.
+
+use clap::Args;
+
+use crate::sac::SacBenchConfig;
+use crate::tep::TepBenchConfig;
+
+/// Arguments that cannot describe a benchmark run (a zero thread count, a non-positive
+/// duration, ...). The message names the flag.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct ArgsError(pub String);
+
+fn ensure(ok: bool, message: &str) -> Result<(), ArgsError> {
+    if ok {
+        Ok(())
+    } else {
+        Err(ArgsError(message.to_owned()))
+    }
+}
+
+fn positive_seconds(seconds: f64) -> Result<(), ArgsError> {
+    ensure(
+        seconds > 0.0 && seconds.is_finite(),
+        "--seconds must be positive",
+    )
+}
+
+/// Flags of the SAC update benchmark (`terl bench sac`); see [`SacBenchConfig`].
+#[derive(Debug, Clone, PartialEq, Args)]
+pub struct SacArgs {
+    /// Policy input width: observation plus one-hot task id (39 + 10 for MT10).
+    #[arg(long, default_value_t = 49)]
+    pub obs_dim: usize,
+    #[arg(long, default_value_t = 4)]
+    pub act_dim: usize,
+    /// Width of every hidden layer.
+    #[arg(long, default_value_t = 400)]
+    pub hidden: usize,
+    /// Number of hidden layers.
+    #[arg(long, default_value_t = 3)]
+    pub layers: usize,
+    #[arg(long, default_value_t = 1280)]
+    pub batch: usize,
+    #[arg(long, default_value_t = 2)]
+    pub threads: usize,
+    #[arg(long, default_value_t = 5.0)]
+    pub seconds: f64,
+    /// Tasks in the one-hot part of obs-dim.
+    #[arg(long, default_value_t = 10)]
+    pub num_tasks: usize,
+    #[arg(long)]
+    pub json: bool,
+}
+
+impl SacArgs {
+    /// The benchmark configuration of these flags.
+    ///
+    /// # Errors
+    /// [`ArgsError`] for a non-positive or non-finite `--seconds`, `--threads 0`, or a
+    /// `--num-tasks` not smaller than `--obs-dim`.
+    pub fn config(&self) -> Result<SacBenchConfig, ArgsError> {
+        positive_seconds(self.seconds)?;
+        ensure(self.threads > 0, "--threads must be at least 1")?;
+        ensure(
+            self.num_tasks < self.obs_dim,
+            "--num-tasks must be smaller than --obs-dim (it is part of it)",
+        )?;
+        Ok(SacBenchConfig {
+            obs_dim: self.obs_dim,
+            act_dim: self.act_dim,
+            hidden: self.hidden,
+            layers: self.layers,
+            batch: self.batch,
+            threads: self.threads,
+            seconds: self.seconds,
+            num_tasks: self.num_tasks,
+        })
+    }
+}
+
+/// Flags of the TEP update measurement (`terl bench tep` adds the guidance flags); see
+/// [`TepBenchConfig`]. Observation and action widths are Meta-World's unless a caller sets
+/// them ([`TepUpdateArgs::config`]).
+#[derive(Debug, Clone, PartialEq, Args)]
+pub struct TepUpdateArgs {
+    #[arg(long, default_value_t = 1024)]
+    pub batch: usize,
+    #[arg(long, default_value_t = 2)]
+    pub threads: usize,
+    /// Seconds of timed updates, and of each guidance variant.
+    #[arg(long, default_value_t = 5.0)]
+    pub seconds: f64,
+    /// Width of every hidden layer of F and AN.
+    #[arg(long, default_value_t = 512)]
+    pub hidden: usize,
+    /// Number of hidden layers of F and AN.
+    #[arg(long, default_value_t = 3)]
+    pub layers: usize,
+}
+
+impl TepUpdateArgs {
+    /// The benchmark configuration of these flags for observations of `obs_dim` and actions of
+    /// `act_dim` values (39 and 4 in Meta-World).
+    ///
+    /// # Errors
+    /// [`ArgsError`] for a non-positive or non-finite `--seconds`, `--threads 0` or `--batch 0`.
+    pub fn config(&self, obs_dim: usize, act_dim: usize) -> Result<TepBenchConfig, ArgsError> {
+        positive_seconds(self.seconds)?;
+        ensure(self.threads > 0, "--threads must be at least 1")?;
+        ensure(self.batch > 0, "--batch must be at least 1")?;
+        Ok(TepBenchConfig {
+            obs_dim,
+            act_dim,
+            hidden: self.hidden,
+            layers: self.layers,
+            batch: self.batch,
+            threads: self.threads,
+            seconds: self.seconds,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Debug, Parser)]
+    struct Sac {
+        #[command(flatten)]
+        args: SacArgs,
+    }
+
+    #[derive(Debug, Parser)]
+    struct Tep {
+        #[command(flatten)]
+        args: TepUpdateArgs,
+    }
+
+    #[test]
+    fn defaults_are_the_benchmarks_defaults() {
+        let sac = Sac::parse_from(["sac"]).args.config().unwrap();
+        assert_eq!(sac, SacBenchConfig::default());
+        let tep = Tep::parse_from(["tep"]).args.config(39, 4).unwrap();
+        assert_eq!(tep, TepBenchConfig::default());
+    }
+
+    #[test]
+    fn flags_set_the_config() {
+        let sac = Sac::parse_from([
+            "sac",
+            "--hidden",
+            "256",
+            "--layers",
+            "2",
+            "--batch",
+            "256",
+            "--threads",
+            "1",
+            "--seconds",
+            "0.5",
+            "--obs-dim",
+            "41",
+            "--num-tasks",
+            "2",
+            "--act-dim",
+            "3",
+        ])
+        .args
+        .config()
+        .unwrap();
+        assert_eq!(
+            sac,
+            SacBenchConfig {
+                obs_dim: 41,
+                act_dim: 3,
+                hidden: 256,
+                layers: 2,
+                batch: 256,
+                threads: 1,
+                seconds: 0.5,
+                num_tasks: 2,
+            }
+        );
+        let tep = Tep::parse_from(["tep", "--batch", "64", "--threads", "1", "--seconds", "2"])
+            .args
+            .config(6, 2)
+            .unwrap();
+        assert_eq!((tep.batch, tep.threads, tep.seconds), (64, 1, 2.0));
+        assert_eq!((tep.obs_dim, tep.act_dim), (6, 2));
+    }
+
+    #[test]
+    fn nonsense_is_refused_with_the_flag_named() {
+        let sac = |extra: &[&str]| {
+            let argv = ["sac"].iter().chain(extra).copied();
+            Sac::parse_from(argv).args.config().unwrap_err().0
+        };
+        assert!(sac(&["--seconds", "0"]).contains("--seconds"));
+        assert!(sac(&["--seconds", "inf"]).contains("--seconds"));
+        assert!(sac(&["--threads", "0"]).contains("--threads"));
+        assert!(sac(&["--num-tasks", "49"]).contains("--num-tasks"));
+        let tep = |extra: &[&str]| {
+            let argv = ["tep"].iter().chain(extra).copied();
+            Tep::parse_from(argv).args.config(39, 4).unwrap_err().0
+        };
+        assert!(tep(&["--seconds=-1"]).contains("--seconds"));
+        assert!(tep(&["--threads", "0"]).contains("--threads"));
+        assert!(tep(&["--batch", "0"]).contains("--batch"));
+        // Unknown flags and missing values are clap's errors, not silently ignored.
+        assert!(Sac::try_parse_from(["sac", "--hiden", "3"]).is_err());
+        assert!(Tep::try_parse_from(["tep", "--batch"]).is_err());
+    }
+}
