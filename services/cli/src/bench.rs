@@ -309,7 +309,7 @@ pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
             anyhow::ensure!(policy_hidden > 0, "--policy-hidden must be at least 1");
             let cfg = terl_rl::bench_tep::TepBenchConfig {
                 obs_dim: terl_sim::OBS_DIM,
-                act_dim: terl_sim::ACT_DIM,
+                act_dim: terl_sim::ACTION_DIM,
                 hidden,
                 layers,
                 batch,

@@ -17,12 +17,11 @@ use anyhow::Context;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use terl_rl::replay::MultiTaskReplay;
-use terl_rl::{Batch, Sac, SacError};
+use terl_rl::{Batch, Sac, SacError, SuccessWindow};
 use terl_runtime::{Algorithm, OnCheckpointError};
 use terl_transport::{
     flags, EpisodeSummary, Message, MessageSource, RateLimiter, RunTransport, SelectedBatch,
-    Staleness, TransitionBatch, Transport, TransportConfig, ACTION_DIM, OBS_DIM,
-    TRANSITIONS_PER_BATCH,
+    Staleness, TransitionBatch, Transport, ACTION_DIM, OBS_DIM, TRANSITIONS_PER_BATCH,
 };
 use terl_wire::{
     ActorStats, CheckpointRequest, CheckpointSaved, LearnerStatus, TaskSuccess, WeightHub, Weights,
@@ -63,7 +62,7 @@ struct ActorTrack {
 struct Counters {
     env_steps: u64,
     actors: BTreeMap<u16, ActorTrack>,
-    windows: Vec<VecDeque<bool>>,
+    windows: Vec<SuccessWindow>,
     staleness: Staleness,
     /// Staleness over the last completed rate window (what status shows).
     staleness_shown: Staleness,
@@ -230,13 +229,9 @@ pub(crate) fn run(
     sac_config.num_tasks = nt;
     let mut sac = Sac::new(sac_config.clone())?;
 
-    let transport_config = TransportConfig {
-        buffer_batches: run.cluster.buffer_batches,
-        block_timeout: Duration::from_secs_f64(run.cluster.block_timeout_secs),
-        transport: run.cluster.transport,
-        zenoh: run.cluster.zenoh.clone(),
-        ..TransportConfig::new(config.run_id.clone(), config.num_actors)
-    };
+    let transport_config = run
+        .cluster
+        .transport_config(config.run_id.clone(), config.num_actors);
     let transport = RunTransport::open(transport_config, "learner")?;
     let mut transitions: Box<dyn MessageSource<TransitionBatch>> =
         transport.source::<TransitionBatch>()?;
@@ -294,7 +289,7 @@ pub(crate) fn run(
     let mut c = Counters {
         env_steps: 0,
         actors: BTreeMap::new(),
-        windows: vec![VecDeque::with_capacity(window_len); nt],
+        windows: vec![SuccessWindow::new(window_len); nt],
         staleness: Staleness::default(),
         staleness_shown: Staleness::default(),
         rejected_batches: 0,
@@ -373,10 +368,7 @@ pub(crate) fn run(
             let e = &*episode;
             c.inbound.episode(e);
             if let Some(w) = c.windows.get_mut(e.task as usize) {
-                if w.len() == window_len {
-                    w.pop_front();
-                }
-                w.push_back(e.succeeded());
+                w.push(e.succeeded());
             }
             busy = true;
         }
@@ -572,7 +564,7 @@ fn learner_state(
         success_windows: c
             .windows
             .iter()
-            .map(|w| w.iter().map(|&s| if s { '1' } else { '0' }).collect())
+            .map(|w| w.iter().map(|s| if s { '1' } else { '0' }).collect())
             .collect(),
         sampler: RngState::of(rng),
         planner: planner.map(PlannerTrainer::state),
@@ -640,9 +632,8 @@ fn restore(
     c.rejected_batches = state.rejected_batches;
     for (w, saved) in c.windows.iter_mut().zip(&state.success_windows) {
         // A window of another length in the run file keeps the newest episodes.
-        let skip = saved.chars().count().saturating_sub(window_len);
-        w.clear();
-        w.extend(saved.chars().skip(skip).map(|ch| ch == '1'));
+        *w = SuccessWindow::new(window_len);
+        saved.chars().for_each(|ch| w.push(ch == '1'));
     }
     c.resumed = Some((found.path.clone(), found.updates));
     tracing::info!(
@@ -718,11 +709,7 @@ fn snapshot(
             .zip(&c.guidance_shown)
             .map(|((task, w), &guidance_rate)| TaskSuccess {
                 task: (*task).to_string(),
-                success_rate: if w.is_empty() {
-                    0.0
-                } else {
-                    w.iter().filter(|&&s| s).count() as f64 / w.len() as f64
-                },
+                success_rate: w.rate(),
                 episodes: w.len() as u64,
                 guidance_rate,
             })
