@@ -19,7 +19,7 @@ struct Cli {
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let config = Cli::parse()
         .args
-        .config(terl_sim::OBS_DIM, terl_sim::ACT_DIM)?;
+        .config(terl_sim::OBS_DIM, terl_sim::ACTION_DIM)?;
     let report = tep_bench(&config)?;
     println!("{}", serde_json::to_string(&report)?);
     Ok(())

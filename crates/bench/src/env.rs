@@ -11,7 +11,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
-use terl_sim::metaworld::{goal_variations, Env, ACT_DIM, MAX_PATH_LENGTH};
+use terl_sim::metaworld::{goal_variations, Env, ACTION_DIM, MAX_PATH_LENGTH};
 use terl_sim::vec_env::VecEnv;
 use terl_sim::Result;
 
@@ -60,7 +60,7 @@ pub struct EnvBenchReport {
     pub vec_env_8_over_1: f64,
 }
 
-fn random_actions(seed: u64, n: usize) -> Vec<[f32; ACT_DIM]> {
+fn random_actions(seed: u64, n: usize) -> Vec<[f32; ACTION_DIM]> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     (0..n)
         .map(|_| std::array::from_fn(|_| rng.gen_range(-1.0f32..1.0)))
@@ -84,7 +84,7 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
 }
 
-fn measure_env(task: &str, budget: Duration, actions: &[[f32; ACT_DIM]]) -> Result<EnvBenchRow> {
+fn measure_env(task: &str, budget: Duration, actions: &[[f32; ACTION_DIM]]) -> Result<EnvBenchRow> {
     let mut rng = ChaCha8Rng::seed_from_u64(7);
     // Resets draw from the task's 50 goal variations, as actors do. Each is visited once before
     // timing so the hand-reset cache is in the steady state of a long-running actor.
@@ -181,7 +181,7 @@ impl VecRun {
     /// Steps for `slice`; returns this slice's env steps per second.
     fn run(&mut self, slice: Duration) -> Result<f64> {
         let n = self.env.num_envs();
-        let stride = n * ACT_DIM;
+        let stride = n * ACTION_DIM;
         let batches = self.actions.len() / stride;
         let (s0, start) = (self.steps, Instant::now());
         while start.elapsed() < slice {

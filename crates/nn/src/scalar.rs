@@ -1,8 +1,38 @@
-//! The element type of networks: `f32` for training and inference, `f64` for gradient checks.
+//! The element type of networks: `f32` for training and inference, `f64` for gradient checks,
+//! and the element types of stored tensors ([`Dtype`]). `tensors` builds on this module, not the
+//! other way round.
 
-use crate::tensors::Dtype;
 use faer::traits::RealField;
 use std::fmt::{Debug, Display};
+
+/// Element types used by this project's tensors.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Dtype {
+    F32,
+    F64,
+    I64,
+}
+
+impl Dtype {
+    /// Bytes per element.
+    pub fn size(self) -> usize {
+        match self {
+            Dtype::F32 => 4,
+            Dtype::F64 | Dtype::I64 => 8,
+        }
+    }
+}
+
+impl std::fmt::Display for Dtype {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let s = match self {
+            Dtype::F32 => "F32",
+            Dtype::F64 => "F64",
+            Dtype::I64 => "I64",
+        };
+        f.write_str(s)
+    }
+}
 
 /// A real floating-point type faer can multiply, with the few math functions the layers need.
 pub trait Float:

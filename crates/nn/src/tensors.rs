@@ -5,18 +5,12 @@
 //! dtype, otherwise a [`NnError`] names the tensor and both shapes or dtypes.
 
 use crate::error::NnError;
+pub use crate::scalar::Dtype;
 use crate::scalar::Float;
 use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
-/// Element types used by this project's tensors.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Dtype {
-    F32,
-    F64,
-    I64,
-}
-
+/// The safetensors encoding of a [`Dtype`].
 impl Dtype {
     fn to_st(self) -> safetensors::Dtype {
         match self {
@@ -33,25 +27,6 @@ impl Dtype {
             safetensors::Dtype::I64 => Some(Dtype::I64),
             _ => None,
         }
-    }
-
-    /// Bytes per element.
-    pub fn size(self) -> usize {
-        match self {
-            Dtype::F32 => 4,
-            Dtype::F64 | Dtype::I64 => 8,
-        }
-    }
-}
-
-impl std::fmt::Display for Dtype {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let s = match self {
-            Dtype::F32 => "F32",
-            Dtype::F64 => "F64",
-            Dtype::I64 => "I64",
-        };
-        f.write_str(s)
     }
 }
 

@@ -135,7 +135,7 @@ impl Policy {
 
     /// Loads `policy.{layer}.weight|bias` tensors (as written by [`crate::Sac::policy_tensors`]).
     pub fn load(&mut self, file: &TensorFile, version: u64) -> Result<(), SacError> {
-        self.net.import("policy", file)?;
+        self.net.import(crate::names::POLICY, file)?;
         self.pack_weights();
         self.version = version;
         Ok(())

@@ -36,8 +36,8 @@
 //!   and, by default, stays open ("initiate").
 
 use crate::error::SacError;
+use crate::success::SuccessWindow;
 use serde::{Deserialize, Serialize};
-use std::collections::VecDeque;
 
 /// Hyper-parameters of PTR selection. Defaults follow the paper where it gives a value.
 ///
@@ -422,16 +422,14 @@ impl<I> PtrPool<I> {
 #[derive(Clone, Debug)]
 pub struct SuccessGate {
     threshold: f64,
-    window: usize,
     min_episodes: usize,
     latch: bool,
     tasks: Vec<TaskGate>,
 }
 
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 struct TaskGate {
-    recent: VecDeque<bool>,
-    successes: usize,
+    recent: SuccessWindow,
     episodes: u64,
     opened: bool,
 }
@@ -440,27 +438,27 @@ impl SuccessGate {
     pub fn new(cfg: &PtrConfig, num_tasks: usize) -> Self {
         Self {
             threshold: cfg.success_threshold,
-            window: cfg.success_window,
             min_episodes: cfg.min_episodes.unwrap_or(cfg.success_window),
             latch: cfg.latch,
-            tasks: vec![TaskGate::default(); num_tasks],
+            tasks: vec![
+                TaskGate {
+                    recent: SuccessWindow::new(cfg.success_window),
+                    episodes: 0,
+                    opened: false,
+                };
+                num_tasks
+            ],
         }
     }
 
     /// Records one finished training episode of `task`; returns whether the gate is open after
     /// it.
     pub fn record(&mut self, task: usize, success: bool) -> bool {
-        let (window, min, thr, latch) =
-            (self.window, self.min_episodes, self.threshold, self.latch);
+        let (min, thr, latch) = (self.min_episodes, self.threshold, self.latch);
         let g = &mut self.tasks[task];
-        g.recent.push_back(success);
-        g.successes += success as usize;
-        if g.recent.len() > window {
-            let old = g.recent.pop_front().expect("window is not empty");
-            g.successes -= old as usize;
-        }
+        g.recent.push(success);
         g.episodes += 1;
-        let rate = g.successes as f64 / g.recent.len() as f64;
+        let rate = g.recent.rate();
         let now = g.episodes >= min as u64 && rate >= thr;
         g.opened = if latch { g.opened || now } else { now };
         g.opened
@@ -473,12 +471,7 @@ impl SuccessGate {
 
     /// Rolling success rate of `task` (0 before any episode).
     pub fn success_rate(&self, task: usize) -> f64 {
-        let g = &self.tasks[task];
-        if g.recent.is_empty() {
-            0.0
-        } else {
-            g.successes as f64 / g.recent.len() as f64
-        }
+        self.tasks[task].recent.rate()
     }
 
     /// Episodes recorded for `task`.

@@ -18,6 +18,7 @@
 use crate::batch::Batch;
 use crate::config::SacConfig;
 use crate::error::SacError;
+use crate::names;
 use crate::policy::PolicySpec;
 use faer::Par;
 use rand::SeedableRng;
@@ -611,7 +612,7 @@ impl<T: Float> Sac<T> {
     pub fn policy_tensors(&self) -> Vec<Tensor> {
         let mut out = Vec::new();
         self.policy
-            .export_values("policy", &self.policy_params_f32(), &mut out);
+            .export_values(names::POLICY, &self.policy_params_f32(), &mut out);
         out
     }
 
@@ -622,8 +623,7 @@ impl<T: Float> Sac<T> {
         let mut out = Vec::new();
         for (k, c) in self.critics.iter().enumerate() {
             let as_f32: Vec<f32> = c.net.params.iter().map(|v| v.f32()).collect();
-            c.net
-                .export_values(&format!("qf{}", k + 1), &as_f32, &mut out);
+            c.net.export_values(names::CRITICS[k], &as_f32, &mut out);
         }
         out
     }
@@ -632,10 +632,10 @@ impl<T: Float> Sac<T> {
     /// temperatures, counters. Metadata holds the config (TOML) and the noise generator state.
     pub fn checkpoint_tensors(&self) -> (Vec<Tensor>, BTreeMap<String, String>) {
         let mut t = Vec::new();
-        self.policy.export("policy", &mut t);
+        self.policy.export(names::POLICY, &mut t);
         self.policy_adam.export("policy_adam", &mut t);
         for (k, c) in self.critics.iter().enumerate() {
-            c.net.export(&format!("qf{}", k + 1), &mut t);
+            c.net.export(names::CRITICS[k], &mut t);
             c.target.export(&format!("qf{}_target", k + 1), &mut t);
             c.adam.export(&format!("qf{}_adam", k + 1), &mut t);
         }
@@ -671,13 +671,13 @@ impl<T: Float> Sac<T> {
     /// learner's config; on error nothing is changed.
     pub fn restore_checkpoint(&mut self, file: &TensorFile) -> Result<(), SacError> {
         let mut policy = self.policy.clone();
-        policy.import("policy", file)?;
+        policy.import(names::POLICY, file)?;
         let mut policy_adam = self.policy_adam.clone();
         policy_adam.import("policy_adam", file)?;
         let mut critics = Vec::new();
         for (k, c) in self.critics.iter().enumerate() {
             let (mut net, mut target, mut adam) = (c.net.clone(), c.target.clone(), c.adam.clone());
-            net.import(&format!("qf{}", k + 1), file)?;
+            net.import(names::CRITICS[k], file)?;
             target.import(&format!("qf{}_target", k + 1), file)?;
             adam.import(&format!("qf{}_adam", k + 1), file)?;
             critics.push((net, target, adam));

@@ -31,6 +31,7 @@
 //! 500 are represented as before).
 
 use crate::error::SacError;
+use crate::names;
 use crate::small_mlp::SmallBatchMlp;
 use crate::tep_buffer::TepBatch;
 use faer::Par;
@@ -535,8 +536,8 @@ impl<T: Float> Tep<T> {
     pub fn planner_tensors(&self) -> Vec<Tensor> {
         let (f, an) = self.planner_params_f32();
         let mut out = Vec::new();
-        self.f.export_values("tep_f", &f, &mut out);
-        self.an.export_values("tep_an", &an, &mut out);
+        self.f.export_values(names::TEP_F, &f, &mut out);
+        self.an.export_values(names::TEP_AN, &an, &mut out);
         out
     }
 
@@ -546,10 +547,10 @@ impl<T: Float> Tep<T> {
     /// rejected_batches]` (i64). Restored by [`Tep::restore_checkpoint`].
     pub fn checkpoint_tensors(&self) -> Vec<Tensor> {
         let mut t = Vec::new();
-        self.f.export("tep_f", &mut t);
-        self.an.export("tep_an", &mut t);
-        self.f_target.export("tep_f_target", &mut t);
-        self.an_target.export("tep_an_target", &mut t);
+        self.f.export(names::TEP_F, &mut t);
+        self.an.export(names::TEP_AN, &mut t);
+        self.f_target.export(names::TEP_F_TARGET, &mut t);
+        self.an_target.export(names::TEP_AN_TARGET, &mut t);
         self.f_adam.export("tep_f_adam", &mut t);
         self.an_adam.export("tep_an_adam", &mut t);
         t.push(Tensor::from_i64(
@@ -567,10 +568,10 @@ impl<T: Float> Tep<T> {
         let (mut f, mut an) = (self.f.clone(), self.an.clone());
         let (mut f_target, mut an_target) = (self.f_target.clone(), self.an_target.clone());
         let (mut f_adam, mut an_adam) = (self.f_adam.clone(), self.an_adam.clone());
-        f.import("tep_f", file)?;
-        an.import("tep_an", file)?;
-        f_target.import("tep_f_target", file)?;
-        an_target.import("tep_an_target", file)?;
+        f.import(names::TEP_F, file)?;
+        an.import(names::TEP_AN, file)?;
+        f_target.import(names::TEP_F_TARGET, file)?;
+        an_target.import(names::TEP_AN_TARGET, file)?;
         f_adam.import("tep_f_adam", file)?;
         an_adam.import("tep_an_adam", file)?;
         let counters = file.i64_values("tep_counters", &[2])?;

@@ -1,17 +1,23 @@
-//! The single-process training loop: one [`VecEnvironment`] for data, one for evaluation, one
-//! [`Sac`] learner, per-task replay. No I/O: progress goes to a callback, which is where a
-//! binary logs, writes checkpoints or stops early.
+//! The single-process training loop: one [`VecEnvironment`] for data (stepped by the shared
+//! rollout loop, [`crate::rollout`]), one for evaluation, one [`Sac`] learner, per-task replay.
+//! No I/O: progress goes to a callback, which is where a binary logs, writes checkpoints or
+//! stops early.
 
 use crate::batch::Batch;
 use crate::env::{StepBuffers, VecEnvironment};
 use crate::error::SacError;
 use crate::policy::Policy;
 use crate::replay::MultiTaskReplay;
+use crate::rollout::{
+    self, EpisodeRecord, Flow, PolicySource, RolloutError, RolloutProgress, StepRecord,
+    TransitionSink,
+};
 use crate::sac::{Sac, UpdateStats};
-use rand::{Rng, SeedableRng};
+use crate::success::SuccessWindow;
+use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
-use std::collections::VecDeque;
+use std::cell::RefCell;
 use std::time::Instant;
 
 /// Schedule of a training run (the learner's own settings are in [`crate::SacConfig`]).
@@ -157,13 +163,177 @@ pub fn evaluate<E: VecEnvironment>(
     })
 }
 
+/// `terl train`'s policy source: uniform random actions during warm-up, then the learner's
+/// newest policy (shared with [`TrainSink`], which updates it).
+struct TrainPolicy<'a, 's> {
+    sac: &'a RefCell<&'s mut Sac<f32>>,
+    policy: Policy,
+    warmup_env_steps: u64,
+    total_env_steps: u64,
+    acting: bool,
+}
+
+impl PolicySource for TrainPolicy<'_, '_> {
+    type Error = SacError;
+
+    fn refresh(&mut self, progress: &RolloutProgress) -> Result<Flow, SacError> {
+        if progress.env_steps >= self.total_env_steps {
+            return Ok(Flow::Stop);
+        }
+        self.acting = progress.env_steps >= self.warmup_env_steps;
+        if self.acting {
+            let sac = self.sac.borrow();
+            self.policy
+                .set_params(&sac.policy_net().params, sac.updates())?;
+        }
+        Ok(Flow::Continue)
+    }
+
+    fn version(&self) -> u64 {
+        self.policy.version
+    }
+
+    fn act(
+        &mut self,
+        obs: &[f32],
+        task_ids: &[usize],
+        rng: &mut ChaCha8Rng,
+        actions: &mut [f32],
+        _guided: &mut [bool],
+    ) -> Result<bool, SacError> {
+        if !self.acting {
+            return Ok(false);
+        }
+        self.policy.act(obs, task_ids, false, rng, actions)?;
+        Ok(true)
+    }
+}
+
+/// `terl train`'s transition sink: per-task replay, the update-to-data ratio
+/// (`updates_per_vec_step` after warm-up), evaluations and the progress callback.
+struct TrainSink<'a, 's, V, F> {
+    sac: &'a RefCell<&'s mut Sac<f32>>,
+    config: &'a TrainConfig,
+    replay: MultiTaskReplay,
+    batch: Batch,
+    windows: Vec<SuccessWindow>,
+    progress: TrainProgress,
+    report: TrainReport,
+    eval_env: &'a mut V,
+    eval_policy: Policy,
+    update_credit: f64,
+    failed_in_a_row: u64,
+    next_eval: u64,
+    eval_round: u64,
+    start: Instant,
+    on_progress: F,
+}
+
+impl<V, F> TransitionSink for TrainSink<'_, '_, V, F>
+where
+    V: VecEnvironment,
+    F: FnMut(&TrainProgress, &Sac<f32>),
+{
+    type Error = SacError;
+
+    fn transition(&mut self, t: &StepRecord<'_>) -> Result<(), SacError> {
+        self.replay
+            .push(t.task, t.obs, t.action, t.reward, t.next_obs, t.terminated);
+        Ok(())
+    }
+
+    fn episode(&mut self, e: &EpisodeRecord<'_>) -> Result<(), SacError> {
+        self.progress.episodes += 1;
+        self.windows[e.task].push(e.success);
+        Ok(())
+    }
+
+    fn end_step(
+        &mut self,
+        rollout: &RolloutProgress,
+        rng: &mut ChaCha8Rng,
+    ) -> Result<Flow, SacError> {
+        let config = self.config;
+        self.progress.env_steps = rollout.env_steps;
+        // Not transitions of the task (see `StepBuffers::unstable`): dropped, counted.
+        self.progress.unstable_transitions = rollout.unstable_steps;
+        let mut sac = self.sac.borrow_mut();
+        if rollout.env_steps >= config.warmup_env_steps {
+            self.update_credit += config.updates_per_vec_step;
+            while self.update_credit >= 1.0 {
+                self.update_credit -= 1.0;
+                self.replay
+                    .sample_into(sac.config().batch_size, rng, &mut self.batch);
+                match sac.update(&self.batch) {
+                    Ok(stats) => {
+                        self.progress.last_update = Some(stats);
+                        self.failed_in_a_row = 0;
+                    }
+                    Err(SacError::NonFiniteBatch { .. }) => {}
+                    Err(
+                        e @ (SacError::NonFiniteLoss { .. } | SacError::NonFiniteGradient { .. }),
+                    ) => {
+                        self.progress.failed_updates += 1;
+                        self.failed_in_a_row += 1;
+                        if self.failed_in_a_row >= config.max_consecutive_failed_updates {
+                            return Err(e);
+                        }
+                    }
+                    Err(e) => return Err(e),
+                }
+            }
+        }
+
+        let finished = rollout.env_steps >= config.total_env_steps;
+        if rollout.env_steps < self.next_eval && !finished {
+            return Ok(Flow::Continue);
+        }
+        self.next_eval = self.next_eval.saturating_add(config.eval_every_env_steps);
+        self.eval_round += 1;
+        self.eval_policy
+            .set_params(&sac.policy_net().params, sac.updates())?;
+        let eval_seed = config.seed.wrapping_add(1_000_003 * self.eval_round);
+        let eval = evaluate(
+            &mut self.eval_policy,
+            &mut *self.eval_env,
+            config.eval_episodes_per_env,
+            eval_seed,
+        )?;
+        self.report.best_eval_success = self.report.best_eval_success.max(eval.success_rate);
+        let reached = config
+            .stop_at_eval_success
+            .is_some_and(|t| eval.success_rate >= t);
+        self.progress.eval = Some(eval);
+        fill_progress(&mut self.progress, &self.windows, &sac, self.start);
+        (self.on_progress)(&self.progress, &sac);
+        if reached {
+            self.report.reached_target_at_env_steps = Some(self.progress.env_steps);
+            self.report.reached_target_at_wall_s = Some(self.progress.wall_s);
+            return Ok(Flow::Stop);
+        }
+        Ok(Flow::Continue)
+    }
+}
+
+/// The [`SacError`] behind a rollout error (an environment's error as [`SacError::Env`]).
+fn sac_error(e: RolloutError) -> SacError {
+    match e {
+        RolloutError::Env(e) => SacError::Env(e),
+        RolloutError::Policy(e) | RolloutError::Sink(e) => match e.downcast::<SacError>() {
+            Ok(e) => *e,
+            Err(e) => SacError::Env(e),
+        },
+    }
+}
+
 /// Trains `sac` on `env`, evaluating on `eval_env`, until `total_env_steps` or the success target.
+/// The environment loop is [`crate::rollout::run`].
 pub fn train<E: VecEnvironment, V: VecEnvironment>(
     sac: &mut Sac<f32>,
     env: &mut E,
     eval_env: &mut V,
     config: &TrainConfig,
-    mut on_progress: impl FnMut(&TrainProgress, &Sac<f32>),
+    on_progress: impl FnMut(&TrainProgress, &Sac<f32>),
 ) -> Result<TrainReport, SacError> {
     let (n, od, ad, nt) = (
         env.num_envs(),
@@ -179,133 +349,56 @@ pub fn train<E: VecEnvironment, V: VecEnvironment>(
         )));
     }
     let start = Instant::now();
-    let task_ids = env.task_ids().to_vec();
-    let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
-    let mut replay = MultiTaskReplay::new(nt, config.replay_capacity_per_task, od, ad);
-    let mut batch = Batch::with_capacity(sc.batch_size, od, ad);
     let mut policy = Policy::new(sac.policy_spec(), n);
-    let mut eval_policy = Policy::new(sac.policy_spec(), eval_env.num_envs());
+    let eval_policy = Policy::new(sac.policy_spec(), eval_env.num_envs());
     policy.set_params(&sac.policy_net().params, sac.updates())?;
-    let mut obs = vec![0.0; n * od];
-    let mut actions = vec![0.0; n * ad];
-    let mut out = StepBuffers::new(n, od);
-    env.reset_all(config.seed, &mut obs)
-        .map_err(|e| SacError::Env(Box::new(e)))?;
-
-    let mut progress = TrainProgress {
-        train_success: vec![0.0; nt],
-        ..Default::default()
+    let sac = RefCell::new(sac);
+    let mut source = TrainPolicy {
+        sac: &sac,
+        policy,
+        warmup_env_steps: config.warmup_env_steps,
+        total_env_steps: config.total_env_steps,
+        acting: false,
     };
-    let mut report = TrainReport::default();
-    let mut windows: Vec<VecDeque<bool>> = vec![VecDeque::with_capacity(config.success_window); nt];
-    let mut ep_success = vec![false; n];
-    let (mut update_credit, mut failed_in_a_row) = (0.0f64, 0u64);
-    let mut next_eval = if config.eval_every_env_steps > 0 {
-        config.eval_every_env_steps
-    } else {
-        u64::MAX
-    };
-    let mut eval_round = 0u64;
-
-    while progress.env_steps < config.total_env_steps {
-        if progress.env_steps < config.warmup_env_steps {
-            actions
-                .iter_mut()
-                .for_each(|a| *a = rng.gen_range(-1.0..1.0));
+    let mut sink = TrainSink {
+        sac: &sac,
+        config,
+        replay: MultiTaskReplay::new(nt, config.replay_capacity_per_task, od, ad),
+        batch: Batch::with_capacity(sc.batch_size, od, ad),
+        windows: vec![SuccessWindow::new(config.success_window); nt],
+        progress: TrainProgress {
+            train_success: vec![0.0; nt],
+            ..Default::default()
+        },
+        report: TrainReport::default(),
+        eval_env,
+        eval_policy,
+        update_credit: 0.0,
+        failed_in_a_row: 0,
+        next_eval: if config.eval_every_env_steps > 0 {
+            config.eval_every_env_steps
         } else {
-            policy.act(&obs, &task_ids, false, &mut rng, &mut actions)?;
-        }
-        env.step(&actions, &mut out)
-            .map_err(|e| SacError::Env(Box::new(e)))?;
-        for i in 0..n {
-            let t = task_ids[i];
-            if out.unstable[i] {
-                // Not a transition of the task (see `StepBuffers::unstable`): dropped, counted.
-                progress.unstable_transitions += 1;
-            } else {
-                replay.push(
-                    t,
-                    &obs[i * od..(i + 1) * od],
-                    &actions[i * ad..(i + 1) * ad],
-                    out.reward[i],
-                    &out.final_obs[i * od..(i + 1) * od],
-                    out.terminated[i],
-                );
-            }
-            ep_success[i] |= out.success[i];
-            if out.terminated[i] || out.truncated[i] {
-                progress.episodes += 1;
-                let w = &mut windows[t];
-                if w.len() == config.success_window.max(1) {
-                    w.pop_front();
-                }
-                w.push_back(ep_success[i]);
-                ep_success[i] = false;
-            }
-        }
-        obs.copy_from_slice(&out.obs);
-        progress.env_steps += n as u64;
-
-        if progress.env_steps >= config.warmup_env_steps {
-            update_credit += config.updates_per_vec_step;
-            while update_credit >= 1.0 {
-                update_credit -= 1.0;
-                replay.sample_into(sc.batch_size, &mut rng, &mut batch);
-                match sac.update(&batch) {
-                    Ok(stats) => {
-                        progress.last_update = Some(stats);
-                        failed_in_a_row = 0;
-                    }
-                    Err(SacError::NonFiniteBatch { .. }) => {}
-                    Err(
-                        e @ (SacError::NonFiniteLoss { .. } | SacError::NonFiniteGradient { .. }),
-                    ) => {
-                        progress.failed_updates += 1;
-                        failed_in_a_row += 1;
-                        if failed_in_a_row >= config.max_consecutive_failed_updates {
-                            return Err(e);
-                        }
-                    }
-                    Err(e) => return Err(e),
-                }
-            }
-            policy.set_params(&sac.policy_net().params, sac.updates())?;
-        }
-
-        let finished = progress.env_steps >= config.total_env_steps;
-        if progress.env_steps >= next_eval || finished {
-            next_eval = next_eval.saturating_add(config.eval_every_env_steps);
-            eval_round += 1;
-            eval_policy.set_params(&sac.policy_net().params, sac.updates())?;
-            let eval_seed = config.seed.wrapping_add(1_000_003 * eval_round);
-            let eval = evaluate(
-                &mut eval_policy,
-                eval_env,
-                config.eval_episodes_per_env,
-                eval_seed,
-            )?;
-            report.best_eval_success = report.best_eval_success.max(eval.success_rate);
-            let reached = config
-                .stop_at_eval_success
-                .is_some_and(|t| eval.success_rate >= t);
-            progress.eval = Some(eval);
-            fill_progress(&mut progress, &windows, sac, start);
-            on_progress(&progress, sac);
-            if reached {
-                report.reached_target_at_env_steps = Some(progress.env_steps);
-                report.reached_target_at_wall_s = Some(progress.wall_s);
-                break;
-            }
-        }
-    }
-    fill_progress(&mut progress, &windows, sac, start);
+            u64::MAX
+        },
+        eval_round: 0,
+        start,
+        on_progress,
+    };
+    rollout::run(env, &mut source, &mut sink, config.seed).map_err(sac_error)?;
+    let TrainSink {
+        mut progress,
+        mut report,
+        windows,
+        ..
+    } = sink;
+    fill_progress(&mut progress, &windows, &sac.borrow(), start);
     report.final_progress = progress;
     Ok(report)
 }
 
 fn fill_progress(
     progress: &mut TrainProgress,
-    windows: &[VecDeque<bool>],
+    windows: &[SuccessWindow],
     sac: &Sac<f32>,
     start: Instant,
 ) {
@@ -313,10 +406,6 @@ fn fill_progress(
     progress.updates = sac.updates();
     progress.rejected_batches = sac.rejected_batches();
     for (s, w) in progress.train_success.iter_mut().zip(windows) {
-        *s = if w.is_empty() {
-            0.0
-        } else {
-            w.iter().filter(|&&x| x).count() as f64 / w.len() as f64
-        };
+        *s = w.rate();
     }
 }

@@ -108,8 +108,8 @@ impl ValueEstimator {
         }
         let (q1, q2) = params.split_at(n);
         let mut fresh = self.critics.clone();
-        load(&mut fresh[0], q1, "qf1")?;
-        load(&mut fresh[1], q2, "qf2")?;
+        load(&mut fresh[0], q1, crate::names::CRITICS[0])?;
+        load(&mut fresh[1], q2, crate::names::CRITICS[1])?;
         self.critics = fresh;
         self.critic_version = version;
         Ok(())

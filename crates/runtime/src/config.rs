@@ -291,6 +291,23 @@ impl ClusterConfig {
 }
 
 impl ClusterConfig {
+    /// The shared-memory / Zenoh transport of run `run_id` with `num_actors` actors, as every
+    /// service opens it: `buffer_batches`, `block_timeout_secs`, `transport` and `zenoh` from
+    /// this section, defaults otherwise.
+    pub fn transport_config(
+        &self,
+        run_id: impl Into<String>,
+        num_actors: usize,
+    ) -> terl_transport::TransportConfig {
+        terl_transport::TransportConfig {
+            buffer_batches: self.buffer_batches,
+            block_timeout: std::time::Duration::from_secs_f64(self.block_timeout_secs),
+            transport: self.transport,
+            zenoh: self.zenoh.clone(),
+            ..terl_transport::TransportConfig::new(run_id, num_actors)
+        }
+    }
+
     /// `max_message_mib` in bytes.
     pub fn max_message_bytes(&self) -> usize {
         self.max_message_mib << 20
@@ -691,5 +708,22 @@ mod message_limit_tests {
         huge.sac.policy_hidden = vec![usize::MAX, usize::MAX];
         let e = huge.check_weight_messages(10).unwrap_err().to_string();
         assert!(e.contains("smaller networks"), "{e}");
+    }
+    #[test]
+    fn every_service_opens_the_transport_the_cluster_section_describes() {
+        let cfg = run_file(
+            "[cluster]\nbuffer_batches = 9\nblock_timeout_secs = 2.5\ntransport = \"zenoh\"\n\
+             [cluster.zenoh]\nconnect = [\"tcp/10.0.0.1:7447\"]\n",
+        );
+        let t = cfg.cluster.transport_config("run-a", 3);
+        assert_eq!((t.run_id.as_str(), t.num_actors), ("run-a", 3));
+        assert_eq!(t.buffer_batches, 9);
+        assert_eq!(t.block_timeout, std::time::Duration::from_millis(2500));
+        assert_eq!(t.transport, terl_transport::TransportKind::Zenoh);
+        assert_eq!(t.zenoh.connect, ["tcp/10.0.0.1:7447"]);
+        // Everything the section does not set keeps the transport's defaults.
+        let defaults = terl_transport::TransportConfig::new("run-a", 3);
+        assert_eq!(t.buffer_episodes, defaults.buffer_episodes);
+        assert_eq!(t.buffer_selected, defaults.buffer_selected);
     }
 }

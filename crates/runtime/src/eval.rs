@@ -43,7 +43,7 @@ use rand::SeedableRng;
 use serde::{Deserialize, Serialize};
 use terl_rl::{Policy, SacError};
 use terl_sim::metaworld::{goal_variations, MAX_PATH_LENGTH, NUM_VARIATIONS};
-use terl_sim::{Env, SimError, ACT_DIM, OBS_DIM};
+use terl_sim::{Env, SimError, ACTION_DIM, OBS_DIM};
 
 /// Episodes of one task stepped together in one worker (one policy call per step for all).
 pub const BATCH: usize = 10;
@@ -326,9 +326,9 @@ pub fn evaluate_policy_with(
     cancel: Option<&AtomicBool>,
 ) -> Result<EvalSummary, EvalError> {
     let spec = policy.spec();
-    if spec.obs_dim != OBS_DIM || spec.act_dim != ACT_DIM {
+    if spec.obs_dim != OBS_DIM || spec.act_dim != ACTION_DIM {
         return Err(EvalError::Shape(format!(
-            "the policy takes {} observation and {} action values; Meta-World has {OBS_DIM} and {ACT_DIM}",
+            "the policy takes {} observation and {} action values; Meta-World has {OBS_DIM} and {ACTION_DIM}",
             spec.obs_dim, spec.act_dim
         )));
     }
@@ -511,7 +511,7 @@ fn run_chunk(
     let mut active: Vec<usize> = (0..m).collect();
     let mut rows_obs = Vec::with_capacity(m * OBS_DIM);
     let mut rows_enc = Vec::with_capacity(m * nt);
-    let mut actions = vec![0.0f32; m * ACT_DIM];
+    let mut actions = vec![0.0f32; m * ACTION_DIM];
     for _ in 0..MAX_PATH_LENGTH {
         if active.is_empty() {
             break;
@@ -525,11 +525,11 @@ fn run_chunk(
             rows_obs.extend_from_slice(&obs[j * OBS_DIM..(j + 1) * OBS_DIM]);
             rows_enc.extend_from_slice(&enc_row);
         }
-        let acts = &mut actions[..active.len() * ACT_DIM];
+        let acts = &mut actions[..active.len() * ACTION_DIM];
         policy.act_encoded(&rows_obs, &rows_enc, true, rng, acts)?;
         let mut still = Vec::with_capacity(active.len());
         for (r, &j) in active.iter().enumerate() {
-            let step = pool[j].step(&acts[r * ACT_DIM..(r + 1) * ACT_DIM])?;
+            let step = pool[j].step(&acts[r * ACTION_DIM..(r + 1) * ACTION_DIM])?;
             let e = &mut eps[j];
             e.steps += 1;
             e.ret += f64::from(step.reward as f32);
@@ -702,7 +702,7 @@ mod tests {
         Policy::new(
             PolicySpec {
                 obs_dim: OBS_DIM,
-                act_dim: ACT_DIM,
+                act_dim: ACTION_DIM,
                 num_tasks,
                 hidden: vec![16],
             },
@@ -794,7 +794,7 @@ mod tests {
         let wrong_obs = Policy::new(
             PolicySpec {
                 obs_dim: 12,
-                act_dim: ACT_DIM,
+                act_dim: ACTION_DIM,
                 num_tasks: 1,
                 hidden: vec![4],
             },

@@ -2,7 +2,7 @@
 
 use anyhow::Result;
 use terl_rl::env::{StepBuffers, VecEnvironment};
-use terl_sim::{VecEnv, ACT_DIM, OBS_DIM};
+use terl_sim::{VecEnv, ACTION_DIM, OBS_DIM};
 
 /// Meta-World [`VecEnv`] behind the trainer's environment seam.
 pub struct MetaWorldVec {
@@ -23,6 +23,18 @@ impl MetaWorldVec {
     /// `num_envs` environments over `tasks`; task ids are positions in `tasks`.
     pub fn new(tasks: &[&str], num_envs: usize, seed: u64) -> Result<Self> {
         let inner = VecEnv::round_robin(tasks, num_envs, seed)?;
+        Ok(Self::wrap(inner, tasks))
+    }
+
+    /// One environment per entry of `env_tasks` (e.g. an actor's share of the run), each a
+    /// task of `tasks`; task ids are positions in `tasks` (the run's task list), so
+    /// [`VecEnvironment::num_tasks`] is `tasks.len()`.
+    pub fn with_envs(tasks: &[&str], env_tasks: &[&str], seed: u64) -> Result<Self> {
+        let inner = VecEnv::new(env_tasks, seed)?;
+        Ok(Self::wrap(inner, tasks))
+    }
+
+    fn wrap(inner: VecEnv, tasks: &[&str]) -> Self {
         let task_ids = inner
             .env_tasks()
             .iter()
@@ -34,11 +46,22 @@ impl MetaWorldVec {
                     .expect("task of the list")
             })
             .collect();
-        Ok(Self {
+        Self {
             inner,
             num_tasks: tasks.len(),
             task_ids,
-        })
+        }
+    }
+
+    /// The wrapped environments.
+    pub fn inner(&self) -> &VecEnv {
+        &self.inner
+    }
+
+    /// The wrapped environments, e.g. to break one in a test.
+    #[doc(hidden)]
+    pub fn inner_mut(&mut self) -> &mut VecEnv {
+        &mut self.inner
     }
 }
 
@@ -52,7 +75,7 @@ impl VecEnvironment for MetaWorldVec {
         OBS_DIM
     }
     fn act_dim(&self) -> usize {
-        ACT_DIM
+        ACTION_DIM
     }
     fn num_tasks(&self) -> usize {
         self.num_tasks

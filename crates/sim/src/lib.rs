@@ -13,5 +13,5 @@ pub mod metaworld;
 pub mod trace;
 pub mod vec_env;
 
-pub use metaworld::{Env, Step, ACT_DIM, OBS_DIM};
+pub use metaworld::{Env, Step, ACTION_DIM, OBS_DIM};
 pub use vec_env::{EpisodeEnd, VecEnv};

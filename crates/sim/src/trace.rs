@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
 use crate::error::{Result, SimError};
-use crate::metaworld::{Env, ACT_DIM, OBS_DIM};
+use crate::metaworld::{Env, ACTION_DIM, OBS_DIM};
 
 /// One step line (the reset line has no action, reward, success or truncated).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -101,10 +101,10 @@ impl Trace {
                 ));
             }
             match &step.action {
-                Some(a) if a.len() != ACT_DIM => {
+                Some(a) if a.len() != ACTION_DIM => {
                     return Err(bad(
                         i + 1,
-                        format!("action has length {}, expected {ACT_DIM}", a.len()),
+                        format!("action has length {}, expected {ACTION_DIM}", a.len()),
                     ))
                 }
                 None if !steps.is_empty() => return Err(bad(i + 1, "step line without action")),

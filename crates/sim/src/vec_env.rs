@@ -9,7 +9,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use crate::error::{Result, SimError};
-use crate::metaworld::{goal_variations, Env, ACT_DIM, OBS_DIM};
+use crate::metaworld::{goal_variations, Env, ACTION_DIM, OBS_DIM};
 
 /// Summary of an episode that ended during the last step.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -147,11 +147,11 @@ impl VecEnv {
     /// nothing is stepped.
     pub fn step(&mut self, actions: &[f32]) -> Result<()> {
         let n = self.envs.len();
-        if actions.len() != n * ACT_DIM {
+        if actions.len() != n * ACTION_DIM {
             return Err(SimError::Length {
                 what: "action batch",
                 got: actions.len(),
-                expected: n * ACT_DIM,
+                expected: n * ACTION_DIM,
             });
         }
         if let Some(index) = actions.iter().position(|a| !a.is_finite()) {
@@ -162,7 +162,7 @@ impl VecEnv {
         }
         self.finished.clear();
         for i in 0..n {
-            let step = self.envs[i].step(&actions[i * ACT_DIM..(i + 1) * ACT_DIM])?;
+            let step = self.envs[i].step(&actions[i * ACTION_DIM..(i + 1) * ACTION_DIM])?;
             let row = i * OBS_DIM..(i + 1) * OBS_DIM;
             for (dst, src) in self.obs[row.clone()].iter_mut().zip(step.obs) {
                 *dst = src as f32;

@@ -22,10 +22,8 @@ pub mod selector_to_learner;
 pub mod shm;
 pub mod zenoh_net;
 
-/// Meta-World observation width (hand, gripper, two objects, goal).
-pub const OBS_DIM: usize = 39;
-/// Meta-World action width (hand delta xyz, gripper).
-pub const ACTION_DIM: usize = 4;
+/// Meta-World observation and action widths (defined once, in `terl_sim`).
+pub use terl_sim::{ACTION_DIM, OBS_DIM};
 
 pub use actor_to_learner::{flags, Transition, TransitionBatch, TRANSITIONS_PER_BATCH};
 pub use actor_to_selector::{EpisodeSummary, TrajectoryStep, MAX_EPISODE_STEPS};

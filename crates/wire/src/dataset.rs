@@ -9,10 +9,8 @@ use tonic::Status;
 
 use crate::pb;
 
-/// Meta-World observation width.
-pub const OBS_DIM: usize = 39;
-/// Meta-World action width.
-pub const ACTION_DIM: usize = 4;
+/// Meta-World observation and action widths (defined once, in `terl_sim`).
+pub use terl_sim::{ACTION_DIM, OBS_DIM};
 
 /// One transition selected for the TEP dataset.
 #[derive(Debug, Clone, PartialEq)]

@@ -1,16 +1,18 @@
-//! The actor's environment loop (its own thread): act, step, batch transitions, send finished
-//! episodes, load new weights between steps.
+//! The actor's environment loop (its own thread): the rollout loop of `terl_rl::rollout` with
+//! the actor's policy source (newest weights between steps, TERL guidance) and transition sink
+//! (batches of transitions, finished episodes, the pause while the learner is away).
 
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use terl_rl::guidance::{BatchGuidance, GoalTarget};
+use terl_rl::rollout::{
+    self, EpisodeRecord, Flow, PolicySource, RolloutProgress, StepRecord, TransitionSink,
+};
 use terl_rl::{Policy, PolicySpec};
-use terl_runtime::{Algorithm, RunConfig};
-use terl_sim::VecEnv;
+use terl_runtime::{Algorithm, MetaWorldVec, RunConfig};
 use terl_transport::{
     flags, EpisodeSummary, Message, MessageSink, ServiceTransport, TrajectoryStep, Transition,
     TransitionBatch, TransportError, ACTION_DIM, OBS_DIM,
@@ -148,54 +150,267 @@ fn row<const N: usize>(flat: &[f32], i: usize) -> [f32; N] {
         .expect("row of the right width")
 }
 
-/// The transition environment `i` made in the last `env.step(actions)` from `obs` (the
-/// observations acted on): `next_obs` is the observation the action reached — at the time limit
-/// the episode's true last observation ([`VecEnv::final_obs`]), not the reset observation the
-/// environment continues from. `None` when the step is not a transition of the task: the
-/// physics went unstable ([`VecEnv::unstable`]), so the step is dropped (and counted by the
-/// caller) rather than learned as an ordinary, bootstrapping transition with reward 0.
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn transition_of(
-    env: &VecEnv,
-    i: usize,
-    obs: &[f32],
-    actions: &[f32],
-    policy_version: u64,
-    actor_id: u16,
-    task: u16,
-    guided: bool,
-) -> Option<Transition> {
-    if env.unstable()[i] {
-        return None;
-    }
-    let truncated = env.truncated()[i];
-    let next_obs = if truncated {
-        env.final_obs()
-    } else {
-        env.obs()
-    };
+/// The message of one transition of the rollout loop: the observations, action and reward,
+/// the version of the policy that acted, and the `TRUNCATED`, `SUCCESS` and `GUIDED` flags.
+/// `next_obs` is the observation the action reached (at the time limit the episode's true last
+/// observation, not the reset observation the environment continues from); unstable physics
+/// steps never get here (the rollout loop drops and counts them).
+pub(crate) fn transition_of(step: &StepRecord<'_>, actor_id: u16, task: u16) -> Transition {
     let mut f = 0;
-    if truncated {
+    if step.truncated {
         f |= flags::TRUNCATED;
     }
-    if env.success()[i] {
+    if step.success {
         f |= flags::SUCCESS;
     }
-    if guided {
+    if step.guided {
         f |= flags::GUIDED;
     }
-    Some(Transition {
-        policy_version,
-        obs: row(obs, i),
-        next_obs: row(next_obs, i),
-        action: row(actions, i),
-        reward: env.rewards()[i],
+    Transition {
+        policy_version: step.policy_version,
+        obs: row(step.obs, 0),
+        next_obs: row(step.next_obs, 0),
+        action: row(step.action, 0),
+        reward: step.reward,
         actor_id,
-        env_index: i as u16,
+        env_index: step.env as u16,
         task,
         flags: f,
         reserved: [0; 5],
-    })
+    }
+}
+
+/// The actor's policy source: the newest policy from the mailbox (uniform random actions until
+/// the first version arrives) and, with `algorithm = "terl"`, TERL guidance (Eq. 15) with the
+/// newest planner weights.
+struct ActorPolicy<'a> {
+    policy: Policy,
+    guide: Option<BatchGuidance>,
+    mailbox: &'a Mailbox,
+}
+
+impl PolicySource for ActorPolicy<'_> {
+    type Error = terl_rl::SacError;
+
+    fn refresh(&mut self, _: &RolloutProgress) -> Result<Flow, Self::Error> {
+        if self.mailbox.stop.load(Ordering::Relaxed) {
+            return Ok(Flow::Stop);
+        }
+        let fresh = self.mailbox.slot.lock().ok().and_then(|mut s| s.take());
+        if let Some((version, params)) = fresh {
+            match self.policy.set_params(&params, version) {
+                Ok(()) => tracing::debug!(version, "loaded policy weights"),
+                Err(e) => tracing::warn!(version, "ignoring policy weights: {e}"),
+            }
+        }
+        if let Some(g) = self.guide.as_mut() {
+            let fresh = self.mailbox.planner.lock().ok().and_then(|mut s| s.take());
+            if let Some((version, f, an)) = fresh {
+                match g.planner_mut().set_params(&f, &an, version) {
+                    Ok(()) => tracing::debug!(version, "loaded planner weights"),
+                    Err(e) => tracing::warn!(version, "ignoring planner weights: {e}"),
+                }
+            }
+        }
+        Ok(Flow::Continue)
+    }
+
+    fn version(&self) -> u64 {
+        self.policy.version
+    }
+
+    fn planner_version(&self) -> Option<u64> {
+        self.guide.as_ref().map(|g| g.planner().version())
+    }
+
+    fn act(
+        &mut self,
+        obs: &[f32],
+        task_ids: &[usize],
+        rng: &mut ChaCha8Rng,
+        actions: &mut [f32],
+        guided: &mut [bool],
+    ) -> Result<bool, Self::Error> {
+        if self.policy.version == 0 {
+            return Ok(false);
+        }
+        self.policy.act(obs, task_ids, false, rng, actions)?;
+        if let Some(g) = self.guide.as_mut() {
+            g.apply(obs, actions, rng);
+            guided.copy_from_slice(g.guided());
+        }
+        Ok(true)
+    }
+
+    fn end_episode(&mut self, env: usize) {
+        if let Some(g) = self.guide.as_mut() {
+            g.end_episode(env);
+        }
+    }
+}
+
+/// The actor's transition sink: transitions in [`TransitionBatch`]es to the learner, finished
+/// episodes with their trajectories ([`EpisodeSummary`]) to the learner and the selector; the
+/// pause while no learner receives, and the progress log.
+struct ActorSink<'a> {
+    transport: &'a RunTransport,
+    mailbox: &'a Mailbox,
+    transitions: Box<dyn MessageSink<TransitionBatch>>,
+    episodes: Box<dyn MessageSink<EpisodeSummary>>,
+    actor_id: u16,
+    /// Transitions not yet sent (sent when full).
+    batch: TransitionBatch,
+    sequence: u64,
+    trajectories: Vec<Box<EpisodeSummary>>,
+    episode_index: u64,
+    /// A receiver closed during shutdown: nothing more is sent and the loop stops.
+    closed: bool,
+    pauses: u64,
+    paused: Duration,
+    log_at: Instant,
+    log_steps: u64,
+    dropped_seen: u64,
+    checked_at: Instant,
+}
+
+impl ActorSink<'_> {
+    /// A learner killed with SIGKILL leaves its subscription behind, and sends would fill its
+    /// queue and then block for `block_timeout_secs`: every second, and after any send that
+    /// timed out, remove dead processes' subscriptions, so that a dead learner shows as no
+    /// receiver. While no learner receives transitions, pause ([`wait_for_learner`]).
+    fn check_learner(&mut self) -> Flow {
+        let dropped = self.transitions.stats().dropped;
+        if dropped > self.dropped_seen || self.checked_at.elapsed() >= LEARNER_CHECK_EVERY {
+            self.dropped_seen = dropped;
+            self.checked_at = Instant::now();
+            self.transport.cleanup_dead_nodes();
+        }
+        if self.transitions.receivers() > 0 {
+            return Flow::Continue;
+        }
+        tracing::warn!(
+            actor_id = self.actor_id,
+            "no learner receives transitions (stopped, killed or restarting): pausing the \
+             environments and checking for it with back-off"
+        );
+        let transport = self.transport;
+        match wait_for_learner(
+            &*self.transitions,
+            || {
+                transport.cleanup_dead_nodes();
+            },
+            self.mailbox,
+        ) {
+            Rejoin::Stopped => Flow::Stop,
+            Rejoin::Back { waited, checks } => {
+                self.pauses += 1;
+                self.paused += waited;
+                tracing::info!(
+                    actor_id = self.actor_id,
+                    waited_secs = format!("{:.1}", waited.as_secs_f64()),
+                    checks,
+                    newest_received = self.mailbox.received.load(Ordering::Relaxed),
+                    "the learner is back; rejoining with its weights"
+                );
+                Flow::Continue
+            }
+        }
+    }
+}
+
+impl TransitionSink for ActorSink<'_> {
+    type Error = anyhow::Error;
+
+    fn transition(&mut self, step: &StepRecord<'_>) -> anyhow::Result<()> {
+        let trajectory = &mut self.trajectories[step.env];
+        if step.guided {
+            trajectory.guided_steps = trajectory.guided_steps.saturating_add(1);
+        }
+        if self.closed {
+            return Ok(());
+        }
+        let transition = transition_of(step, self.actor_id, task_u16(step.task));
+        let _ = trajectory.push_step(TrajectoryStep {
+            obs: transition.obs,
+            action: transition.action,
+            reward: transition.reward,
+        });
+        if !self.batch.push(transition) {
+            unreachable!("the batch is sent as soon as it is full");
+        }
+        if self.batch.is_full() {
+            self.batch.sequence = self.sequence;
+            if !send(self.transitions.as_mut(), &self.batch, self.mailbox)? {
+                self.closed = true;
+                return Ok(());
+            }
+            self.sequence += 1;
+            self.batch.clear();
+        }
+        Ok(())
+    }
+
+    fn unstable(&mut self, env: usize, guided: bool) {
+        if guided {
+            let t = &mut self.trajectories[env];
+            t.guided_steps = t.guided_steps.saturating_add(1);
+        }
+    }
+
+    fn episode(&mut self, end: &EpisodeRecord<'_>) -> anyhow::Result<()> {
+        if self.closed {
+            return Ok(());
+        }
+        let episode = &mut self.trajectories[end.env];
+        episode.policy_version = end.policy_version;
+        episode.episode_index = self.episode_index;
+        episode.episode_return = end.episode_return as f32;
+        episode.length = end.length;
+        episode.actor_id = self.actor_id;
+        episode.env_index = end.env as u16;
+        episode.task = task_u16(end.task);
+        episode.success = u8::from(end.success);
+        episode.final_obs = row(end.final_obs, 0);
+        if !send(self.episodes.as_mut(), &**episode, self.mailbox)? {
+            self.closed = true;
+            return Ok(());
+        }
+        **episode = EpisodeSummary::EMPTY;
+        self.episode_index += 1;
+        Ok(())
+    }
+
+    fn end_step(&mut self, progress: &RolloutProgress, _: &mut ChaCha8Rng) -> anyhow::Result<Flow> {
+        if self.closed || self.mailbox.stop.load(Ordering::Relaxed) {
+            return Ok(Flow::Stop);
+        }
+        if self.log_at.elapsed() >= LOG_EVERY {
+            let rate =
+                (progress.env_steps - self.log_steps) as f64 / self.log_at.elapsed().as_secs_f64();
+            tracing::info!(
+                actor_id = self.actor_id,
+                env_steps = progress.env_steps,
+                env_steps_per_second = format!("{rate:.0}"),
+                policy_version = progress.policy_version,
+                newest_received = self.mailbox.received.load(Ordering::Relaxed),
+                episodes = progress.episodes,
+                successes = progress.successes,
+                guided_steps = progress.guided_steps,
+                unstable_steps_dropped = progress.unstable_steps,
+                planner_version = progress.planner_version.unwrap_or(0),
+                transitions = ?self.transitions.stats(),
+                episode_sends = ?self.episodes.stats(),
+                "progress"
+            );
+            (self.log_at, self.log_steps) = (Instant::now(), progress.env_steps);
+        }
+        Ok(self.check_learner())
+    }
+}
+
+/// A run-wide task index as the messages carry it.
+fn task_u16(task: usize) -> u16 {
+    u16::try_from(task).expect("at most 65535 tasks")
 }
 
 /// The environment loop of one actor. `claimed` receives the actor id once it is held (the
@@ -255,49 +470,41 @@ pub(crate) fn run<T: ServiceTransport>(
     };
     let my_names: Vec<&str> = mine.iter().map(|&t| tasks[t]).collect();
     let num_envs = my_names.len();
-    let mut env = VecEnv::new(&my_names, run.variation_seed)?;
+    // Task ids of the rollout are positions in the run's task list.
+    let mut env = MetaWorldVec::with_envs(&tasks, &my_names, run.variation_seed)?;
     let seed = run
         .train
         .seed
         .wrapping_add(7919 * (u64::from(actor_id) + 1));
-    env.reset_all_seeded(seed)?;
-    let global_task: Vec<u16> = env
-        .env_tasks()
-        .iter()
-        .map(|&k| {
-            let name = env.tasks()[k];
-            tasks
-                .iter()
-                .position(|t| *t == name)
-                .expect("task of the run") as u16
-        })
-        .collect();
     let spec = PolicySpec {
         obs_dim: OBS_DIM,
         act_dim: ACTION_DIM,
         num_tasks: tasks.len(),
         hidden: run.sac.policy_hidden.clone(),
     };
-    let mut policy = Policy::new(spec, num_envs);
-    let policy_tasks: Vec<usize> = global_task.iter().map(|&t| usize::from(t)).collect();
-    let env_task_names: Vec<&str> = env.env_tasks().iter().map(|&k| env.tasks()[k]).collect();
     // TERL guidance (Eq. 15); `N` counts episodes since the first planner version, the actor's
     // or each environment's (`[guidance] episode_counter`).
-    let mut guide = (run.algorithm == Algorithm::Terl).then(|| {
+    let guide = (run.algorithm == Algorithm::Terl).then(|| {
         let mut cfg = run.tep.clone();
         cfg.obs_dim = OBS_DIM;
         cfg.act_dim = ACTION_DIM;
-        let targets = env_task_names
+        let v = env.inner();
+        let targets = v
+            .env_tasks()
             .iter()
-            .map(|t| GoalTarget::for_task(t))
+            .map(|&k| GoalTarget::for_task(v.tasks()[k]))
             .collect();
         BatchGuidance::new(&cfg, run.guidance.sigma, targets)
             .with_counter(run.guidance.episode_counter)
     });
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut policy = ActorPolicy {
+        policy: Policy::new(spec, num_envs),
+        guide,
+        mailbox,
+    };
 
-    let mut transitions = transport.sink::<TransitionBatch>()?;
-    let mut episodes = transport.sink::<EpisodeSummary>()?;
+    let transitions = transport.sink::<TransitionBatch>()?;
+    let episodes = transport.sink::<EpisodeSummary>()?;
     tracing::info!(
         actor_id,
         tasks = ?my_names,
@@ -314,181 +521,45 @@ pub(crate) fn run<T: ServiceTransport>(
         std::thread::sleep(Duration::from_millis(10));
     }
 
-    let (mut pauses, mut paused) = (0u64, Duration::ZERO);
     let mut batch = TransitionBatch::EMPTY;
     batch.actor_id = actor_id;
-    let mut sequence = 0u64;
-    let mut trajectories: Vec<Box<EpisodeSummary>> =
-        (0..num_envs).map(|_| EpisodeSummary::empty()).collect();
-    let mut episode_version = vec![0u64; num_envs];
-    let mut episode_index = 0u64;
-    let mut obs = env.obs().to_vec();
-    let mut actions = vec![0.0f32; num_envs * ACTION_DIM];
-    let (mut steps, mut episodes_done, mut successes) = (0u64, 0u64, 0u64);
-    let mut guided_steps = 0u64;
-    let mut unstable_steps = 0u64;
     let start = Instant::now();
-    let (mut log_at, mut log_steps) = (start, 0u64);
-    let (mut dropped_seen, mut checked_at) = (0u64, start);
-
-    while !mailbox.stop.load(Ordering::Relaxed) {
-        // A learner killed with SIGKILL leaves its subscription behind, and sends would fill
-        // its queue and then block for `block_timeout_secs`: every second, and after any send
-        // that timed out, remove dead processes' subscriptions, so that a dead learner shows
-        // as no receiver.
-        if transitions.stats().dropped > dropped_seen || checked_at.elapsed() >= LEARNER_CHECK_EVERY
-        {
-            dropped_seen = transitions.stats().dropped;
-            checked_at = Instant::now();
-            transport.cleanup_dead_nodes();
-        }
-        if transitions.receivers() == 0 {
-            tracing::warn!(
-                actor_id,
-                "no learner receives transitions (stopped, killed or restarting): pausing the \
-                 environments and checking for it with back-off"
-            );
-            match wait_for_learner(
-                &*transitions,
-                || {
-                    transport.cleanup_dead_nodes();
-                },
-                mailbox,
-            ) {
-                Rejoin::Stopped => break,
-                Rejoin::Back { waited, checks } => {
-                    pauses += 1;
-                    paused += waited;
-                    tracing::info!(
-                        actor_id,
-                        waited_secs = format!("{:.1}", waited.as_secs_f64()),
-                        checks,
-                        newest_received = mailbox.received.load(Ordering::Relaxed),
-                        "the learner is back; rejoining with its weights"
-                    );
-                }
-            }
-        }
-        let fresh = mailbox.slot.lock().ok().and_then(|mut s| s.take());
-        if let Some((version, params)) = fresh {
-            match policy.set_params(&params, version) {
-                Ok(()) => tracing::debug!(version, "loaded policy weights"),
-                Err(e) => tracing::warn!(version, "ignoring policy weights: {e}"),
-            }
-        }
-        if let Some(g) = guide.as_mut() {
-            let fresh = mailbox.planner.lock().ok().and_then(|mut s| s.take());
-            if let Some((version, f, an)) = fresh {
-                match g.planner_mut().set_params(&f, &an, version) {
-                    Ok(()) => tracing::debug!(version, "loaded planner weights"),
-                    Err(e) => tracing::warn!(version, "ignoring planner weights: {e}"),
-                }
-            }
-        }
-        if policy.version == 0 {
-            actions
-                .iter_mut()
-                .for_each(|a| *a = rng.gen_range(-1.0..1.0));
-        } else {
-            policy.act(&obs, &policy_tasks, false, &mut rng, &mut actions)?;
-            if let Some(g) = guide.as_mut() {
-                g.apply(&obs, &mut actions, &mut rng);
-            }
-        }
-        env.step(&actions)?;
-        for i in 0..num_envs {
-            let guided = guide.as_ref().is_some_and(|g| g.guided()[i]);
-            if guided {
-                guided_steps += 1;
-                trajectories[i].guided_steps = trajectories[i].guided_steps.saturating_add(1);
-            }
-            let Some(transition) = transition_of(
-                &env,
-                i,
-                &obs,
-                &actions,
-                policy.version,
-                actor_id,
-                global_task[i],
-                guided,
-            ) else {
-                unstable_steps += 1;
-                continue;
-            };
-            let _ = trajectories[i].push_step(TrajectoryStep {
-                obs: transition.obs,
-                action: transition.action,
-                reward: transition.reward,
-            });
-            if !batch.push(transition) {
-                unreachable!("the batch is sent as soon as it is full");
-            }
-            if batch.is_full() {
-                batch.sequence = sequence;
-                if !send(transitions.as_mut(), &batch, mailbox)? {
-                    return Ok(());
-                }
-                sequence += 1;
-                batch.clear();
-            }
-        }
-        for end in env.finished() {
-            let i = end.env;
-            if let Some(g) = guide.as_mut() {
-                g.end_episode(i);
-            }
-            let episode = &mut trajectories[i];
-            episode.policy_version = episode_version[i];
-            episode.episode_index = episode_index;
-            episode.episode_return = end.episode_return as f32;
-            episode.length = end.length;
-            episode.actor_id = actor_id;
-            episode.env_index = i as u16;
-            episode.task = global_task[i];
-            episode.success = u8::from(end.success);
-            episode.final_obs = row(env.final_obs(), i);
-            if !send(episodes.as_mut(), &**episode, mailbox)? {
-                return Ok(());
-            }
-            **episode = EpisodeSummary::EMPTY;
-            episode_version[i] = policy.version;
-            episode_index += 1;
-            episodes_done += 1;
-            successes += u64::from(end.success);
-        }
-        obs.copy_from_slice(env.obs());
-        steps += num_envs as u64;
-
-        if log_at.elapsed() >= LOG_EVERY {
-            let rate = (steps - log_steps) as f64 / log_at.elapsed().as_secs_f64();
-            tracing::info!(
-                actor_id,
-                env_steps = steps,
-                env_steps_per_second = format!("{rate:.0}"),
-                policy_version = policy.version,
-                newest_received = mailbox.received.load(Ordering::Relaxed),
-                episodes = episodes_done,
-                successes,
-                guided_steps,
-                unstable_steps_dropped = unstable_steps,
-                planner_version = guide.as_ref().map_or(0, |g| g.planner().version()),
-                transitions = ?transitions.stats(),
-                episode_sends = ?episodes.stats(),
-                "progress"
-            );
-            (log_at, log_steps) = (Instant::now(), steps);
-        }
-    }
+    let mut sink = ActorSink {
+        transport: &transport,
+        mailbox,
+        transitions,
+        episodes,
+        actor_id,
+        batch,
+        sequence: 0,
+        trajectories: (0..num_envs).map(|_| EpisodeSummary::empty()).collect(),
+        episode_index: 0,
+        closed: false,
+        pauses: 0,
+        paused: Duration::ZERO,
+        log_at: start,
+        log_steps: 0,
+        dropped_seen: 0,
+        checked_at: start,
+    };
+    let progress = if sink.check_learner() == Flow::Stop {
+        RolloutProgress::default()
+    } else {
+        rollout::run(&mut env, &mut policy, &mut sink, seed)?
+    };
     tracing::info!(
         actor_id,
-        env_steps = steps,
-        env_steps_per_second = format!("{:.0}", steps as f64 / start.elapsed().as_secs_f64()),
-        policy_version = policy.version,
-        pauses_for_the_learner = pauses,
-        paused_secs = format!("{:.1}", paused.as_secs_f64()),
-        transition_batches_dropped = transitions.stats().dropped,
-        transitions_dropped = transitions.stats().dropped_items,
-        episodes_dropped = episodes.stats().dropped,
+        env_steps = progress.env_steps,
+        env_steps_per_second = format!(
+            "{:.0}",
+            progress.env_steps as f64 / start.elapsed().as_secs_f64()
+        ),
+        policy_version = progress.policy_version,
+        pauses_for_the_learner = sink.pauses,
+        paused_secs = format!("{:.1}", sink.paused.as_secs_f64()),
+        transition_batches_dropped = sink.transitions.stats().dropped,
+        transitions_dropped = sink.transitions.stats().dropped_items,
+        episodes_dropped = sink.episodes.stats().dropped,
         "actor stopped"
     );
     Ok(())
@@ -497,63 +568,44 @@ pub(crate) fn run<T: ServiceTransport>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use terl_sim::metaworld::Env;
-
-    fn action(step: usize) -> [f32; ACTION_DIM] {
-        let t = step as f32 * 0.05;
-        [t.sin(), t.cos(), (0.5 * t).sin(), 0.3]
-    }
 
     #[test]
-    fn the_time_limit_transition_carries_the_true_last_observation() {
-        let mut env = VecEnv::new(&["push-v3", "reach-v3"], 3).unwrap();
-        env.reset_all_seeded(5).unwrap();
-        // Second path: the same episode replayed on a plain `Env` from the same variation.
-        let mut single = Env::new("push-v3").unwrap();
-        single.reset(env.env(0).rand_vec()).unwrap();
-        let mut obs = env.obs().to_vec();
-        for step in 0..500 {
-            let a = action(step);
-            let actions: Vec<f32> = a.iter().chain(&a).copied().collect();
-            env.step(&actions).unwrap();
-            let expected = single.step(&a).unwrap();
-            let t = transition_of(&env, 0, &obs, &actions, 7, 1, 0, false).unwrap();
-            let truncated = step == 499;
-            assert_eq!(env.truncated()[0], truncated);
-            assert_eq!(t.flags & flags::TRUNCATED != 0, truncated);
-            for (k, (&got, &want)) in t.next_obs.iter().zip(&expected.obs).enumerate() {
-                assert!(
-                    (f64::from(got) - want).abs() < 1e-5,
-                    "step {step} obs[{k}]: transition {got}, replayed env {want}"
-                );
-            }
-            if truncated {
-                // The environment already continues from a reset observation; the transition
-                // does not carry it.
-                assert_ne!(&t.next_obs[..], &env.obs()[..39]);
-                assert_eq!(&t.next_obs[..], &env.final_obs()[..39]);
-            }
-            obs.copy_from_slice(env.obs());
-        }
-    }
-
-    #[test]
-    fn a_physics_blow_up_is_dropped_not_sent_as_a_transition() {
-        let mut env = VecEnv::new(&["reach-v3", "push-v3"], 0).unwrap();
-        env.reset_all_seeded(1).unwrap();
-        let a = action(0);
-        let actions: Vec<f32> = a.iter().chain(&a).copied().collect();
-        env.step(&actions).unwrap();
-        let obs = env.obs().to_vec();
-        env.env_mut(1).inject_nan_velocity();
-        env.step(&actions).unwrap();
-        assert!(env.unstable()[1] && !env.unstable()[0]);
-        assert!(transition_of(&env, 1, &obs, &actions, 1, 0, 1, false).is_none());
-        assert!(transition_of(&env, 0, &obs, &actions, 1, 0, 0, false).is_some());
-        // The environment was reset and steps normally again.
-        env.step(&actions).unwrap();
-        assert!(!env.unstable()[1]);
-        assert!(transition_of(&env, 1, &obs, &actions, 1, 0, 1, false).is_some());
+    fn a_transition_carries_the_record_its_version_and_its_flags() {
+        let obs: Vec<f32> = (0..OBS_DIM).map(|k| k as f32).collect();
+        let next_obs: Vec<f32> = (0..OBS_DIM).map(|k| -(k as f32)).collect();
+        let action = [0.5, -0.5, 0.25, 1.0];
+        let record = |truncated, success, guided| StepRecord {
+            env: 3,
+            task: 0,
+            obs: &obs,
+            action: &action,
+            reward: 1.5,
+            next_obs: &next_obs,
+            terminated: false,
+            truncated,
+            success,
+            guided,
+            policy_version: 7,
+        };
+        let t = transition_of(&record(false, false, false), 2, 5);
+        assert_eq!(t.flags, 0);
+        assert_eq!(
+            (t.policy_version, t.actor_id, t.env_index, t.task),
+            (7, 2, 3, 5)
+        );
+        assert_eq!((&t.obs[..], &t.next_obs[..]), (&obs[..], &next_obs[..]));
+        assert_eq!((t.action, t.reward), (action, 1.5));
+        let t = transition_of(&record(true, true, true), 2, 5);
+        assert_eq!(
+            t.flags,
+            flags::TRUNCATED | flags::SUCCESS | flags::GUIDED,
+            "{:b}",
+            t.flags
+        );
+        assert_eq!(
+            transition_of(&record(false, false, true), 2, 5).flags,
+            flags::GUIDED
+        );
     }
 
     /// The memory twin's sink for transitions, its transport (to add a receiver later) and a

@@ -25,6 +25,7 @@ use std::future::Future;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
+use terl_rl::names;
 use terl_runtime::{Algorithm, RunConfig};
 use terl_wire::{Weights, WeightsKind};
 use tracing::Instrument;
@@ -93,9 +94,9 @@ fn post(mailbox: &Mailbox, weights: Weights) {
             let (mut f, mut an) = (Vec::new(), Vec::new());
             for t in weights.into_tensors() {
                 let (name, _, values) = t.into_parts();
-                if name.starts_with("tep_f.") {
+                if names::belongs_to(&name, names::TEP_F) {
                     f.extend(values);
-                } else if name.starts_with("tep_an.") {
+                } else if names::belongs_to(&name, names::TEP_AN) {
                     an.extend(values);
                 }
             }

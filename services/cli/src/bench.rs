@@ -234,7 +234,7 @@ pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
             no_guidance,
             ..
         } => {
-            let cfg = update.config(terl_sim::OBS_DIM, terl_sim::ACT_DIM)?;
+            let cfg = update.config(terl_sim::OBS_DIM, terl_sim::ACTION_DIM)?;
             anyhow::ensure!(envs > 0, "--envs must be at least 1");
             anyhow::ensure!(policy_hidden > 0, "--policy-hidden must be at least 1");
             let seconds = cfg.seconds;

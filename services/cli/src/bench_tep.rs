@@ -16,7 +16,7 @@ use rand_chacha::ChaCha8Rng;
 use terl_bench::tep::{median, GuidanceOverhead};
 use terl_rl::guidance::{guidance_probability, BatchGuidance, GoalTarget, GuidanceConfig};
 use terl_rl::{Policy, PolicySpec, Tep, TepConfig};
-use terl_sim::{VecEnv, ACT_DIM, OBS_DIM};
+use terl_sim::{VecEnv, ACTION_DIM, OBS_DIM};
 
 /// Alternating rounds of the guidance measurement.
 pub const ROUNDS: usize = 10;
@@ -57,7 +57,7 @@ impl ActorLoop {
             .collect();
         let spec = PolicySpec {
             obs_dim: OBS_DIM,
-            act_dim: ACT_DIM,
+            act_dim: ACTION_DIM,
             num_tasks: all_tasks.len(),
             hidden: policy_hidden.to_vec(),
         };
@@ -78,7 +78,7 @@ impl ActorLoop {
         };
         Ok(Self {
             obs: env.obs().to_vec(),
-            actions: vec![0.0; num_envs * ACT_DIM],
+            actions: vec![0.0; num_envs * ACTION_DIM],
             policy: Policy::new(spec, num_envs),
             rng: ChaCha8Rng::seed_from_u64(17),
             env,
@@ -133,8 +133,8 @@ pub fn guidance_overhead(
 ) -> Result<GuidanceOverhead> {
     anyhow::ensure!(num_envs >= 1, "--envs must be at least 1");
     anyhow::ensure!(
-        planner.obs_dim == OBS_DIM && planner.act_dim == ACT_DIM,
-        "guidance needs the Meta-World planner dimensions {OBS_DIM}/{ACT_DIM}"
+        planner.obs_dim == OBS_DIM && planner.act_dim == ACTION_DIM,
+        "guidance needs the Meta-World planner dimensions {OBS_DIM}/{ACTION_DIM}"
     );
     // Without guidance, with it at N = 0, with it after DECAYED_EPISODES episodes.
     let mut actors = [

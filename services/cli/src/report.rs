@@ -23,6 +23,7 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result};
 use clap::Args;
+use terl_rl::SuccessWindow;
 use terl_wire::{EpisodeSummary, Metric};
 
 #[derive(Debug, Args)]
@@ -78,11 +79,13 @@ pub fn task_rows(episodes: &[EpisodeSummary], window: usize) -> Vec<TaskRow> {
             let eps = &by_task[task];
             let n = eps.len();
             let ok: Vec<f64> = eps.iter().map(|e| f64::from(u8::from(e.success))).collect();
-            let curve = (0..n)
-                .map(|i| {
-                    let lo = (i + 1).saturating_sub(window);
-                    let w = &ok[lo..=i];
-                    (i + 1, w.iter().sum::<f64>() / w.len() as f64)
+            let mut recent = SuccessWindow::new(window);
+            let curve = eps
+                .iter()
+                .enumerate()
+                .map(|(i, e)| {
+                    recent.push(e.success);
+                    (i + 1, recent.rate())
                 })
                 .collect::<Vec<_>>();
             let steps: u64 = eps.iter().map(|e| u64::from(e.length)).sum();

@@ -10,7 +10,7 @@ use clap::Args;
 use terl_rl::train::{train, TrainProgress};
 use terl_rl::Sac;
 pub use terl_runtime::{MetaWorldVec, RunConfig};
-use terl_sim::{ACT_DIM, OBS_DIM};
+use terl_sim::{ACTION_DIM, OBS_DIM};
 
 #[derive(Debug, Args)]
 pub struct TrainArgs {
@@ -69,7 +69,7 @@ pub fn run(args: TrainArgs) -> Result<std::process::ExitCode> {
     }
     let tasks = terl_runtime::resolve_tasks(&cfg.tasks)?;
     cfg.sac.obs_dim = OBS_DIM;
-    cfg.sac.act_dim = ACT_DIM;
+    cfg.sac.act_dim = ACTION_DIM;
     cfg.sac.num_tasks = tasks.len();
     cfg.sac.validate()?;
 

@@ -217,6 +217,8 @@ fn stop_all(cluster: &mut Cluster, run_dir: &Path) {
     eprintln!("all processes stopped {:?} after SIGTERM", stop.elapsed());
 }
 
+// One end-to-end scenario whose steps share the running cluster; split would repeat the set-up.
+#[allow(clippy::too_many_lines)]
 #[test]
 fn cluster_trains_and_shuts_down_cleanly() {
     let shm_before = shm_files();
@@ -787,6 +789,8 @@ fn launcher(root: &Path, args: &[&str], log: &Path) -> Child {
 /// orphan (the services follow its pid); `--resume` then continues the run, skipping a
 /// newest checkpoint that was damaged for the previous one, the selector rebuilding its
 /// windows from the episode logs; SIGTERM is reported as an interruption, not as the budget.
+// One end-to-end scenario whose steps share the running cluster; split would repeat the set-up.
+#[allow(clippy::too_many_lines)]
 #[test]
 fn killed_learner_is_restarted_and_runs_resume_past_a_damaged_checkpoint() {
     service_binaries();

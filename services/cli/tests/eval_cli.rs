@@ -10,7 +10,7 @@ use serde_json::Value;
 use terl_rl::env::{StepBuffers, VecEnvironment};
 use terl_rl::{Sac, SacConfig};
 use terl_sim::metaworld::goal_variations;
-use terl_sim::{Env, SimError, ACT_DIM, OBS_DIM};
+use terl_sim::{Env, SimError, ACTION_DIM, OBS_DIM};
 
 fn terl(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_terl"))
@@ -42,7 +42,7 @@ fn hand_built_run(dir: &Path) -> PathBuf {
     .unwrap();
     let cfg = SacConfig {
         obs_dim: OBS_DIM,
-        act_dim: ACT_DIM,
+        act_dim: ACTION_DIM,
         num_tasks: 2,
         policy_hidden: vec![6],
         critic_hidden: vec![8],
@@ -114,7 +114,7 @@ impl VecEnvironment for VariationEnvs {
         OBS_DIM
     }
     fn act_dim(&self) -> usize {
-        ACT_DIM
+        ACTION_DIM
     }
     fn num_tasks(&self) -> usize {
         self.num_tasks
@@ -133,7 +133,7 @@ impl VecEnvironment for VariationEnvs {
     }
     fn step(&mut self, actions: &[f32], out: &mut StepBuffers) -> Result<(), SimError> {
         for (i, env) in self.envs.iter_mut().enumerate() {
-            let s = env.step(&actions[i * ACT_DIM..(i + 1) * ACT_DIM])?;
+            let s = env.step(&actions[i * ACTION_DIM..(i + 1) * ACTION_DIM])?;
             out.reward[i] = s.reward as f32;
             out.success[i] = s.success;
             out.truncated[i] = s.truncated;

@@ -12,7 +12,7 @@ use rand_chacha::ChaCha8Rng;
 #[cfg(test)]
 use terl_nn::tensors::save_file;
 use terl_nn::tensors::{Tensor, TensorFile};
-use terl_rl::{SacError, Tep, TepBatch, TepBuffer, TepConfig};
+use terl_rl::{names, SacError, Tep, TepBatch, TepBuffer, TepConfig};
 use terl_transport::{SelectedBatch, SelectedSample, ACTION_DIM, OBS_DIM};
 use terl_wire::{Weights, WeightsKind};
 
@@ -224,12 +224,14 @@ impl PlannerTrainer {
     /// [`PlannerTrainer::checkpoint_tensors`] inside the learner checkpoint).
     pub(crate) fn tool_file(&self) -> anyhow::Result<(Vec<Tensor>, BTreeMap<String, String>)> {
         let mut tensors = Vec::new();
-        self.tep.f_net().export("tep_f", &mut tensors);
-        self.tep.an_net().export("tep_an", &mut tensors);
-        self.tep.f_target_net().export("tep_f_target", &mut tensors);
+        self.tep.f_net().export(names::TEP_F, &mut tensors);
+        self.tep.an_net().export(names::TEP_AN, &mut tensors);
+        self.tep
+            .f_target_net()
+            .export(names::TEP_F_TARGET, &mut tensors);
         self.tep
             .an_target_net()
-            .export("tep_an_target", &mut tensors);
+            .export(names::TEP_AN_TARGET, &mut tensors);
         let mut meta = BTreeMap::new();
         meta.insert("format".to_string(), "pt".to_string());
         meta.insert(

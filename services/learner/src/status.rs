@@ -2,12 +2,12 @@
 //! the trainer refreshes a few times a second, the `progress` log line and the metrics log's
 //! windows.
 
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use terl_rl::replay::MultiTaskReplay;
-use terl_rl::Sac;
+use terl_rl::{Sac, SuccessWindow};
 use terl_runtime::Algorithm;
 use terl_transport::Staleness;
 use terl_wire::{ActorStats, LearnerStatus, TaskSuccess};
@@ -38,7 +38,7 @@ pub(crate) struct Counters {
     pub(crate) env_steps: u64,
     pub(crate) actors: BTreeMap<u16, ActorTrack>,
     /// Per task, the success of its last `success_window` episodes.
-    pub(crate) windows: Vec<VecDeque<bool>>,
+    pub(crate) windows: Vec<SuccessWindow>,
     window_len: usize,
     pub(crate) staleness: Staleness,
     /// Staleness over the last completed rate window (what status shows).
@@ -67,7 +67,7 @@ impl Counters {
         Self {
             env_steps: 0,
             actors: BTreeMap::new(),
-            windows: vec![VecDeque::with_capacity(window_len); num_tasks],
+            windows: vec![SuccessWindow::new(window_len); num_tasks],
             window_len,
             staleness: Staleness::default(),
             staleness_shown: Staleness::default(),
@@ -92,12 +92,8 @@ impl Counters {
     /// Records a finished episode's success in its task's window (episodes of unknown tasks
     /// are ignored).
     pub(crate) fn episode(&mut self, task: usize, success: bool) {
-        let len = self.window_len;
         if let Some(w) = self.windows.get_mut(task) {
-            if w.len() == len {
-                w.pop_front();
-            }
-            w.push_back(success);
+            w.push(success);
         }
     }
 
@@ -182,11 +178,7 @@ pub(crate) fn snapshot(
             .zip(&c.guidance_shown)
             .map(|((task, w), &guidance_rate)| TaskSuccess {
                 task: (*task).to_string(),
-                success_rate: if w.is_empty() {
-                    0.0
-                } else {
-                    w.iter().filter(|&&s| s).count() as f64 / w.len() as f64
-                },
+                success_rate: w.rate(),
                 episodes: w.len() as u64,
                 guidance_rate,
             })

@@ -18,7 +18,7 @@ use anyhow::Context;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use terl_rl::replay::MultiTaskReplay;
-use terl_rl::{Batch, Sac, SacError};
+use terl_rl::{Batch, Sac, SacError, SuccessWindow};
 use terl_runtime::Algorithm;
 use terl_transport::{
     EpisodeSummary, Message, MessageSource, RateLimiter, SelectedBatch, TransitionBatch, Transport,
@@ -298,7 +298,7 @@ fn learner_state(
         success_windows: c
             .windows
             .iter()
-            .map(|w| w.iter().map(|&s| if s { '1' } else { '0' }).collect())
+            .map(|w| w.iter().map(|s| if s { '1' } else { '0' }).collect())
             .collect(),
         sampler: RngState::of(rng),
         planner: planner.map(PlannerTrainer::state),
@@ -367,9 +367,8 @@ fn restore(
     c.rejected_batches = state.rejected_batches;
     for (w, saved) in c.windows.iter_mut().zip(&state.success_windows) {
         // A window of another length in the run file keeps the newest episodes.
-        let skip = saved.chars().count().saturating_sub(window_len);
-        w.clear();
-        w.extend(saved.chars().skip(skip).map(|ch| ch == '1'));
+        *w = SuccessWindow::new(window_len);
+        saved.chars().for_each(|ch| w.push(ch == '1'));
     }
     c.resumed = Some((found.path.clone(), found.updates));
     tracing::info!(

@@ -18,13 +18,13 @@
 //! evaluates the latest policy version deterministically on every task at that interval
 //! (`runs/<id>/eval.mcap`, and the last result in `GetStatus`).
 
-use std::collections::VecDeque;
 use std::future::Future;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
+use terl_rl::SuccessWindow;
 use terl_runtime::Algorithm;
 use terl_transport::{
     EpisodeSummary, LossTracker, Message, MessageSink, SelectedBatch, SelectedSample,
@@ -43,9 +43,9 @@ use scoring::Scorer;
 pub type SelectorConfig = terl_runtime::ServiceConfig;
 
 /// Per-task episode statistics: a rolling success window plus running totals.
-#[derive(Debug, Clone, Default, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct TaskEpisodes {
-    pub window: VecDeque<bool>,
+    pub window: SuccessWindow,
     pub episodes: u64,
     pub successes: u64,
     pub return_sum: f64,
@@ -56,7 +56,6 @@ pub struct TaskEpisodes {
 #[derive(Debug, Clone, PartialEq)]
 pub struct EpisodeStats {
     tasks: Vec<String>,
-    window_len: usize,
     per_task: Vec<TaskEpisodes>,
     episodes_seen: u64,
     /// Episodes naming a task outside the run's task list (a misconfigured actor).
@@ -70,10 +69,16 @@ pub struct EpisodeStats {
 
 impl EpisodeStats {
     pub fn new(tasks: Vec<String>, window_len: usize) -> Self {
-        let per_task = vec![TaskEpisodes::default(); tasks.len()];
+        let empty = TaskEpisodes {
+            window: SuccessWindow::new(window_len),
+            episodes: 0,
+            successes: 0,
+            return_sum: 0.0,
+            length_sum: 0,
+        };
+        let per_task = vec![empty; tasks.len()];
         Self {
             tasks,
-            window_len: window_len.max(1),
             per_task,
             episodes_seen: 0,
             rejected: 0,
@@ -96,10 +101,7 @@ impl EpisodeStats {
             return;
         };
         self.episodes_seen += 1;
-        if t.window.len() == self.window_len {
-            t.window.pop_front();
-        }
-        t.window.push_back(success);
+        t.window.push(success);
         t.episodes += 1;
         t.successes += u64::from(success);
         if episode_return.is_finite() {
@@ -119,11 +121,7 @@ impl EpisodeStats {
             .zip(&self.per_task)
             .map(|(task, t)| TaskSuccess {
                 task: task.clone(),
-                success_rate: if t.window.is_empty() {
-                    0.0
-                } else {
-                    t.window.iter().filter(|&&s| s).count() as f64 / t.window.len() as f64
-                },
+                success_rate: t.window.rate(),
                 episodes: t.window.len() as u64,
                 guidance_rate: 0.0,
             })

@@ -25,10 +25,11 @@ use crate::mujoco::Simulation;
 pub use scene::{Density, Scene, FRAME_SKIP, TARGET_RADIUS};
 pub use tasks::{task_names, task_set, task_set_names, TaskSpec};
 
-/// Observation length (fully observable Meta-World).
+/// Observation length (fully observable Meta-World: hand, gripper, two objects, goal). The one
+/// definition: `terl_transport` and `terl_wire` re-export it.
 pub const OBS_DIM: usize = 39;
-/// Action length.
-pub const ACT_DIM: usize = 4;
+/// Action length (hand delta xyz, gripper), each in `[-1, 1]`. The one definition.
+pub const ACTION_DIM: usize = 4;
 /// Episode length (`max_path_length`).
 pub const MAX_PATH_LENGTH: u32 = 500;
 /// Goal variations per task, as in the Meta-World benchmarks.
@@ -54,7 +55,8 @@ pub trait Task: Send + std::fmt::Debug {
     /// Object positions and quaternions, zero padded (obs[4..18]).
     fn objects(&self, scene: &Scene, out: &mut [f64; 14]);
     /// Reward and success of the (clipped) observation and the action as given.
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], action: &[f32; ACT_DIM]) -> Eval;
+    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], action: &[f32; ACTION_DIM])
+        -> Eval;
     /// Whether `evaluate` will read contacts or constraint forces for this (clipped)
     /// observation: then the step ends with a full `mj_forward`, as in Python, instead of only
     /// the kinematics pass. Asked every step, so a task whose success reads contacts only in
@@ -213,7 +215,7 @@ impl Env {
     /// Physics only: the action's mocap move and gripper control, then the frame-skipped
     /// `mj_step`s, without observation, reward or bookkeeping. The lower bound of a step's
     /// cost, used by the benchmark (`terl bench env`, crate `terl-bench`).
-    pub fn physics_only_step(&mut self, action: &[f32; ACT_DIM]) {
+    pub fn physics_only_step(&mut self, action: &[f32; ACTION_DIM]) {
         self.scene
             .apply_xyz_action([action[0], action[1], action[2]]);
         let grip = f64::from(action[3]);
@@ -243,11 +245,11 @@ impl Env {
 
     /// Applies one action (length 4, finite; xyz clipped to [-1, 1], gripper as given).
     pub fn step(&mut self, action: &[f32]) -> Result<Step> {
-        if action.len() != ACT_DIM {
+        if action.len() != ACTION_DIM {
             return Err(SimError::Length {
                 what: "action",
                 got: action.len(),
-                expected: ACT_DIM,
+                expected: ACTION_DIM,
             });
         }
         if let Some(index) = action.iter().position(|a| !a.is_finite()) {
@@ -259,7 +261,7 @@ impl Env {
         if self.needs_reset {
             return Err(SimError::EpisodeOver(self.steps));
         }
-        let action: [f32; ACT_DIM] = action.try_into().expect("length checked");
+        let action: [f32; ACTION_DIM] = action.try_into().expect("length checked");
         let before = self.scene.sim.instability_count();
         self.scene
             .apply_xyz_action([action[0], action[1], action[2]]);

@@ -2,9 +2,9 @@
 //! over the peg, then down onto it.
 
 use super::{act, add, goal, hand, object, xy_dist, V3};
-use crate::metaworld::{ACT_DIM, OBS_DIM};
+use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
-pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
     let hand = hand(obs);
     let wrench = add(object(obs), [-0.02, 0.0, 0.0]);
     let peg = add(goal(obs), [0.12, 0.0, 0.14]);

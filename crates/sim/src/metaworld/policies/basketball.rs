@@ -1,9 +1,9 @@
 //! `SawyerBasketballV3Policy`: above the ball, down, grip, up to the hoop's height, over it.
 
 use super::{act, add, hand, object, xy_dist, V3};
-use crate::metaworld::{ACT_DIM, OBS_DIM};
+use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
-pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
     let (hand, ball) = (hand(obs), object(obs));
     // x from the goal; y between the basket's limits (0.85..0.9); z fixed.
     let hoop = [obs[36], 0.875, 0.35];

@@ -1,12 +1,12 @@
 //! `SawyerBinPickingV3Policy`: above the cube, down, grip, up, over the target bin, down.
 
 use super::{act, add, hand, object, xy_dist, V3};
-use crate::metaworld::{ACT_DIM, OBS_DIM};
+use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
 /// Centre of the target bin.
 const BIN: V3 = [0.12, 0.7, 0.02];
 
-pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
     let hand = hand(obs);
     let mut cube = add(object(obs), [0.0, 0.0, 0.03]);
     // Aim as if the cube were nearer the bin's middle in y: the closing fingers drag it

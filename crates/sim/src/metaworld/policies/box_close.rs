@@ -1,9 +1,9 @@
 //! `SawyerBoxCloseV3Policy`: above the lid's handle, down, grip, up to 0.15, over the box.
 
 use super::{act, add, hand, object, xy_dist, V3};
-use crate::metaworld::{ACT_DIM, OBS_DIM};
+use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
-pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
     let hand = hand(obs);
     let lid = add(object(obs), [0.0, 0.0, 0.02]);
     let box_top = [obs[36], obs[37], 0.15];

@@ -1,9 +1,9 @@
 //! `SawyerButtonPressV3Policy`: line up in x and z with the button, then push along +y.
 
 use super::{act, add, hand, object, V3};
-use crate::metaworld::{ACT_DIM, OBS_DIM};
+use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
-pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
     let hand = hand(obs);
     act(hand, desired_pos(hand, object(obs)), 25.0, 0.0)
 }

@@ -2,9 +2,9 @@
 //! button, then push along +y with the gripper closed.
 
 use super::{act, add, hand, object, V3};
-use crate::metaworld::{ACT_DIM, OBS_DIM};
+use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
-pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
     let hand = hand(obs);
     let button = add(object(obs), [0.0, 0.0, 0.04]);
     let (to, grab) = desired_pos(hand, button);

@@ -1,9 +1,9 @@
 //! `SawyerCoffeePullV3Policy`: above the mug, down around it, grip and pull it to the goal.
 
 use super::{act, add, goal, hand, object, xy_dist, V3};
-use crate::metaworld::{ACT_DIM, OBS_DIM};
+use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
-pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
     let (hand, mug) = (hand(obs), object(obs));
     act(
         hand,

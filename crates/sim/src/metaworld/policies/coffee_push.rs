@@ -3,9 +3,9 @@
 
 use super::coffee_pull::grab_effort;
 use super::{act, add, goal, hand, object, xy_dist, V3};
-use crate::metaworld::{ACT_DIM, OBS_DIM};
+use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
-pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
     let (hand, mug) = (hand(obs), object(obs));
     act(
         hand,

@@ -1,9 +1,9 @@
 //! `SawyerDisassembleV3Policy`: above the nut's handle, down, grip, then straight up.
 
 use super::{act, add, hand, object, xy_dist, V3};
-use crate::metaworld::{ACT_DIM, OBS_DIM};
+use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
-pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
     let hand = hand(obs);
     let wrench = add(object(obs), [-0.02, 0.0, 0.01]);
     act(

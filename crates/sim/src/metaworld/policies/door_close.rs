@@ -1,9 +1,9 @@
 //! `SawyerDoorCloseV3Policy`: rise, come over the handle's outer edge, drop, push to the goal.
 
 use super::{act, add, goal, hand, object, V3};
-use crate::metaworld::{ACT_DIM, OBS_DIM};
+use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
-pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
     let hand = hand(obs);
     act(hand, desired_pos(hand, object(obs), goal(obs)), 25.0, 1.0)
 }

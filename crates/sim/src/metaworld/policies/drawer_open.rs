@@ -1,9 +1,9 @@
 //! `SawyerDrawerOpenV3Policy`: above the handle, down, then pull hard (p = 50) behind it.
 
 use super::{act, add, hand, object, xy_dist};
-use crate::metaworld::{ACT_DIM, OBS_DIM};
+use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
-pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
     let hand = hand(obs);
     let drawer = add(object(obs), [0.0, 0.0, -0.02]);
     let (to, p) = if xy_dist(hand, drawer) > 0.06 {

@@ -2,12 +2,12 @@
 //! forward onto the nail.
 
 use super::{act, add, hand, object, xy_dist, V3};
-use crate::metaworld::{ACT_DIM, OBS_DIM};
+use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
 /// The nail head (plus an offset for the hammer's head), hard-coded as in Python.
 const GOAL: V3 = [0.24 - 0.19, 0.71, 0.11 + 0.05];
 
-pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
     let hand = hand(obs);
     let handle = add(object(obs), [-0.04, 0.0, -0.01]);
     act(

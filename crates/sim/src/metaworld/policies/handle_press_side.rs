@@ -1,9 +1,9 @@
 //! `SawyerHandlePressSideV3Policy`: above the handle, then press it down.
 
 use super::{act, add, hand, object, xy_dist, V3};
-use crate::metaworld::{ACT_DIM, OBS_DIM};
+use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
-pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
     let hand = hand(obs);
     act(hand, desired_pos(hand, object(obs)), 25.0, 1.0)
 }

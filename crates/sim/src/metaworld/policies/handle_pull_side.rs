@@ -1,9 +1,9 @@
 //! `SawyerHandlePullSideV3Policy`: above the handle, down to it, grip lightly and pull up.
 
 use super::{act, add, hand, object, xy_dist, V3};
-use crate::metaworld::{ACT_DIM, OBS_DIM};
+use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
-pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
     let (hand, handle) = (hand(obs), object(obs));
     act(
         hand,

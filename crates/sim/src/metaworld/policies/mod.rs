@@ -19,7 +19,7 @@
 //! # Ok::<(), terl_sim::SimError>(())
 //! ```
 
-use super::{ACT_DIM, OBS_DIM};
+use super::{ACTION_DIM, OBS_DIM};
 use crate::error::{Result, SimError};
 
 mod button_press;
@@ -76,7 +76,7 @@ mod handle_pull;
 mod handle_pull_side;
 
 /// A scripted policy: observation in, action out.
-pub type Policy = fn(&[f64; OBS_DIM]) -> [f32; ACT_DIM];
+pub type Policy = fn(&[f64; OBS_DIM]) -> [f32; ACTION_DIM];
 
 static POLICIES: &[(&str, Policy)] = &[
     ("reach-v3", reach::action),
@@ -158,7 +158,7 @@ pub fn policy(task: &str) -> Result<Policy> {
 }
 
 /// The scripted action of `task` for one observation.
-pub fn scripted_action(task: &str, obs: &[f64; OBS_DIM]) -> Result<[f32; ACT_DIM]> {
+pub fn scripted_action(task: &str, obs: &[f64; OBS_DIM]) -> Result<[f32; ACTION_DIM]> {
     Ok(policy(task)?(obs))
 }
 
@@ -198,7 +198,7 @@ fn dist(a: V3, b: V3) -> f64 {
 }
 
 /// `move(from, to, p)` (unclipped, as in Python) plus the gripper effort, as float32.
-fn act(from: V3, to: V3, p: f64, grab: f64) -> [f32; ACT_DIM] {
+fn act(from: V3, to: V3, p: f64, grab: f64) -> [f32; ACTION_DIM] {
     [
         ((to[0] - from[0]) * p) as f32,
         ((to[1] - from[1]) * p) as f32,

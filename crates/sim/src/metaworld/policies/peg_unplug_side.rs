@@ -1,9 +1,9 @@
 //! `SawyerPegUnplugSideV3Policy`: above the peg, down to z = 0.15, then pull along +x.
 
 use super::{act, add, hand, object, xy_dist, V3};
-use crate::metaworld::{ACT_DIM, OBS_DIM};
+use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
-pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
     let (hand, peg) = (hand(obs), object(obs));
     act(hand, desired_pos(hand, peg), 25.0, grab_effort(hand, peg))
 }

@@ -2,9 +2,9 @@
 //! then to the goal.
 
 use super::{act, add, goal, hand, object, xy_dist, V3};
-use crate::metaworld::{ACT_DIM, OBS_DIM};
+use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
-pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
     let (hand, puck) = (hand(obs), object(obs));
     act(
         hand,

@@ -1,9 +1,9 @@
 //! `SawyerPickPlaceV3Policy`: above the puck, down, close the gripper, carry to the goal.
 
 use super::{act, add, dist, goal, hand, object, xy_dist, V3};
-use crate::metaworld::{ACT_DIM, OBS_DIM};
+use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
-pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
     let (hand, puck) = (hand(obs), object(obs));
     let grab = if dist(hand, puck) < 0.07 { 1.0 } else { 0.0 };
     act(hand, desired_pos(hand, obs[3], puck, goal(obs)), 10.0, grab)

@@ -1,8 +1,8 @@
 //! `SawyerReachV3Policy`: move straight to the goal.
 
 use super::{act, goal, hand};
-use crate::metaworld::{ACT_DIM, OBS_DIM};
+use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
-pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
     act(hand(obs), goal(obs), 5.0, 0.0)
 }

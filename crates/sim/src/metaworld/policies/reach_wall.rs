@@ -1,9 +1,9 @@
 //! `SawyerReachWallV3Policy`: to the goal, aiming 1 m above it while the wall is in the way.
 
 use super::{act, add, goal, hand, V3};
-use crate::metaworld::{ACT_DIM, OBS_DIM};
+use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
-pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
     let hand = hand(obs);
     act(hand, desired_pos(hand, goal(obs)), 5.0, 0.0)
 }

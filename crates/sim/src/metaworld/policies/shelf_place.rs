@@ -1,9 +1,9 @@
 //! `SawyerShelfPlaceV3Policy`: grasp the block, centre on the shelf's x, lift, move forward.
 
 use super::{act, add, hand, object, xy_dist, V3};
-use crate::metaworld::{ACT_DIM, OBS_DIM};
+use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
-pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
     let (hand, block) = (hand(obs), object(obs));
     act(
         hand,

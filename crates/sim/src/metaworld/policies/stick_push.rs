@@ -2,9 +2,9 @@
 //! 13.2 cm above the goal (pushing the container there).
 
 use super::{act, add, goal, hand, object, xy_dist, V3};
-use crate::metaworld::{ACT_DIM, OBS_DIM};
+use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
-pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACT_DIM] {
+pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
     stick_action(obs, [0.015, 0.0, 0.03], [0.0; 3], [0.0, 0.0, 0.132], 10.0)
 }
 
@@ -16,7 +16,7 @@ pub(super) fn stick_action(
     thermos_offset: V3,
     goal_offset: V3,
     p: f64,
-) -> [f32; ACT_DIM] {
+) -> [f32; ACTION_DIM] {
     let hand = hand(obs);
     let stick = add(object(obs), stick_offset);
     let thermos = add([obs[11], obs[12], obs[13]], thermos_offset);

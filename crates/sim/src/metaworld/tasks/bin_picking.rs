@@ -3,7 +3,7 @@
 use super::{always_ok, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{dist, hamacher_product, norm2, sub, tolerance, Sigmoid};
-use crate::metaworld::{Density, Eval, Scene, Task, ACT_DIM, OBS_DIM, TARGET_RADIUS};
+use crate::metaworld::{Density, Eval, Scene, Task, ACTION_DIM, OBS_DIM, TARGET_RADIUS};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "bin-picking-v3",
@@ -62,7 +62,12 @@ impl Task for BinPicking {
         out[3..7].copy_from_slice(&scene.sim.body_xquat(self.obj));
     }
 
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], action: &[f32; ACT_DIM]) -> Eval {
+    fn evaluate(
+        &mut self,
+        scene: &Scene,
+        obs: &[f64; OBS_DIM],
+        action: &[f32; ACTION_DIM],
+    ) -> Eval {
         let hand = [obs[0], obs[1], obs[2]];
         let obj = [obs[4], obs[5], obs[6]];
         let target = scene.target_pos;

@@ -3,7 +3,7 @@
 use super::{obj_goal_apart, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{dist, hamacher_product, norm, norm2, sub, tolerance, Sigmoid};
-use crate::metaworld::{Eval, Scene, Task, ACT_DIM, FRAME_SKIP, OBS_DIM};
+use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, FRAME_SKIP, OBS_DIM};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "box-close-v3",
@@ -44,7 +44,7 @@ pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
 }
 
 /// `_reward_grab_effort`: the gripper effort mapped to [0, 1], in `f32` as NumPy computes it.
-fn grab_effort(action: &[f32; ACT_DIM]) -> f64 {
+fn grab_effort(action: &[f32; ACTION_DIM]) -> f64 {
     f64::from(((action[3].clamp(-1.0, 1.0) + 1.0) / 2.0).clamp(0.0, 1.0))
 }
 
@@ -109,7 +109,12 @@ impl Task for BoxClose {
         out[3..7].copy_from_slice(&scene.sim.body_xquat(self.lid));
     }
 
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], action: &[f32; ACT_DIM]) -> Eval {
+    fn evaluate(
+        &mut self,
+        scene: &Scene,
+        obs: &[f64; OBS_DIM],
+        action: &[f32; ACTION_DIM],
+    ) -> Eval {
         let target = scene.target_pos;
         let (ready, lifted) = reward_pos(obs, target);
         let mut reward = 2.0 * hamacher_product(grab_effort(action), ready) + 8.0 * lifted;

@@ -3,7 +3,7 @@
 use super::{always_ok, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{dist, hamacher_product, tolerance, Sigmoid};
-use crate::metaworld::{Eval, Scene, Task, ACT_DIM, OBS_DIM};
+use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM};
 
 /// How far the button travels (`max_dist`).
 const MAX_DIST: f64 = 0.03;
@@ -72,7 +72,7 @@ impl Task for CoffeeButton {
         out[3] = 1.0;
     }
 
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], _a: &[f32; ACT_DIM]) -> Eval {
+    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], _a: &[f32; ACTION_DIM]) -> Eval {
         let obj = [obs[4], obs[5], obs[6]];
         let tcp_to_obj = dist(obj, scene.tcp_center());
         let tcp_to_obj_init = dist(obj, scene.init_tcp);

@@ -3,7 +3,7 @@
 use super::{always_ok, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{dist, hamacher_product, tolerance, Sigmoid};
-use crate::metaworld::{Eval, Scene, Task, ACT_DIM, OBS_DIM};
+use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "dial-turn-v3",
@@ -111,7 +111,7 @@ impl Task for DialTurn {
         out[3..7].copy_from_slice(&scene.sim.body_xquat(self.dial));
     }
 
-    fn evaluate(&mut self, scene: &Scene, _obs: &[f64; OBS_DIM], a: &[f32; ACT_DIM]) -> Eval {
+    fn evaluate(&mut self, scene: &Scene, _obs: &[f64; OBS_DIM], a: &[f32; ACTION_DIM]) -> Eval {
         let obj = self.knob_edge(scene);
         let push_position = self.push_position(scene);
         let tcp = scene.tcp_center();

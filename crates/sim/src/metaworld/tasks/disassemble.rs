@@ -4,7 +4,7 @@ use super::assembly::{quat_reward, threshed};
 use super::{obj_goal_apart, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{dist, tolerance, Sigmoid};
-use crate::metaworld::{Density, Eval, Scene, Task, ACT_DIM, OBS_DIM};
+use crate::metaworld::{Density, Eval, Scene, Task, ACTION_DIM, OBS_DIM};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "disassemble-v3",
@@ -81,7 +81,12 @@ impl Task for Disassemble {
         out[3..7].copy_from_slice(&scene.sim.body_xquat(self.nut));
     }
 
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], action: &[f32; ACT_DIM]) -> Eval {
+    fn evaluate(
+        &mut self,
+        scene: &Scene,
+        obs: &[f64; OBS_DIM],
+        action: &[f32; ACTION_DIM],
+    ) -> Eval {
         let hand = [obs[0], obs[1], obs[2]];
         let nut = [obs[4], obs[5], obs[6]];
         let grab = scene.gripper_caging_reward(

@@ -3,7 +3,7 @@
 use super::{always_ok, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{dist, scipy_quat_from_mat, tolerance, Sigmoid};
-use crate::metaworld::{Eval, Scene, Task, ACT_DIM, OBS_DIM};
+use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "door-close-v3",
@@ -72,7 +72,7 @@ impl Task for DoorClose {
         out[3..7].copy_from_slice(&scipy_quat_from_mat(scene.sim.geom_xmat(self.handle)));
     }
 
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], _a: &[f32; ACT_DIM]) -> Eval {
+    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], _a: &[f32; ACTION_DIM]) -> Eval {
         let obj = [obs[4], obs[5], obs[6]];
         let target = scene.target_pos;
         let tcp_to_target = dist(scene.tcp_center(), target);

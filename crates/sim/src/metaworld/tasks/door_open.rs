@@ -7,7 +7,7 @@ use crate::error::Result;
 use crate::metaworld::reward::{
     hamacher_product, norm, norm2, scipy_quat_from_mat, sub, tolerance, Sigmoid,
 };
-use crate::metaworld::{Eval, Scene, Task, ACT_DIM, OBS_DIM};
+use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "door-open-v3",
@@ -48,7 +48,7 @@ pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
 }
 
 /// `_reward_grab_effort`: the gripper effort mapped to [0, 1], in `f32` as NumPy computes it.
-fn grab_effort(action: &[f32; ACT_DIM]) -> f64 {
+fn grab_effort(action: &[f32; ACTION_DIM]) -> f64 {
     f64::from((action[3].clamp(-1.0, 1.0) + 1.0) / 2.0)
 }
 
@@ -118,7 +118,12 @@ impl Task for DoorOpen {
         out[3..7].copy_from_slice(&scipy_quat_from_mat(scene.sim.geom_xmat(self.handle)));
     }
 
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], action: &[f32; ACT_DIM]) -> Eval {
+    fn evaluate(
+        &mut self,
+        scene: &Scene,
+        obs: &[f64; OBS_DIM],
+        action: &[f32; ACTION_DIM],
+    ) -> Eval {
         let theta = scene.sim.qpos()[self.hinge_qpos];
         let grab = grab_effort(action);
         let (ready, opened) = reward_pos(obs, theta);

@@ -3,7 +3,7 @@
 use super::{always_ok, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{norm, tolerance, Sigmoid};
-use crate::metaworld::{Eval, Scene, Task, ACT_DIM, OBS_DIM};
+use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "door-unlock-v3",
@@ -78,7 +78,7 @@ impl Task for DoorUnlock {
         out[3..7].copy_from_slice(&scene.sim.body_xquat(self.door_link));
     }
 
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], _a: &[f32; ACT_DIM]) -> Eval {
+    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], _a: &[f32; ACTION_DIM]) -> Eval {
         let gripper = [obs[0], obs[1], obs[2]];
         let lock = [obs[4], obs[5], obs[6]];
         // Python's `obj_init_pos` is a live view of the lock link's position.

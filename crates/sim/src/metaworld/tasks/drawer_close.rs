@@ -3,7 +3,7 @@
 use super::{always_ok, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{dist, hamacher_product, tolerance, Sigmoid};
-use crate::metaworld::{Eval, Scene, Task, ACT_DIM, OBS_DIM, TARGET_RADIUS};
+use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM, TARGET_RADIUS};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "drawer-close-v3",
@@ -76,7 +76,12 @@ impl Task for DrawerClose {
         out[..3].copy_from_slice(&self.handle_pos(scene));
     }
 
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], action: &[f32; ACT_DIM]) -> Eval {
+    fn evaluate(
+        &mut self,
+        scene: &Scene,
+        obs: &[f64; OBS_DIM],
+        action: &[f32; ACTION_DIM],
+    ) -> Eval {
         let obj = [obs[4], obs[5], obs[6]];
         let target = scene.target_pos;
         let target_to_obj = dist(obj, target);

@@ -3,7 +3,7 @@
 use super::{always_ok, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{add, dist, tolerance, Sigmoid};
-use crate::metaworld::{Eval, Scene, Task, ACT_DIM, OBS_DIM};
+use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "faucet-open-v3",
@@ -65,7 +65,7 @@ impl Task for FaucetOpen {
         out[3..7].copy_from_slice(&scene.sim.body_xquat(self.base));
     }
 
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], _a: &[f32; ACT_DIM]) -> Eval {
+    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], _a: &[f32; ACTION_DIM]) -> Eval {
         let obj = add([obs[4], obs[5], obs[6]], REWARD_HANDLE_OFFSET);
         let target_to_obj = dist(obj, scene.target_pos);
         let target_to_obj_init = dist(scene.obj_init_pos, scene.target_pos);

@@ -3,7 +3,7 @@
 use super::{always_ok, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{dist, tolerance, Sigmoid};
-use crate::metaworld::{Density, Eval, Scene, Task, ACT_DIM, OBS_DIM};
+use crate::metaworld::{Density, Eval, Scene, Task, ACTION_DIM, OBS_DIM};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "hammer-v3",
@@ -88,7 +88,12 @@ impl Task for Hammer {
         out[10..14].copy_from_slice(&scene.sim.body_xquat(self.nail));
     }
 
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], action: &[f32; ACT_DIM]) -> Eval {
+    fn evaluate(
+        &mut self,
+        scene: &Scene,
+        obs: &[f64; OBS_DIM],
+        action: &[f32; ACTION_DIM],
+    ) -> Eval {
         let hand = [obs[0], obs[1], obs[2]];
         let hammer = [obs[4], obs[5], obs[6]];
         let head: [f64; 3] = std::array::from_fn(|i| hammer[i] + HEAD_OFFSET[i]);

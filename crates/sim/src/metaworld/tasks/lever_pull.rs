@@ -6,7 +6,7 @@ use super::{always_ok, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{add, dist, hamacher_product, norm, scipy_quat_from_mat, sub};
 use crate::metaworld::reward::{tolerance, Sigmoid};
-use crate::metaworld::{Eval, Scene, Task, ACT_DIM, OBS_DIM};
+use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "lever-pull-v3",
@@ -87,7 +87,7 @@ impl Task for LeverPull {
         out[3..7].copy_from_slice(&scipy_quat_from_mat(scene.sim.geom_xmat(self.obj_geom)));
     }
 
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], _a: &[f32; ACT_DIM]) -> Eval {
+    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], _a: &[f32; ACTION_DIM]) -> Eval {
         let gripper = [obs[0], obs[1], obs[2]];
         let lever = [obs[4], obs[5], obs[6]];
         let ready_to_lift = tolerance(

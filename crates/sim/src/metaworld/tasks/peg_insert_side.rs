@@ -5,7 +5,7 @@ use crate::error::Result;
 use crate::metaworld::reward::{
     dist, hamacher_product, norm, rect_prism_tolerance, scipy_quat_from_mat, tolerance, Sigmoid,
 };
-use crate::metaworld::{Density, Eval, Scene, Task, ACT_DIM, OBS_DIM};
+use crate::metaworld::{Density, Eval, Scene, Task, ACTION_DIM, OBS_DIM};
 
 /// Goal (inside the hole) relative to the box position.
 const GOAL_OFFSET: [f64; 3] = [0.03, 0.0, 0.13];
@@ -104,7 +104,12 @@ impl Task for PegInsertSide {
         out[3..7].copy_from_slice(&scipy_quat_from_mat(scene.sim.site_xmat(self.peg_grasp)));
     }
 
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], action: &[f32; ACT_DIM]) -> Eval {
+    fn evaluate(
+        &mut self,
+        scene: &Scene,
+        obs: &[f64; OBS_DIM],
+        action: &[f32; ACTION_DIM],
+    ) -> Eval {
         let obj = [obs[4], obs[5], obs[6]];
         let obj_head = scene.sim.site_xpos(self.peg_head);
         let tcp_opened = obs[3];

@@ -3,7 +3,7 @@
 use super::{always_ok, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{dist, tolerance, Sigmoid};
-use crate::metaworld::{Density, Eval, Scene, Task, ACT_DIM, OBS_DIM};
+use crate::metaworld::{Density, Eval, Scene, Task, ACTION_DIM, OBS_DIM};
 
 /// Where the plug sits relative to the box.
 const PLUG_OFFSET: [f64; 3] = [0.044, 0.0, 0.131];
@@ -75,7 +75,12 @@ impl Task for PegUnplugSide {
         out[3..7].copy_from_slice(&scene.sim.body_xquat(self.plug));
     }
 
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], action: &[f32; ACT_DIM]) -> Eval {
+    fn evaluate(
+        &mut self,
+        scene: &Scene,
+        obs: &[f64; OBS_DIM],
+        action: &[f32; ACTION_DIM],
+    ) -> Eval {
         let obj = [obs[4], obs[5], obs[6]];
         let tcp_opened = obs[3];
         let target = scene.target_pos;

@@ -3,7 +3,7 @@
 use super::{obj_goal_apart, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{dist, hamacher_product, norm2, sub, tolerance, Sigmoid};
-use crate::metaworld::{Density, Eval, Scene, Task, ACT_DIM, OBS_DIM, TARGET_RADIUS};
+use crate::metaworld::{Density, Eval, Scene, Task, ACTION_DIM, OBS_DIM, TARGET_RADIUS};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "pick-out-of-hole-v3",
@@ -54,7 +54,12 @@ impl Task for PickOutOfHole {
         out[3..7].copy_from_slice(&scene.sim.body_xquat(self.obj));
     }
 
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], action: &[f32; ACT_DIM]) -> Eval {
+    fn evaluate(
+        &mut self,
+        scene: &Scene,
+        obs: &[f64; OBS_DIM],
+        action: &[f32; ACTION_DIM],
+    ) -> Eval {
         let obj = [obs[4], obs[5], obs[6]];
         let gripper = scene.tcp_center();
         let obj_init = scene.obj_init_pos;

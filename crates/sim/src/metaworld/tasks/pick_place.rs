@@ -3,7 +3,7 @@
 use super::{obj_goal_apart, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{dist, hamacher_product, scipy_quat_from_mat, tolerance, Sigmoid};
-use crate::metaworld::{Eval, Scene, Task, ACT_DIM, OBS_DIM, TARGET_RADIUS};
+use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM, TARGET_RADIUS};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "pick-place-v3",
@@ -50,7 +50,7 @@ impl PickPlace {
     /// from `init_left_pad`/`init_right_pad`, which in Python are live views of `data.xpos`
     /// (`get_body_com` returns no copy): they are the *current* pad positions, not the ones at
     /// reset.
-    fn caging_reward(scene: &Scene, action: &[f32; ACT_DIM], obj: [f64; 3]) -> f64 {
+    fn caging_reward(scene: &Scene, action: &[f32; ACTION_DIM], obj: [f64; 3]) -> f64 {
         let tcp = scene.tcp_center();
         let left_pad = scene.left_pad_pos();
         let right_pad = scene.right_pad_pos();
@@ -100,7 +100,12 @@ impl Task for PickPlace {
         out[3..7].copy_from_slice(&scipy_quat_from_mat(scene.sim.geom_xmat(self.obj_geom)));
     }
 
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], action: &[f32; ACT_DIM]) -> Eval {
+    fn evaluate(
+        &mut self,
+        scene: &Scene,
+        obs: &[f64; OBS_DIM],
+        action: &[f32; ACTION_DIM],
+    ) -> Eval {
         let obj = [obs[4], obs[5], obs[6]];
         let tcp_opened = obs[3];
         let target = scene.target_pos;

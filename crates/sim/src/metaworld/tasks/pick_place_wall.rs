@@ -5,7 +5,7 @@ use crate::error::Result;
 use crate::metaworld::reward::{
     dist, hamacher_product, norm, scipy_quat_from_mat, tolerance, Sigmoid,
 };
-use crate::metaworld::{Density, Eval, Scene, Task, ACT_DIM, OBS_DIM, TARGET_RADIUS};
+use crate::metaworld::{Density, Eval, Scene, Task, ACTION_DIM, OBS_DIM, TARGET_RADIUS};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "pick-place-wall-v3",
@@ -64,7 +64,12 @@ impl Task for PickPlaceWall {
         out[3..7].copy_from_slice(&scipy_quat_from_mat(scene.sim.geom_xmat(self.obj_geom)));
     }
 
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], action: &[f32; ACT_DIM]) -> Eval {
+    fn evaluate(
+        &mut self,
+        scene: &Scene,
+        obs: &[f64; OBS_DIM],
+        action: &[f32; ACTION_DIM],
+    ) -> Eval {
         let obj = [obs[4], obs[5], obs[6]];
         let tcp_opened = obs[3];
         let target = scene.target_pos;

@@ -3,7 +3,7 @@
 use super::plate_slide_back::{low_push_eval, puck_objects, set_puck_joints};
 use super::{always_ok, TaskSpec};
 use crate::error::Result;
-use crate::metaworld::{Eval, Scene, Task, ACT_DIM, OBS_DIM};
+use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "plate-slide-side-v3",
@@ -53,7 +53,7 @@ impl Task for PlateSlideSide {
         puck_objects(scene, self.puck, out);
     }
 
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], _a: &[f32; ACT_DIM]) -> Eval {
+    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], _a: &[f32; ACTION_DIM]) -> Eval {
         low_push_eval(scene, obs)
     }
 }

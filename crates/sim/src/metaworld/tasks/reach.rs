@@ -3,7 +3,7 @@
 use super::{obj_goal_apart, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{dist, scipy_quat_from_mat, tolerance, Sigmoid};
-use crate::metaworld::{Eval, Scene, Task, ACT_DIM, OBS_DIM, TARGET_RADIUS};
+use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM, TARGET_RADIUS};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "reach-v3",
@@ -60,7 +60,7 @@ impl Task for Reach {
         out[3..7].copy_from_slice(&scipy_quat_from_mat(scene.sim.geom_xmat(self.obj_geom)));
     }
 
-    fn evaluate(&mut self, scene: &Scene, _obs: &[f64; OBS_DIM], _a: &[f32; ACT_DIM]) -> Eval {
+    fn evaluate(&mut self, scene: &Scene, _obs: &[f64; OBS_DIM], _a: &[f32; ACTION_DIM]) -> Eval {
         let tcp_to_target = dist(scene.tcp_center(), scene.target_pos);
         let in_place_margin = dist(scene.hand_init_pos, scene.target_pos);
         let in_place = tolerance(

@@ -5,7 +5,7 @@ use super::pick_place_wall::scaled_dist;
 use super::{obj_goal_apart, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{dist, scipy_quat_from_mat, tolerance, Sigmoid};
-use crate::metaworld::{Eval, Scene, Task, ACT_DIM, OBS_DIM};
+use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "soccer-v3",
@@ -73,7 +73,7 @@ impl Task for Soccer {
         out[3..7].copy_from_slice(&scipy_quat_from_mat(scene.sim.body_xmat(self.ball)));
     }
 
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], _a: &[f32; ACT_DIM]) -> Eval {
+    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], _a: &[f32; ACTION_DIM]) -> Eval {
         let obj = [obs[4], obs[5], obs[6]];
         let target = scene.target_pos;
         let target_to_obj = x_scaled_dist(obj, target);

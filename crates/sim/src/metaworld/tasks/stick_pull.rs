@@ -6,7 +6,7 @@ use super::stick_push::{StickScene, STICK_Z};
 use super::{obj_goal_apart, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{add, dist, hamacher_product, tolerance, Sigmoid};
-use crate::metaworld::{Density, Eval, Scene, Task, ACT_DIM, OBS_DIM, TARGET_RADIUS};
+use crate::metaworld::{Density, Eval, Scene, Task, ACTION_DIM, OBS_DIM, TARGET_RADIUS};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "stick-pull-v3",
@@ -71,7 +71,12 @@ impl Task for StickPull {
         self.parts.objects(scene, [0.0; 3], out);
     }
 
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], action: &[f32; ACT_DIM]) -> Eval {
+    fn evaluate(
+        &mut self,
+        scene: &Scene,
+        obs: &[f64; OBS_DIM],
+        action: &[f32; ACTION_DIM],
+    ) -> Eval {
         let stick = [obs[4], obs[5], obs[6]];
         let end_of_stick = scene.sim.site_xpos(self.stick_end);
         let handle = [obs[11], obs[12], obs[13]];

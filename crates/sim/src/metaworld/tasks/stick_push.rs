@@ -3,7 +3,7 @@
 use super::{obj_goal_apart, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{add, dist, scipy_quat_from_mat, tolerance, Sigmoid};
-use crate::metaworld::{Density, Eval, Scene, Task, ACT_DIM, OBS_DIM};
+use crate::metaworld::{Density, Eval, Scene, Task, ACTION_DIM, OBS_DIM};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "stick-push-v3",
@@ -155,7 +155,12 @@ impl Task for StickPush {
         self.held(scene, obs) && dist(container, scene.target_pos) <= SUCCESS_RADIUS
     }
 
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], action: &[f32; ACT_DIM]) -> Eval {
+    fn evaluate(
+        &mut self,
+        scene: &Scene,
+        obs: &[f64; OBS_DIM],
+        action: &[f32; ACTION_DIM],
+    ) -> Eval {
         let stick_init = scene.obj_init_pos;
         let stick = [obs[4] + 0.015, obs[5], obs[6]];
         let container = [obs[11], obs[12], obs[13]];

@@ -4,7 +4,7 @@ use super::pad_caging::PadCaging;
 use super::{always_ok, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{dist, hamacher_product, tolerance, Sigmoid};
-use crate::metaworld::{Eval, Scene, Task, ACT_DIM, OBS_DIM, TARGET_RADIUS};
+use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM, TARGET_RADIUS};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "sweep-v3",
@@ -63,7 +63,7 @@ impl Task for Sweep {
         out[3..7].copy_from_slice(&scene.sim.body_xquat(self.obj));
     }
 
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], _a: &[f32; ACT_DIM]) -> Eval {
+    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], _a: &[f32; ACTION_DIM]) -> Eval {
         let obj = [obs[4], obs[5], obs[6]];
         let target = scene.target_pos;
         let obj_to_target = dist(obj, target);

@@ -3,7 +3,7 @@
 use super::TaskSpec;
 use crate::error::Result;
 use crate::metaworld::reward::{dist, hamacher_product, scipy_quat_from_mat, tolerance, Sigmoid};
-use crate::metaworld::{Eval, Scene, Task, ACT_DIM, OBS_DIM};
+use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "sweep-into-v3",
@@ -112,7 +112,7 @@ impl Task for SweepInto {
         out[3..7].copy_from_slice(&scipy_quat_from_mat(scene.sim.geom_xmat(self.obj_geom)));
     }
 
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], _a: &[f32; ACT_DIM]) -> Eval {
+    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], _a: &[f32; ACTION_DIM]) -> Eval {
         let obj = [obs[4], obs[5], obs[6]];
         let target = [scene.target_pos[0], scene.target_pos[1], obj[2]];
         let obj_to_target = dist(obj, target);

@@ -3,7 +3,7 @@
 use super::{always_ok, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{dist, hamacher_product, tolerance, Sigmoid};
-use crate::metaworld::{Eval, Scene, Task, ACT_DIM, OBS_DIM, TARGET_RADIUS};
+use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM, TARGET_RADIUS};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "window-close-v3",
@@ -67,7 +67,7 @@ impl Task for WindowClose {
         out[..3].copy_from_slice(&scene.sim.site_xpos(self.handle));
     }
 
-    fn evaluate(&mut self, scene: &Scene, _obs: &[f64; OBS_DIM], _a: &[f32; ACT_DIM]) -> Eval {
+    fn evaluate(&mut self, scene: &Scene, _obs: &[f64; OBS_DIM], _a: &[f32; ACTION_DIM]) -> Eval {
         let obj = scene.sim.site_xpos(self.handle);
         let tcp = scene.tcp_center();
         let target = scene.target_pos;
