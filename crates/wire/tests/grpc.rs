@@ -571,8 +571,16 @@ async fn check_health_finds_each_server_serving_its_own_service() {
     let learner = start_learner(WeightHub::new()).await;
     let selector = start_selector().await;
     for (server, own, other) in [
-        (&learner, terl_wire::LEARNER_SERVICE, terl_wire::SELECTOR_SERVICE),
-        (&selector, terl_wire::SELECTOR_SERVICE, terl_wire::LEARNER_SERVICE),
+        (
+            &learner,
+            terl_wire::LEARNER_SERVICE,
+            terl_wire::SELECTOR_SERVICE,
+        ),
+        (
+            &selector,
+            terl_wire::SELECTOR_SERVICE,
+            terl_wire::LEARNER_SERVICE,
+        ),
     ] {
         let addr = server.addr.to_string();
         for service in ["", own] {

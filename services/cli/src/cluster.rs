@@ -89,9 +89,9 @@ fn down(run_id: Option<&str>, runs_root: &Path) -> Result<ExitCode> {
     let pid_n: i32 = pid.parse().context("pid out of range")?;
     // Tell the launcher that this stop was asked for (it then exits 0, not 143): a marker in
     // the run folder whose launcher.pid is this pid.
-    if let Some(dir) = run_dir.filter(|d| {
-        std::fs::read_to_string(d.join("launcher.pid")).is_ok_and(|p| p.trim() == pid)
-    }) {
+    if let Some(dir) = run_dir
+        .filter(|d| std::fs::read_to_string(d.join("launcher.pid")).is_ok_and(|p| p.trim() == pid))
+    {
         let marker = dir.join(launcher::DOWN_MARKER);
         std::fs::write(&marker, format!("{}\n", std::process::id()))
             .with_context(|| format!("cannot write {}", marker.display()))?;
@@ -171,7 +171,10 @@ fn clean(run_id: &str, runs_root: &Path) -> Result<ExitCode> {
         }
     }
     if removed.is_empty() {
-        eprintln!("run {run_id}: no launcher files to remove in {}", dir.display());
+        eprintln!(
+            "run {run_id}: no launcher files to remove in {}",
+            dir.display()
+        );
     } else {
         let names: Vec<String> = removed.iter().map(|p| p.display().to_string()).collect();
         eprintln!("run {run_id} cleaned: removed {}", names.join(", "));

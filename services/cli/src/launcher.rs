@@ -105,9 +105,7 @@ fn valid_run_id(id: &str) -> bool {
 }
 
 fn all_digits(s: &str, nonzero_first: bool) -> bool {
-    !s.is_empty()
-        && s.chars().all(|c| c.is_ascii_digit())
-        && !(nonzero_first && s.starts_with('0'))
+    !s.is_empty() && s.chars().all(|c| c.is_ascii_digit()) && !(nonzero_first && s.starts_with('0'))
 }
 
 /// The lock file of a run id: `${TMPDIR:-/tmp}/terl-run-locks/<id>.lock`.
@@ -218,9 +216,7 @@ fn plan(args: UpArgs) -> std::result::Result<Plan, Result<ExitCode>> {
         return Err(usage("--restarts must be a non-negative integer"));
     }
     if !all_digits(&args.restart_backoff, false) {
-        return Err(usage(
-            "--restart-backoff must be a whole number of seconds",
-        ));
+        return Err(usage("--restart-backoff must be a whole number of seconds"));
     }
     let restarts: u32 = args.restarts.parse().unwrap_or(u32::MAX);
     let backoff: u64 = args.restart_backoff.parse().unwrap_or(MAX_BACKOFF_SECS);
@@ -460,7 +456,8 @@ impl Launcher {
     /// Writes the run folder's files (config copy, cluster.txt, pid files).
     fn prepare(plan: Plan, bin: PathBuf, signals: Signals) -> Result<Self> {
         let out = plan.runs_root.join(&plan.run_id);
-        std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
+        std::fs::create_dir_all(&out)
+            .with_context(|| format!("cannot create {}", out.display()))?;
         let info = out.join("cluster.txt");
         if !plan.resume {
             std::fs::copy(&plan.config, out.join("config.toml")).with_context(|| {
@@ -481,7 +478,10 @@ impl Launcher {
             std::fs::write(&info, text)
                 .with_context(|| format!("cannot write {}", info.display()))?;
         } else {
-            append_line(&info, &format!("resumed={} actors={}", iso_now(), plan.actors))?;
+            append_line(
+                &info,
+                &format!("resumed={} actors={}", iso_now(), plan.actors),
+            )?;
             let has_checkpoint = std::fs::read_dir(out.join("checkpoints")).is_ok_and(|d| {
                 d.filter_map(|e| e.ok())
                     .any(|e| e.path().extension().is_some_and(|x| x == "safetensors"))
@@ -622,7 +622,8 @@ impl Launcher {
 
     /// The last lines of a role's log (its error), indented.
     fn last_error(&self, role: &str) {
-        let text = std::fs::read_to_string(self.out.join(format!("{role}.log"))).unwrap_or_default();
+        let text =
+            std::fs::read_to_string(self.out.join(format!("{role}.log"))).unwrap_or_default();
         let lines: Vec<&str> = text.lines().collect();
         for line in &lines[lines.len().saturating_sub(8)..] {
             eprintln!("    {line}");
@@ -663,7 +664,8 @@ impl Launcher {
                 }
                 Some(a) => {
                     let check = terl_wire::check_health(a, service, &self.security);
-                    if let Ok(Ok(true)) = tokio::time::timeout(Duration::from_secs(2), check).await {
+                    if let Ok(Ok(true)) = tokio::time::timeout(Duration::from_secs(2), check).await
+                    {
                         return Ok(a.clone());
                     }
                 }
@@ -736,7 +738,11 @@ impl Launcher {
         eprintln!(
             "[cluster] run {} {}: learner {}, selector {}, {} actor(s); logs in {}/. Ctrl-C stops.",
             self.plan.run_id,
-            if self.plan.resume { "resumed" } else { "started" },
+            if self.plan.resume {
+                "resumed"
+            } else {
+                "started"
+            },
             self.plan.learner_addr,
             self.plan.selector_addr,
             self.plan.actors,

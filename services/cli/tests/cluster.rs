@@ -1132,7 +1132,12 @@ fn launcher_refuses_bad_or_locked_run_ids_and_reports_a_start_up_failure_with_it
 fn cluster_up(root: &Path, runs: &Path, run_id: &str, log: &Path) -> Child {
     let mut child = Command::new(env!("CARGO_BIN_EXE_terl"))
         .current_dir(root)
-        .args(["cluster", "up", "--config", "deploy/configs/cluster-smoke.toml"])
+        .args([
+            "cluster",
+            "up",
+            "--config",
+            "deploy/configs/cluster-smoke.toml",
+        ])
         .args(["--actors", "1", "--run-id", run_id])
         .args(["--runs-root", runs.to_str().unwrap()])
         .stdout(Stdio::null())
@@ -1141,7 +1146,10 @@ fn cluster_up(root: &Path, runs: &Path, run_id: &str, log: &Path) -> Child {
         .unwrap();
     let started = format!("[cluster] run {run_id} started");
     let start = Instant::now();
-    while !std::fs::read_to_string(log).unwrap_or_default().contains(&started) {
+    while !std::fs::read_to_string(log)
+        .unwrap_or_default()
+        .contains(&started)
+    {
         if start.elapsed() > Duration::from_secs(90) || child.try_wait().unwrap().is_some() {
             let _ = child.kill();
             let _ = child.wait();
@@ -1225,7 +1233,10 @@ fn cluster_down_exits_0_and_clean_refuses_a_live_run() {
         text.contains("[cluster] stopped: interrupted") && text.contains("worst exit code 0"),
         "{text}"
     );
-    assert!(services.iter().all(|&p| !alive(p)), "a service outlived its launcher");
+    assert!(
+        services.iter().all(|&p| !alive(p)),
+        "a service outlived its launcher"
+    );
     for gone in ["launcher.pid", "pids"] {
         assert!(!run_dir.join(gone).exists(), "{gone} left");
     }
@@ -1288,7 +1299,10 @@ fn killed_terl_cluster_up_leaves_no_service_and_clean_removes_its_files() {
         runs.join(".cluster.pid"),
         runs.join(".cluster.run"),
     ];
-    assert!(left.iter().all(|f| f.exists()), "the killed launcher's files");
+    assert!(
+        left.iter().all(|f| f.exists()),
+        "the killed launcher's files"
+    );
     let (code, err) = terl(
         &["cluster", "clean", &run_id, "--runs-root", runs_s],
         dir.path(),
