@@ -175,6 +175,56 @@ pub async fn connect_selector_with(
     Ok(SelectorClient { raw })
 }
 
+/// The `grpc.health.v1` service name of the learner's server.
+pub const LEARNER_SERVICE: &str = "terl.v1.Learner";
+/// The `grpc.health.v1` service name of the selector's server.
+pub const SELECTOR_SERVICE: &str = "terl.v1.Selector";
+
+/// Why a health check gave no answer.
+#[derive(Debug, thiserror::Error)]
+pub enum HealthError {
+    #[error(transparent)]
+    Connect(#[from] ConnectError),
+    #[error("health check of {service:?} at {addr}: {status}")]
+    Rpc {
+        addr: String,
+        service: String,
+        status: Status,
+    },
+}
+
+/// Asks the server at `addr` (`host:port` or a URI) whether `service` (e.g.
+/// [`LEARNER_SERVICE`]; `""` for the server as a whole) is serving: one
+/// `grpc.health.v1.Health/Check` with `options`' token and TLS trust.
+///
+/// Returns `Ok(true)` for SERVING, `Ok(false)` for any other status (NOT_SERVING while a server
+/// shuts down).
+///
+/// # Errors
+/// No connection ([`HealthError::Connect`]), or the call failed ([`HealthError::Rpc`]:
+/// `not_found` for a service the server does not serve, `unauthenticated` for a missing token
+/// where health is not open).
+pub async fn check_health(
+    addr: &str,
+    service: &str,
+    options: &ClientOptions,
+) -> Result<bool, HealthError> {
+    use tonic_health::pb::health_check_response::ServingStatus;
+    use tonic_health::pb::{health_client::HealthClient, HealthCheckRequest};
+    let mut client = HealthClient::new(channel(addr, &options.security).await?);
+    let reply = client
+        .check(HealthCheckRequest {
+            service: service.to_owned(),
+        })
+        .await
+        .map_err(|status| HealthError::Rpc {
+            addr: addr.to_owned(),
+            service: service.to_owned(),
+            status,
+        })?;
+    Ok(reply.into_inner().status() == ServingStatus::Serving)
+}
+
 /// A `terl.v1.Learner` client; cheap to clone (clones share the connection).
 #[derive(Debug, Clone)]
 pub struct LearnerClient {

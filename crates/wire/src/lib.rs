@@ -30,9 +30,9 @@ pub mod pb {
 }
 
 pub use client::{
-    connect_learner, connect_learner_with, connect_selector, connect_selector_with, follow_weights,
-    follow_weights_with, ClientOptions, ConnectError, LearnerClient, SecuredChannel,
-    SelectorClient, Watcher, WeightsStream,
+    check_health, connect_learner, connect_learner_with, connect_selector, connect_selector_with,
+    follow_weights, follow_weights_with, ClientOptions, ConnectError, HealthError, LearnerClient,
+    SecuredChannel, SelectorClient, Watcher, WeightsStream, LEARNER_SERVICE, SELECTOR_SERVICE,
 };
 pub use dataset::{EpisodeSummary, Metric, TepSample, ACTION_DIM, OBS_DIM};
 pub use hub::{PublishError, WeightHub};

@@ -582,6 +582,46 @@ async fn health_reports_serving_then_not_serving() {
     stopping.await.unwrap();
 }
 
+/// `check_health` (the launcher's readiness check) finds each server's own service serving
+/// and fails for the other one's name.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn check_health_finds_each_server_serving_its_own_service() {
+    let options = terl_wire::ClientOptions::default();
+    let learner = start_learner(WeightHub::new()).await;
+    let selector = start_selector().await;
+    for (server, own, other) in [
+        (
+            &learner,
+            terl_wire::LEARNER_SERVICE,
+            terl_wire::SELECTOR_SERVICE,
+        ),
+        (
+            &selector,
+            terl_wire::SELECTOR_SERVICE,
+            terl_wire::LEARNER_SERVICE,
+        ),
+    ] {
+        let addr = server.addr.to_string();
+        for service in ["", own] {
+            let serving = terl_wire::check_health(&addr, service, &options).await;
+            assert!(serving.unwrap(), "{own} at {addr}: {service:?}");
+        }
+        let err = terl_wire::check_health(&addr, other, &options)
+            .await
+            .unwrap_err();
+        assert!(
+            matches!(&err, terl_wire::HealthError::Rpc { status, .. } if status.code() == tonic::Code::NotFound),
+            "{err}"
+        );
+    }
+    let learner_addr = learner.addr.to_string();
+    learner.stop().await;
+    selector.stop().await;
+    // Nothing listens any more: a connection error, not a hang.
+    let gone = terl_wire::check_health(&learner_addr, "", &options).await;
+    assert!(matches!(gone, Err(terl_wire::HealthError::Connect(_))));
+}
+
 fn repo_root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
 }

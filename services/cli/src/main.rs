@@ -7,6 +7,7 @@ mod charts;
 mod cluster;
 mod env;
 mod eval;
+mod launcher;
 mod report;
 mod results;
 mod router;
@@ -42,7 +43,7 @@ enum Command {
     Train(train::TrainArgs),
     /// Status of a running cluster (learner and selector).
     Status(status::StatusArgs),
-    /// The local cluster: up (deploy/local-cluster.sh) and down.
+    /// The local cluster: up (the launcher deploy/local-cluster.sh runs), down and clean.
     #[command(subcommand)]
     Cluster(cluster::ClusterCommand),
     /// Reports of runs: final evaluation success over seeds next to the paper's Table I,

@@ -275,8 +275,8 @@ fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyho
     }
 }
 
-/// The launcher of a run folder: `Some(pid)` if `launcher.pid` names a live
-/// `local-cluster.sh`, `Err` with a clear message if the file is there but that process is
+/// The launcher of a run folder: `Some(pid)` if `launcher.pid` names a live launcher
+/// (`terl cluster up`, which `deploy/local-cluster.sh` runs), `Err` with a clear message if the file is there but that process is
 /// gone (the launcher was killed: its services stopped with it), `None` without the file (not
 /// started by the launcher, or stopped cleanly).
 fn live_launcher(run: &std::path::Path) -> Result<Option<u32>> {
@@ -316,9 +316,14 @@ fn last_started_run() -> Result<Option<std::path::PathBuf>> {
 }
 
 pub fn run(args: StatusArgs) -> Result<ExitCode> {
+    // `--run` of a folder without launcher.pid: a run not started by the launcher, or one
+    // whose launcher stopped (its address files stay); a failed connection then says so.
+    let mut no_launcher = None;
     let run_dir = match (&args.run, &args.addr) {
         (Some(dir), _) => {
-            live_launcher(dir)?;
+            if live_launcher(dir)?.is_none() {
+                no_launcher = Some(dir.clone());
+            }
             Some(dir.clone())
         }
         (None, None) => last_started_run()?,
@@ -371,6 +376,12 @@ pub fn run(args: StatusArgs) -> Result<ExitCode> {
                         "no cluster found: there is no runs/.cluster.run here and nothing \
                          answers at {addr}; start one with ./deploy/local-cluster.sh, or give \
                          --run RUN_DIR or --addr"
+                    )
+                } else if let Some(dir) = &no_launcher {
+                    format!(
+                        "learner at {addr} (no launcher runs in {}: it has no launcher.pid, \
+                         so this may be a stopped run)",
+                        dir.display()
                     )
                 } else {
                     format!("learner at {addr}")

@@ -1129,3 +1129,191 @@ fn launcher_refuses_bad_or_locked_run_ids_and_reports_a_start_up_failure_with_it
     assert!(!err.contains("restart 1 of"), "{err}");
     assert!(!err.contains("stack backtrace"), "{err}");
 }
+
+/// `terl cluster up` on the smoke config with one actor in `runs` (a runs root of its own),
+/// stderr to `log`; returns once the launcher says the run started (learner and selector
+/// answer health).
+fn cluster_up(root: &Path, runs: &Path, run_id: &str, log: &Path) -> Child {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_terl"))
+        .current_dir(root)
+        .args([
+            "cluster",
+            "up",
+            "--config",
+            "deploy/configs/cluster-smoke.toml",
+        ])
+        .args(["--actors", "1", "--run-id", run_id])
+        .args(["--runs-root", runs.to_str().unwrap()])
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(log).unwrap())
+        .spawn()
+        .unwrap();
+    let started = format!("[cluster] run {run_id} started");
+    let start = Instant::now();
+    while !std::fs::read_to_string(log)
+        .unwrap_or_default()
+        .contains(&started)
+    {
+        if start.elapsed() > Duration::from_secs(90) || child.try_wait().unwrap().is_some() {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!(
+                "the cluster did not start:\n{}",
+                std::fs::read_to_string(log).unwrap_or_default()
+            );
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    child
+}
+
+fn terl(args: &[&str], cwd: &Path) -> (Option<i32>, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_terl"))
+        .args(args)
+        .current_dir(cwd)
+        .output()
+        .unwrap();
+    (
+        out.status.code(),
+        String::from_utf8_lossy(&out.stderr).to_string(),
+    )
+}
+
+/// `terl cluster down ID` stops the run it names: the launcher stops every process, says it
+/// was interrupted, and exits 0 (a stop that was asked for). `terl cluster clean ID` refuses
+/// while the run is alive, and afterwards removes the address files the stopped run left.
+#[test]
+fn cluster_down_exits_0_and_clean_refuses_a_live_run() {
+    service_binaries();
+    let root = workspace();
+    if !release_build() {
+        eprintln!("the launcher runs target/release binaries; run this test with --release");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let runs = dir.path().join("runs");
+    let runs_s = runs.to_str().unwrap();
+    let run_id = format!("it-down-{}", std::process::id());
+    let run_dir = runs.join(&run_id);
+    let log = dir.path().join("up.log");
+    let mut up = cluster_up(&root, &runs, &run_id, &log);
+    let services: Vec<u32> = read_pids(&run_dir).into_iter().map(|(_, p)| p).collect();
+    assert_eq!(services.len(), 3, "learner, selector, one actor");
+    assert!(services.iter().all(|&p| alive(p)));
+    assert_eq!(
+        std::fs::read_to_string(run_dir.join("launcher.pid"))
+            .unwrap()
+            .trim(),
+        up.id().to_string()
+    );
+
+    let (code, err) = terl(
+        &["cluster", "clean", &run_id, "--runs-root", runs_s],
+        dir.path(),
+    );
+    assert_eq!(code, Some(1), "{err}");
+    assert!(err.contains("is running"), "{err}");
+    assert!(run_dir.join("launcher.pid").exists() && run_dir.join("learner.addr").exists());
+
+    let (code, err) = terl(
+        &["cluster", "down", &run_id, "--runs-root", runs_s],
+        dir.path(),
+    );
+    assert_eq!(code, Some(0), "{err}");
+    let start = Instant::now();
+    let status = loop {
+        if let Some(s) = up.try_wait().unwrap() {
+            break s;
+        }
+        if start.elapsed() > Duration::from_secs(60) {
+            let _ = up.kill();
+            panic!("the launcher did not stop after terl cluster down");
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    let text = std::fs::read_to_string(&log).unwrap();
+    assert_eq!(status.code(), Some(0), "{text}");
+    assert!(
+        text.contains("[cluster] stopped: interrupted") && text.contains("worst exit code 0"),
+        "{text}"
+    );
+    assert!(
+        services.iter().all(|&p| !alive(p)),
+        "a service outlived its launcher"
+    );
+    for gone in ["launcher.pid", "pids"] {
+        assert!(!run_dir.join(gone).exists(), "{gone} left");
+    }
+    assert!(!runs.join(".cluster.pid").exists() && !runs.join(".cluster.run").exists());
+
+    // The stopped run's address files go with clean, nothing else does.
+    let (code, err) = terl(
+        &["cluster", "clean", &run_id, "--runs-root", runs_s],
+        dir.path(),
+    );
+    assert_eq!(code, Some(0), "{err}");
+    assert!(err.contains("learner.addr"), "{err}");
+    assert!(!run_dir.join("learner.addr").exists() && !run_dir.join("selector.addr").exists());
+    assert!(run_dir.join("config.toml").exists() && run_dir.join("learner.log").exists());
+}
+
+/// `terl cluster up` killed with SIGKILL leaves no service alive (they follow its pid); `terl
+/// status` says the launcher is gone; `terl cluster down` refuses its stale pid; `terl cluster
+/// clean` removes its pid, address and `.cluster.*` files.
+#[test]
+fn killed_terl_cluster_up_leaves_no_service_and_clean_removes_its_files() {
+    service_binaries();
+    let root = workspace();
+    if !release_build() {
+        eprintln!("the launcher runs target/release binaries; run this test with --release");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let runs = dir.path().join("runs");
+    let runs_s = runs.to_str().unwrap();
+    let run_id = format!("it-kill-{}", std::process::id());
+    let run_dir = runs.join(&run_id);
+    let mut up = cluster_up(&root, &runs, &run_id, &dir.path().join("up.log"));
+    let services: Vec<u32> = read_pids(&run_dir).into_iter().map(|(_, p)| p).collect();
+    assert_eq!(services.len(), 3, "learner, selector, one actor");
+    up.kill().unwrap();
+    up.wait().unwrap();
+    wait_until(
+        "the services of a killed launcher to exit",
+        Duration::from_secs(60),
+        || services.iter().all(|&p| !alive(p)),
+    );
+
+    let (code, err) = terl(&["status"], dir.path());
+    assert!(
+        code != Some(0) && err.contains("no cluster is running") && err.contains("is gone"),
+        "{err}"
+    );
+    let (code, err) = terl(
+        &["cluster", "down", &run_id, "--runs-root", runs_s],
+        dir.path(),
+    );
+    assert!(code != Some(0) && err.contains("stale"), "{err}");
+
+    let left = [
+        run_dir.join("launcher.pid"),
+        run_dir.join("pids"),
+        run_dir.join("learner.addr"),
+        run_dir.join("selector.addr"),
+        runs.join(".cluster.pid"),
+        runs.join(".cluster.run"),
+    ];
+    assert!(
+        left.iter().all(|f| f.exists()),
+        "the killed launcher's files"
+    );
+    let (code, err) = terl(
+        &["cluster", "clean", &run_id, "--runs-root", runs_s],
+        dir.path(),
+    );
+    assert_eq!(code, Some(0), "{err}");
+    for f in &left {
+        assert!(!f.exists(), "{} left after clean", f.display());
+    }
+    assert!(run_dir.join("cluster.txt").exists());
+}
