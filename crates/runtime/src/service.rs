@@ -14,23 +14,6 @@ use anyhow::Context;
 use tokio::net::TcpListener;
 use tracing::Instrument;
 
-/// The [`TransportConfig`](terl_transport::TransportConfig) of a service of `run`: the run's
-/// `[cluster]` transport, queue sizes and block timeout, streams named after `run_id`, sized
-/// for `num_actors`.
-pub fn transport_config(
-    run: &crate::RunConfig,
-    run_id: &str,
-    num_actors: usize,
-) -> terl_transport::TransportConfig {
-    terl_transport::TransportConfig {
-        buffer_batches: run.cluster.buffer_batches,
-        block_timeout: std::time::Duration::from_secs_f64(run.cluster.block_timeout_secs),
-        transport: run.cluster.transport,
-        zenoh: run.cluster.zenoh.clone(),
-        ..terl_transport::TransportConfig::new(run_id.to_owned(), num_actors)
-    }
-}
-
 /// Opens the run's transport for `role` (`learner`, `selector`, `actor-3`) with `config`, on a
 /// plain thread outside the caller's async runtime: Zenoh's blocking calls refuse to run on
 /// a tokio current-thread runtime, which the selector and actor binaries use. Blocks the

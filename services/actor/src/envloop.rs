@@ -252,8 +252,8 @@ impl PolicySource for ActorPolicy<'_> {
 /// The actor's transition sink: transitions in [`TransitionBatch`]es to the learner, finished
 /// episodes with their trajectories ([`EpisodeSummary`]) to the learner and the selector; the
 /// pause while no learner receives, and the progress log.
-struct ActorSink<'a> {
-    transport: &'a RunTransport,
+struct ActorSink<'a, T: ServiceTransport> {
+    transport: &'a T,
     mailbox: &'a Mailbox,
     transitions: Box<dyn MessageSink<TransitionBatch>>,
     episodes: Box<dyn MessageSink<EpisodeSummary>>,
@@ -273,7 +273,7 @@ struct ActorSink<'a> {
     checked_at: Instant,
 }
 
-impl ActorSink<'_> {
+impl<T: ServiceTransport> ActorSink<'_, T> {
     /// A learner killed with SIGKILL leaves its subscription behind, and sends would fill its
     /// queue and then block for `block_timeout_secs`: every second, and after any send that
     /// timed out, remove dead processes' subscriptions, so that a dead learner shows as no
@@ -318,7 +318,7 @@ impl ActorSink<'_> {
     }
 }
 
-impl TransitionSink for ActorSink<'_> {
+impl<T: ServiceTransport> TransitionSink for ActorSink<'_, T> {
     type Error = anyhow::Error;
 
     fn transition(&mut self, step: &StepRecord<'_>) -> anyhow::Result<()> {
@@ -525,7 +525,7 @@ pub(crate) fn run<T: ServiceTransport>(
     batch.actor_id = actor_id;
     let start = Instant::now();
     let mut sink = ActorSink {
-        transport: &transport,
+        transport,
         mailbox,
         transitions,
         episodes,

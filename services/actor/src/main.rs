@@ -82,7 +82,10 @@ async fn main() -> anyhow::Result<()> {
         format!("actor-{actor_id}")
     };
     let transport = terl_runtime::service::open_transport(
-        terl_runtime::service::transport_config(&config.run, &config.run_id, config.num_actors),
+        config
+            .run
+            .cluster
+            .transport_config(config.run_id.as_str(), config.num_actors),
         &role,
     )?;
     terl_actor::run(config, transport, terl_runtime::shutdown_signal()).await

@@ -43,7 +43,7 @@ fn learner_selector_and_two_actors_train_in_one_process() {
     let transport = || {
         MemoryTransport::on_bus(
             bus.clone(),
-            terl_runtime::service::transport_config(&run, &run_id, 2),
+            run.cluster.transport_config(run_id.as_str(), 2),
         )
         .unwrap()
     };

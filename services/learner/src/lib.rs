@@ -222,7 +222,10 @@ mod tests {
             .unwrap();
         assert!(check_start_up(&config).is_err());
         let transport = terl_transport::MemoryTransport::new(
-            terl_runtime::service::transport_config(&config.run, &config.run_id, 1),
+            config
+                .run
+                .cluster
+                .transport_config(config.run_id.as_str(), 1),
         )
         .unwrap();
         let e = rt

@@ -45,6 +45,84 @@ pub struct CheckpointJob {
 /// Updates per round at most, so queued batches are drained regularly.
 const MAX_UPDATES_PER_ROUND: usize = 16;
 
+/// The newest intact checkpoint to continue from with `--resume` (`None` without it, or when
+/// the run has none yet: it then starts fresh, with a warning).
+fn resume_point(
+    config: &LearnerConfig,
+    checkpoint_dir: &std::path::Path,
+) -> anyhow::Result<Option<checkpoint::Found>> {
+    if !config.resume {
+        return Ok(None);
+    }
+    let found = checkpoint::newest_intact(checkpoint_dir)?;
+    if found.is_none() {
+        tracing::warn!(dir = %checkpoint_dir.display(), "--resume: the run has no checkpoint yet; starting fresh");
+    }
+    Ok(found)
+}
+
+/// The TEP planner with its buffer loaded from `--tep-dataset` files and, when resuming, from
+/// the run's own dataset files (the TEP buffer is not in the checkpoint: the run's dataset
+/// holds every selected sample it received, one file per selector start).
+fn open_planner(
+    config: &LearnerConfig,
+    tasks: &[&str],
+    resuming: bool,
+) -> anyhow::Result<PlannerTrainer> {
+    let run = &config.run;
+    let mut p = PlannerTrainer::new(run.tep.clone(), tasks.len(), run.train.seed)?;
+    let mut datasets = config.tep_datasets.clone();
+    if resuming {
+        datasets.extend(terl_telemetry::existing_paths(
+            &config.run_dir,
+            "tep-dataset",
+        ));
+    }
+    crate::dataset::load_all(&datasets, tasks, &mut p)?;
+    Ok(p)
+}
+
+/// Up to [`MAX_UPDATES_PER_ROUND`] SAC updates while the rate limiter allows; true if any ran.
+/// A batch with non-finite values is skipped; non-finite losses or gradients are counted, and
+/// `max_failed_in_a_row` of them in a row stop the learner.
+#[allow(clippy::too_many_arguments)] // the trainer's parts, borrowed for one round
+fn update_round(
+    sac: &mut Sac<f32>,
+    replay: &mut MultiTaskReplay,
+    limiter: &mut RateLimiter,
+    rng: &mut ChaCha8Rng,
+    batch: &mut Batch,
+    metrics: &mut MetricsLog,
+    c: &mut Counters,
+    max_failed_in_a_row: u64,
+) -> anyhow::Result<bool> {
+    let mut ran = false;
+    for _ in 0..MAX_UPDATES_PER_ROUND {
+        if !limiter.can_sample(1) {
+            break;
+        }
+        replay.sample_into(sac.config().batch_size, rng, batch);
+        limiter.record_sample(1);
+        ran = true;
+        match sac.update(batch) {
+            Ok(stats) => {
+                c.failed_in_a_row = 0;
+                metrics.record_update(&stats);
+            }
+            Err(SacError::NonFiniteBatch { .. }) => {}
+            Err(e @ (SacError::NonFiniteLoss { .. } | SacError::NonFiniteGradient { .. })) => {
+                c.failed_updates += 1;
+                c.failed_in_a_row += 1;
+                if c.failed_in_a_row >= max_failed_in_a_row {
+                    return Err(e).context("too many failed updates in a row");
+                }
+            }
+            Err(e) => return Err(e.into()),
+        }
+    }
+    Ok(ran)
+}
+
 /// Runs the training loop on `transport`'s streams until `shared.stop` is set, the training
 /// budget is reached or something fails; writes the final checkpoint on the way out.
 pub(crate) fn run<T: Transport>(
@@ -72,28 +150,9 @@ pub(crate) fn run<T: Transport>(
     let mut selected_batch = SelectedBatch::empty();
     let terl = run.algorithm == Algorithm::Terl;
     let checkpoint_dir = config.run_dir.join("checkpoints");
-    let resume_from = if config.resume {
-        let found = checkpoint::newest_intact(&checkpoint_dir)?;
-        if found.is_none() {
-            tracing::warn!(dir = %checkpoint_dir.display(), "--resume: the run has no checkpoint yet; starting fresh");
-        }
-        found
-    } else {
-        None
-    };
+    let resume_from = resume_point(config, &checkpoint_dir)?;
     let mut planner = if terl {
-        let mut p = PlannerTrainer::new(run.tep.clone(), nt, run.train.seed)?;
-        let mut datasets = config.tep_datasets.clone();
-        if resume_from.is_some() {
-            // The TEP buffer is not in the checkpoint: the run's own dataset holds every
-            // selected sample it received (one file per selector start).
-            datasets.extend(terl_telemetry::existing_paths(
-                &config.run_dir,
-                "tep-dataset",
-            ));
-        }
-        crate::dataset::load_all(&datasets, &tasks, &mut p)?;
-        Some(p)
+        Some(open_planner(config, &tasks, resume_from.is_some())?)
     } else {
         None
     };
@@ -176,29 +235,16 @@ pub(crate) fn run<T: Transport>(
             busy = true;
         }
 
-        for _ in 0..MAX_UPDATES_PER_ROUND {
-            if !limiter.can_sample(1) {
-                break;
-            }
-            replay.sample_into(sac_config.batch_size, &mut rng, &mut batch);
-            limiter.record_sample(1);
-            busy = true;
-            match sac.update(&batch) {
-                Ok(stats) => {
-                    c.failed_in_a_row = 0;
-                    metrics.record_update(&stats);
-                }
-                Err(SacError::NonFiniteBatch { .. }) => {}
-                Err(e @ (SacError::NonFiniteLoss { .. } | SacError::NonFiniteGradient { .. })) => {
-                    c.failed_updates += 1;
-                    c.failed_in_a_row += 1;
-                    if c.failed_in_a_row >= run.train.max_consecutive_failed_updates {
-                        return Err(e).context("too many failed updates in a row");
-                    }
-                }
-                Err(e) => return Err(e.into()),
-            }
-        }
+        busy |= update_round(
+            &mut sac,
+            &mut replay,
+            &mut limiter,
+            &mut rng,
+            &mut batch,
+            &mut metrics,
+            &mut c,
+            run.train.max_consecutive_failed_updates,
+        )?;
         if let Some(p) = planner.as_mut() {
             if p.train(sac.updates())? > 0 {
                 busy = true;

@@ -107,7 +107,7 @@ fn start(dir: &Path, on_error: &str) -> Learner {
     let run = run_file(dir, on_error);
     let run_id = unique("ckpt-errors");
     let run_dir = dir.join("run");
-    let transport_config = terl_runtime::service::transport_config(&run, &run_id, 1);
+    let transport_config = run.cluster.transport_config(run_id.as_str(), 1);
     let bus = MemoryBus::default();
     let learner_transport = MemoryTransport::on_bus(bus.clone(), transport_config.clone()).unwrap();
     let actor_transport = MemoryTransport::on_bus(bus, transport_config).unwrap();

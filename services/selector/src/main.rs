@@ -71,7 +71,10 @@ async fn main() -> anyhow::Result<()> {
         .await
         .with_context(|| format!("cannot listen on {}", config.addr))?;
     let transport = terl_runtime::service::open_transport(
-        terl_runtime::service::transport_config(&config.run, &config.run_id, config.num_actors),
+        config
+            .run
+            .cluster
+            .transport_config(config.run_id.as_str(), config.num_actors),
         "selector",
     )?;
     terl_selector::run(config, listener, transport, terl_runtime::shutdown_signal()).await
