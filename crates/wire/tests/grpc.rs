@@ -732,34 +732,45 @@ async fn reflect(addr: SocketAddr, symbols: &[&str]) -> (Vec<String>, Vec<bool>)
         host: String::new(),
         message_request: Some(message),
     };
-    let requests: Vec<_> = std::iter::once(request(MessageRequest::ListServices(String::new())))
-        .chain(
-            symbols
-                .iter()
-                .map(|s| request(MessageRequest::FileContainingSymbol(s.to_string()))),
-        )
-        .collect();
-    let mut replies = client
-        .server_reflection_info(futures_util::stream::iter(requests))
+    // One stream per question: tonic's reflection ends a stream with a NOT_FOUND status (not
+    // an error reply) when a symbol is missing.
+    let mut ask = |message: MessageRequest| {
+        let mut client = client.clone();
+        async move {
+            let replies = client
+                .server_reflection_info(futures_util::stream::iter([request(message)]))
+                .await?;
+            let mut replies = replies.into_inner();
+            match tokio::time::timeout(WAIT, replies.next()).await.unwrap() {
+                Some(reply) => Ok(reply?.message_response.unwrap()),
+                None => Err(tonic::Status::unknown(
+                    "reflection stream ended without a reply",
+                )),
+            }
+        }
+    };
+    let mut listed = Vec::new();
+    match ask(MessageRequest::ListServices(String::new()))
         .await
         .unwrap()
-        .into_inner();
-    let mut listed = Vec::new();
+    {
+        MessageResponse::ListServicesResponse(list) => {
+            listed.extend(list.service.into_iter().map(|s| s.name));
+        }
+        other => panic!("unexpected reflection reply {other:?}"),
+    }
     let mut found = Vec::new();
-    while let Some(reply) = tokio::time::timeout(WAIT, replies.next()).await.unwrap() {
-        match reply.unwrap().message_response.unwrap() {
-            MessageResponse::ListServicesResponse(list) => {
-                listed.extend(list.service.into_iter().map(|s| s.name));
-            }
-            MessageResponse::FileDescriptorResponse(files) => {
-                found.push(!files.file_descriptor_proto.is_empty());
-            }
-            MessageResponse::ErrorResponse(_) => found.push(false),
-            other => panic!("unexpected reflection reply {other:?}"),
-        }
-        if found.len() == symbols.len() {
-            break;
-        }
+    for symbol in symbols {
+        found.push(
+            match ask(MessageRequest::FileContainingSymbol(symbol.to_string())).await {
+                Ok(MessageResponse::FileDescriptorResponse(files)) => {
+                    !files.file_descriptor_proto.is_empty()
+                }
+                Ok(MessageResponse::ErrorResponse(_)) => false,
+                Err(status) if status.code() == tonic::Code::NotFound => false,
+                other => panic!("unexpected reflection reply for {symbol}: {other:?}"),
+            },
+        );
     }
     listed.sort();
     (listed, found)
