@@ -721,7 +721,7 @@ async fn reflect(addr: SocketAddr, symbols: &[&str]) -> (Vec<String>, Vec<bool>)
         server_reflection_request::MessageRequest, server_reflection_response::MessageResponse,
         ServerReflectionRequest,
     };
-    let mut client = ServerReflectionClient::new(
+    let client = ServerReflectionClient::new(
         tonic::transport::Endpoint::from_shared(format!("http://{addr}"))
             .unwrap()
             .connect()
@@ -734,7 +734,7 @@ async fn reflect(addr: SocketAddr, symbols: &[&str]) -> (Vec<String>, Vec<bool>)
     };
     // One stream per question: tonic's reflection ends a stream with a NOT_FOUND status (not
     // an error reply) when a symbol is missing.
-    let mut ask = |message: MessageRequest| {
+    let ask = |message: MessageRequest| {
         let mut client = client.clone();
         async move {
             let replies = client
