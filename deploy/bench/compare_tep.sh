@@ -4,7 +4,7 @@
 # Rust/PyTorch ratio. Alternating keeps both exposed to the same background load.
 #   deploy/bench/compare_tep.sh [seconds] [rounds] [batch]
 # The raw JSON lines are kept in ${TEP_RUNS:-target/tep_runs.jsonl}.
-# PYTHON defaults to .deps/bench-venv/bin/python (a venv with torch).
+# PYTHON defaults to .deps/bench-venv/bin/python (a venv with torch; deploy/bench/setup.sh).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 SECONDS_PER_RUN=${1:-5}

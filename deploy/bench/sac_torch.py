@@ -243,6 +243,7 @@ def main():
 
     report = {
         "implementation": f"pytorch-{torch.__version__}-cpu",
+        "instruction_set": torch.backends.cpu.get_cpu_capability().lower(),
         "config": {
             "obs_dim": args.obs_dim,
             "act_dim": args.act_dim,

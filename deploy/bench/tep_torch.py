@@ -241,6 +241,7 @@ def main():
 
     report = {
         "implementation": f"pytorch-{torch.__version__}-cpu",
+        "instruction_set": torch.backends.cpu.get_cpu_capability().lower(),
         "config": {
             "obs_dim": od,
             "act_dim": ad,

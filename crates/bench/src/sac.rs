@@ -13,7 +13,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
-use terl_rl::{Batch, Policy, Sac, SacConfig, SacError};
+use terl_rl::{Policy, Sac, SacConfig, SacError};
 
 /// What to measure. `obs_dim` is the policy's input width, observation plus one-hot task id
 /// (49 = Meta-World's 39 + MT10's 10 tasks).
@@ -53,6 +53,10 @@ impl Default for SacBenchConfig {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SacBenchReport {
     pub implementation: String,
+    /// SIMD level the GEMMs and the small-batch kernels ran with (`avx512`, `avx2`,
+    /// `portable`; chosen at run time, [`terl_nn::InstructionSet::detect`]).
+    #[serde(default)]
+    pub instruction_set: String,
     pub config: SacBenchConfig,
     pub updates: u64,
     pub updates_per_s: f64,
@@ -132,6 +136,7 @@ pub fn sac_bench(config: &SacBenchConfig) -> Result<SacBenchReport, SacError> {
 
     Ok(SacBenchReport {
         implementation: "terl-rust-faer".to_string(),
+        instruction_set: terl_nn::InstructionSet::detect().to_string(),
         config: config.clone(),
         updates,
         updates_per_s,
@@ -191,28 +196,7 @@ pub(crate) fn alternate(
     })
 }
 
-/// A batch of random transitions spread evenly over the tasks.
-pub fn random_batch(cfg: &SacConfig, seed: u64) -> Batch {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let mut batch = Batch::with_capacity(cfg.batch_size, cfg.obs_dim, cfg.act_dim);
-    let mut obs = vec![0.0; cfg.obs_dim];
-    let mut next = vec![0.0; cfg.obs_dim];
-    let mut act = vec![0.0; cfg.act_dim];
-    for i in 0..cfg.batch_size {
-        obs.iter_mut().for_each(|v| *v = rng.gen_range(-1.0..1.0));
-        next.iter_mut().for_each(|v| *v = rng.gen_range(-1.0..1.0));
-        act.iter_mut().for_each(|v| *v = rng.gen_range(-1.0..1.0));
-        batch.push(
-            &obs,
-            &act,
-            rng.gen_range(0.0..1.0),
-            &next,
-            false,
-            (i % cfg.num_tasks) as u32,
-        );
-    }
-    batch
-}
+pub use terl_rl::sac::random_batch;
 
 fn inference_latency_us(sac: &Sac<f32>, rows: usize, seconds: f64) -> Result<f64, SacError> {
     let cfg = sac.config();

@@ -113,6 +113,10 @@ pub struct GuidanceOverhead {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TepBenchReport {
     pub implementation: String,
+    /// SIMD level the GEMMs and the small-batch kernels ran with (`avx512`, `avx2`,
+    /// `portable`; chosen at run time, [`terl_nn::InstructionSet::detect`]).
+    #[serde(default)]
+    pub instruction_set: String,
     pub config: TepBenchConfig,
     pub updates: u64,
     pub updates_per_s: f64,
@@ -224,6 +228,7 @@ pub fn tep_bench(config: &TepBenchConfig) -> Result<TepBenchReport, SacError> {
 
     Ok(TepBenchReport {
         implementation: "terl-rust-faer".to_string(),
+        instruction_set: terl_nn::InstructionSet::detect().to_string(),
         config: config.clone(),
         updates,
         updates_per_s,

@@ -21,12 +21,14 @@ pub mod error;
 pub mod gaussian;
 pub mod mlp;
 pub mod scalar;
+pub mod simd;
 pub mod tensors;
 
 pub use adam::{clip_global_norm, Adam, AdamConfig};
 pub use error::NnError;
 pub use mlp::{Activation, Init, InputGrad, Mlp, MlpCache, MlpSpec};
 pub use scalar::Float;
+pub use simd::{clear_upper_state, InstructionSet};
 pub use tensors::{Dtype, Tensor, TensorFile};
 
 /// faer's parallelism setting for a thread count: sequential for 0 or 1, rayon otherwise.

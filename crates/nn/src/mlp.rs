@@ -8,6 +8,7 @@
 
 use crate::error::NnError;
 use crate::scalar::Float;
+use crate::simd::clear_upper_state;
 use crate::tensors::{Tensor, TensorFile};
 use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
@@ -223,6 +224,7 @@ impl<T: Float> Mlp<T> {
                 T::of(1.0),
                 par,
             );
+            clear_upper_state();
             bias_activation(y, &self.params[self.bias_range(l)], self.activations[l]);
         }
     }
@@ -288,6 +290,7 @@ impl<T: Float> Mlp<T> {
                         T::of(1.0),
                         par,
                     );
+                    clear_upper_state();
                 }
                 None => activation_grad(dz, y, self.activations[l]),
             }
@@ -302,6 +305,7 @@ impl<T: Float> Mlp<T> {
                     T::of(1.0),
                     par,
                 );
+                clear_upper_state();
             } else {
                 let cols = match &input_grad {
                     InputGrad::None => continue,
@@ -321,6 +325,7 @@ impl<T: Float> Mlp<T> {
                     T::of(1.0),
                     par,
                 );
+                clear_upper_state();
             }
         }
     }

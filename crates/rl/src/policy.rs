@@ -113,6 +113,11 @@ impl Policy {
         &self.spec
     }
 
+    /// The SIMD level of the small-batch kernel (the best this processor has).
+    pub fn instruction_set(&self) -> terl_nn::InstructionSet {
+        self.small.instruction_set()
+    }
+
     /// Replaces the weights with a flat vector from [`crate::Sac::policy_params_f32`].
     pub fn set_params(&mut self, params: &[f32], version: u64) -> Result<(), SacError> {
         if params.len() != self.net.num_params() {

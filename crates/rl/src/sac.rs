@@ -28,8 +28,8 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use terl_nn::tensors::{save_file, Tensor, TensorFile};
 use terl_nn::{
-    clip_global_norm, gaussian, par_for_threads, Activation, Adam, Float, InputGrad, Mlp, MlpCache,
-    MlpSpec,
+    clear_upper_state, clip_global_norm, gaussian, par_for_threads, Activation, Adam, Float,
+    InputGrad, Mlp, MlpCache, MlpSpec,
 };
 
 /// Losses and diagnostics of one update (names follow cleanrl's metric names).
@@ -214,7 +214,18 @@ impl<T: Float> Critic<T> {
 fn both<T: Float>(critics: &mut [Critic<T>; 2], parallel: bool, f: impl Fn(&mut Critic<T>) + Sync) {
     let [c1, c2] = critics;
     if parallel {
-        rayon::join(|| f(c1), || f(c2));
+        // A pool thread may come back dirty from a GEMM micro-kernel (see
+        // `terl_nn::clear_upper_state`).
+        rayon::join(
+            || {
+                clear_upper_state();
+                f(c1)
+            },
+            || {
+                clear_upper_state();
+                f(c2)
+            },
+        );
     } else {
         f(c1);
         f(c2);
@@ -580,7 +591,10 @@ impl<T: Float> Sac<T> {
         if parallel {
             rayon::join(
                 || both(critics, true, |c| c.step(tau)),
-                || policy_adam.step(&mut policy.params, policy_grads),
+                || {
+                    clear_upper_state();
+                    policy_adam.step(&mut policy.params, policy_grads)
+                },
             );
         } else {
             both(critics, false, |c| c.step(tau));
@@ -736,4 +750,51 @@ impl<T: Float> Sac<T> {
         let file = TensorFile::load(path)?;
         self.restore_checkpoint(&file)
     }
+}
+
+/// A batch of `cfg.batch_size` random rows: observations, next observations and actions uniform
+/// in `[-1, 1)`, rewards in `[0, 1)`, nothing terminated, tasks `i mod num_tasks`. For
+/// benchmarks and for timing a learner alone ([`standalone_update_rate`]).
+pub fn random_batch(cfg: &SacConfig, seed: u64) -> Batch {
+    use rand::Rng;
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut batch = Batch::with_capacity(cfg.batch_size, cfg.obs_dim, cfg.act_dim);
+    let mut obs = vec![0.0; cfg.obs_dim];
+    let mut next = vec![0.0; cfg.obs_dim];
+    let mut act = vec![0.0; cfg.act_dim];
+    for i in 0..cfg.batch_size {
+        obs.iter_mut().for_each(|v| *v = rng.gen_range(-1.0..1.0));
+        next.iter_mut().for_each(|v| *v = rng.gen_range(-1.0..1.0));
+        act.iter_mut().for_each(|v| *v = rng.gen_range(-1.0..1.0));
+        batch.push(
+            &obs,
+            &act,
+            rng.gen_range(0.0..1.0),
+            &next,
+            false,
+            (i % cfg.num_tasks) as u32,
+        );
+    }
+    batch
+}
+
+/// Updates per second of a learner of `config`'s shape running alone: a fresh [`Sac`] (same
+/// networks, batch size and update threads; its own thread pool) updating back to back on a
+/// [`random_batch`] for about `seconds` (at least 3 updates) after one warm-up update. This is
+/// the rate `terl bench sac` reports for the same shapes, and what the learner compares its
+/// in-cluster rate to.
+///
+/// # Errors
+/// The config's validation errors, or a failed update (none is expected on random data).
+pub fn standalone_update_rate(config: &SacConfig, seconds: f64) -> Result<f64, SacError> {
+    let mut sac: Sac<f32> = Sac::new(config.clone())?;
+    let batch = random_batch(config, config.seed ^ 0x5ca1_ab1e);
+    sac.update(&batch)?;
+    let start = std::time::Instant::now();
+    let mut n = 0u32;
+    while n < 3 || start.elapsed().as_secs_f64() < seconds {
+        sac.update(&batch)?;
+        n += 1;
+    }
+    Ok(f64::from(n) / start.elapsed().as_secs_f64())
 }

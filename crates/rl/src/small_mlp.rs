@@ -3,26 +3,23 @@
 //! Small batches are a different GEMM regime from training: every weight is read once per call
 //! for only a few rows, and a general GEMM's packing and blocking cost more than the products
 //! (faer at 8 rows of a 512-wide layer runs at about half its 4-row rate per row). Each weight is
-//! therefore stored pre-packed in panels of [`PANEL`] output columns (`panel[k][j] = W[p·PANEL +
-//! j][k]`, zero-padded), which a register-blocked kernel streams once per call: 4 rows × 16
-//! columns of accumulators, one FMA per weight and row. Without 8-lane `f32` SIMD (AVX2) the
-//! same panels go through faer.
+//! therefore stored pre-packed in panels of two vectors' width of output columns (`panel[k][j] =
+//! W[p·P + j][k]`, zero-padded; `P` = 32 with AVX-512, 16 otherwise), which a register-blocked
+//! kernel streams once per call: with AVX-512 8 rows × 2 vectors of accumulators (16 of its 32
+//! registers), with AVX2 4 rows × 2 (8 of 16), one FMA per weight and row. Without either
+//! instruction set the same panels go through faer. The instruction set is chosen at run time
+//! ([`InstructionSet::detect`]) or given ([`SmallBatchMlp::with_instruction_set`]).
 
 use faer::linalg::matmul::matmul;
-use faer::traits::pulp::{self, Simd, WithSimd};
+use faer::traits::pulp::{Simd, WithSimd};
 use faer::{Accum, MatMut, MatRef, Par};
-use terl_nn::{Activation, Mlp, MlpSpec};
-
-/// Output columns per weight panel (two 8-lane vectors).
-const PANEL: usize = 16;
-/// Rows per register block of the kernel.
-const ROW_BLOCK: usize = 4;
+use terl_nn::{Activation, InstructionSet, Mlp, MlpSpec};
 
 #[derive(Clone, Debug)]
 pub(crate) struct SmallBatchMlp {
     sizes: Vec<usize>,
     activations: Vec<Activation>,
-    /// Per layer, the weight packed in panels: `out_pad(l) / PANEL` blocks of `[in, PANEL]`.
+    /// Per layer, the weight packed in panels: `out_pad(l) / panel` blocks of `[in, panel]`.
     panels: Vec<Vec<f32>>,
     biases: Vec<Vec<f32>>,
     /// The input rows.
@@ -32,7 +29,9 @@ pub(crate) struct SmallBatchMlp {
     /// The network's output rows without padding.
     result: Vec<f32>,
     max_rows: usize,
-    arch: pulp::Arch,
+    isa: InstructionSet,
+    /// Output columns per weight panel: two vectors of `isa` (16 without a vector kernel).
+    panel: usize,
 }
 
 fn padded(n: usize, to: usize) -> usize {
@@ -40,8 +39,24 @@ fn padded(n: usize, to: usize) -> usize {
 }
 
 impl SmallBatchMlp {
-    /// A network of `spec`'s shape holding `net`'s weights (same shape).
+    /// A network of `spec`'s shape holding `net`'s weights (same shape), with the best
+    /// instruction set of this processor.
     pub(crate) fn new(spec: &MlpSpec, net: &Mlp<f32>, max_rows: usize) -> Self {
+        Self::with_instruction_set(spec, net, max_rows, InstructionSet::detect())
+            .expect("the detected instruction set is available")
+    }
+
+    /// Like [`SmallBatchMlp::new`] with the kernel of `isa`; `None` if this processor lacks it.
+    pub(crate) fn with_instruction_set(
+        spec: &MlpSpec,
+        net: &Mlp<f32>,
+        max_rows: usize,
+        isa: InstructionSet,
+    ) -> Option<Self> {
+        if !isa.is_available() {
+            return None;
+        }
+        let panel = 2 * isa.f32_lanes().max(8);
         let sizes = net.sizes().to_vec();
         let layers = sizes.len() - 1;
         let mut activations = vec![spec.hidden_activation; layers];
@@ -50,34 +65,41 @@ impl SmallBatchMlp {
         let mut m = Self {
             panels: sizes
                 .windows(2)
-                .map(|w| vec![0.0; w[0] * padded(w[1], PANEL)])
+                .map(|w| vec![0.0; w[0] * padded(w[1], panel)])
                 .collect(),
             biases: sizes[1..].iter().map(|&o| vec![0.0; o]).collect(),
             input: vec![0.0; rows * sizes[0]],
             outs: sizes[1..]
                 .iter()
-                .map(|&o| vec![0.0; rows * padded(o, PANEL)])
+                .map(|&o| vec![0.0; rows * padded(o, panel)])
                 .collect(),
             result: vec![0.0; max_rows * sizes[layers]],
             sizes,
             activations,
             max_rows,
-            arch: pulp::Arch::new(),
+            isa,
+            panel,
         };
         m.load(net);
-        m
+        Some(m)
+    }
+
+    /// The instruction set of the kernel.
+    pub(crate) fn instruction_set(&self) -> InstructionSet {
+        self.isa
     }
 
     /// Copies (and packs) `net`'s weights.
     pub(crate) fn load(&mut self, net: &Mlp<f32>) {
         assert_eq!(net.sizes(), self.sizes, "network shape changed");
+        let width = self.panel;
         for l in 0..self.sizes.len() - 1 {
             let (n_in, n_out) = (self.sizes[l], self.sizes[l + 1]);
             let w = &net.params[net.weight_range(l)];
-            for (p, panel) in self.panels[l].chunks_exact_mut(n_in * PANEL).enumerate() {
-                for (k, row) in panel.chunks_exact_mut(PANEL).enumerate() {
+            for (p, panel) in self.panels[l].chunks_exact_mut(n_in * width).enumerate() {
+                for (k, row) in panel.chunks_exact_mut(width).enumerate() {
                     for (j, v) in row.iter_mut().enumerate() {
-                        let o = p * PANEL + j;
+                        let o = p * width + j;
                         *v = if o < n_out { w[o * n_in + k] } else { 0.0 };
                     }
                 }
@@ -101,28 +123,28 @@ impl SmallBatchMlp {
         let n0 = self.sizes[0];
         self.input[..rows * n0].copy_from_slice(input);
         let layers = self.sizes.len() - 1;
+        let width = self.panel;
         for l in 0..layers {
             let (n_in, n_out) = (self.sizes[l], self.sizes[l + 1]);
-            let out_pad = padded(n_out, PANEL);
+            let out_pad = padded(n_out, width);
             let (before, rest) = self.outs.split_at_mut(l);
             let (x, x_stride) = if l == 0 {
                 (&self.input[..rows * n0], n0)
             } else {
-                let stride = padded(n_in, PANEL);
+                let stride = padded(n_in, width);
                 (&before[l - 1][..rows * stride], stride)
             };
             let y = &mut rest[0][..rows * out_pad];
-            let kernel = PanelKernel {
+            let product = Panels {
                 x,
                 x_stride,
                 n_in,
                 panels: &self.panels[l],
+                width,
                 y,
                 y_stride: out_pad,
             };
-            if !self.arch.dispatch(kernel) {
-                faer_panels(x, x_stride, n_in, &self.panels[l], y, out_pad);
-            }
+            product.run(self.isa);
             let bias = &self.biases[l];
             let rows_y = y.chunks_exact_mut(out_pad).map(|r| &mut r[..n_out]);
             match self.activations[l] {
@@ -149,7 +171,7 @@ impl SmallBatchMlp {
             }
         }
         let n_out = self.sizes[layers];
-        let out_pad = padded(n_out, PANEL);
+        let out_pad = padded(n_out, width);
         let y = &self.outs[layers - 1];
         for (dst, src) in self.result[..rows * n_out]
             .chunks_exact_mut(n_out)
@@ -161,50 +183,123 @@ impl SmallBatchMlp {
     }
 }
 
-/// `y[r][p·PANEL + j] = Σ_k x[r][k] · panel_p[k][j]` for all rows and panels. Returns `false` (nothing written) unless the SIMD width is 8 `f32` lanes.
-struct PanelKernel<'a> {
+/// `y[r][p·P + j] = Σ_k x[r][k] · panel_p[k][j]` for all rows and panels (`P` = `width`).
+struct Panels<'a> {
     x: &'a [f32],
     x_stride: usize,
     n_in: usize,
     panels: &'a [f32],
+    width: usize,
     y: &'a mut [f32],
     y_stride: usize,
 }
 
-impl WithSimd for PanelKernel<'_> {
-    type Output = bool;
-
-    #[inline(always)]
-    fn with_simd<S: Simd>(self, simd: S) -> bool {
-        if S::F32_LANES * 2 != PANEL {
-            return false;
+impl Panels<'_> {
+    /// Runs the product with `isa`'s kernel (which the caller checked is available).
+    fn run(self, isa: InstructionSet) {
+        match isa {
+            #[cfg(target_arch = "x86_64")]
+            InstructionSet::Avx512 => {
+                let simd = faer::traits::pulp::x86::V4::try_new().expect("AVX-512 is available");
+                Simd::vectorize(simd, PanelKernel::<8>(self));
+            }
+            #[cfg(target_arch = "x86_64")]
+            InstructionSet::Avx2 => {
+                let simd = faer::traits::pulp::x86::V3::try_new().expect("AVX2 is available");
+                Simd::vectorize(simd, PanelKernel::<4>(self));
+            }
+            _ => self.through_faer(),
         }
+    }
+
+    /// The same product through faer, one GEMM per panel.
+    fn through_faer(self) {
         let Self {
             x,
             x_stride,
             n_in,
             panels,
+            width,
             y,
             y_stride,
         } = self;
         let rows = x.len() / x_stride;
-        let full = rows - rows % ROW_BLOCK;
-        for (p, panel) in panels.chunks_exact(n_in * PANEL).enumerate() {
+        let xm = MatRef::from_row_major_slice(x, rows, x_stride).subcols(0, n_in);
+        let mut ym = MatMut::from_row_major_slice_mut(y, rows, y_stride);
+        for (p, panel) in panels.chunks_exact(n_in * width).enumerate() {
+            matmul(
+                ym.as_mut().subcols_mut(p * width, width),
+                Accum::Replace,
+                xm,
+                MatRef::from_row_major_slice(panel, n_in, width),
+                1.0f32,
+                Par::Seq,
+            );
+        }
+    }
+}
+
+/// The register-blocked kernel: `R` rows at a time, two vectors of columns per panel.
+struct PanelKernel<'a, const R: usize>(Panels<'a>);
+
+impl<const R: usize> WithSimd for PanelKernel<'_, R> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: Simd>(self, simd: S) {
+        let Panels {
+            x,
+            x_stride,
+            n_in,
+            panels,
+            width,
+            y,
+            y_stride,
+        } = self.0;
+        assert_eq!(
+            S::F32_LANES * 2,
+            width,
+            "panels packed for another vector width"
+        );
+        let rows = x.len() / x_stride;
+        let full = rows - rows % R;
+        for (p, panel) in panels.chunks_exact(n_in * width).enumerate() {
             let (w, _) = S::as_simd_f32s(panel);
             let y = &mut *y;
-            let col = p * PANEL;
-            for g in (0..full).step_by(ROW_BLOCK) {
-                row_block::<S, ROW_BLOCK>(simd, w, x, x_stride, n_in, g, y, y_stride, col);
+            let col = p * width;
+            for g in (0..full).step_by(R) {
+                row_block::<S, R>(simd, w, x, x_stride, n_in, g, y, y_stride, col);
             }
+            let at = (x, x_stride, n_in, full, col);
             match rows - full {
-                1 => row_block::<S, 1>(simd, w, x, x_stride, n_in, full, y, y_stride, col),
-                2 => row_block::<S, 2>(simd, w, x, x_stride, n_in, full, y, y_stride, col),
-                3 => row_block::<S, 3>(simd, w, x, x_stride, n_in, full, y, y_stride, col),
-                _ => {}
+                0 => {}
+                1 => tail::<S, 1>(simd, w, at, y, y_stride),
+                2 => tail::<S, 2>(simd, w, at, y, y_stride),
+                3 => tail::<S, 3>(simd, w, at, y, y_stride),
+                4 => tail::<S, 4>(simd, w, at, y, y_stride),
+                5 => tail::<S, 5>(simd, w, at, y, y_stride),
+                6 => tail::<S, 6>(simd, w, at, y, y_stride),
+                r => {
+                    // R is at most 8, so at most 7 rows are left.
+                    debug_assert_eq!(r, 7);
+                    tail::<S, 7>(simd, w, at, y, y_stride)
+                }
             }
         }
-        true
     }
+}
+
+/// [`row_block`] for the last rows of a panel (`at` = x, x_stride, n_in, first row, column).
+#[inline(always)]
+fn tail<S: Simd, const R: usize>(
+    simd: S,
+    w: &[S::f32s],
+    at: (&[f32], usize, usize, usize, usize),
+    y: &mut [f32],
+    y_stride: usize,
+) {
+    let (x, x_stride, n_in, g, col) = at;
+    row_block::<S, R>(simd, w, x, x_stride, n_in, g, y, y_stride, col);
 }
 
 /// Rows `g..g + R` of one panel: `R × 2` vector accumulators over all `n_in` inputs.
@@ -233,34 +328,10 @@ fn row_block<S: Simd, const R: usize>(
         }
     }
     for (r, a) in acc.iter().enumerate() {
-        let out = &mut y[(g + r) * y_stride + col..][..PANEL];
+        let out = &mut y[(g + r) * y_stride + col..][..2 * S::F32_LANES];
         let (o, _) = S::as_mut_simd_f32s(out);
         o[0] = a[0];
         o[1] = a[1];
-    }
-}
-
-/// [`PanelKernel`] through faer, one GEMM per panel (for machines without 8-lane SIMD).
-fn faer_panels(
-    x: &[f32],
-    x_stride: usize,
-    n_in: usize,
-    panels: &[f32],
-    y: &mut [f32],
-    y_stride: usize,
-) {
-    let rows = x.len() / x_stride;
-    let xm = MatRef::from_row_major_slice(x, rows, x_stride).subcols(0, n_in);
-    let mut ym = MatMut::from_row_major_slice_mut(y, rows, y_stride);
-    for (p, panel) in panels.chunks_exact(n_in * PANEL).enumerate() {
-        matmul(
-            ym.as_mut().subcols_mut(p * PANEL, PANEL),
-            Accum::Replace,
-            xm,
-            MatRef::from_row_major_slice(panel, n_in, PANEL),
-            1.0f32,
-            Par::Seq,
-        );
     }
 }
 
@@ -270,29 +341,6 @@ mod tests {
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
     use terl_nn::MlpCache;
-
-    /// The faer fallback gives the same products as the kernel.
-    fn faer_matches(spec: &MlpSpec, net: &Mlp<f32>, rows: usize) -> bool {
-        let small = SmallBatchMlp::new(spec, net, rows);
-        let (n_in, n_out) = (net.sizes()[0], padded(net.sizes()[1], PANEL));
-        let x: Vec<f32> = (0..rows * n_in).map(|i| (i % 7) as f32 - 3.0).collect();
-        let (mut a, mut b) = (vec![0.0; rows * n_out], vec![0.0; rows * n_out]);
-        faer_panels(&x, n_in, n_in, &small.panels[0], &mut a, n_out);
-        let kernel = PanelKernel {
-            x: &x,
-            x_stride: n_in,
-            n_in,
-            panels: &small.panels[0],
-            y: &mut b,
-            y_stride: n_out,
-        };
-        if !pulp::Arch::new().dispatch(kernel) {
-            return true;
-        }
-        a.iter()
-            .zip(&b)
-            .all(|(a, b)| (a - b).abs() <= 1e-5 * (1.0 + a.abs()))
-    }
 
     #[test]
     fn matches_the_training_network() {
@@ -311,9 +359,9 @@ mod tests {
             };
             let net: Mlp<f32> = Mlp::new(&spec, &mut rng);
             let mut small = SmallBatchMlp::new(&spec, &net, 8);
+            assert_eq!(small.instruction_set(), InstructionSet::detect());
             let mut cache = MlpCache::new(&net, 8);
             for rows in [1, 2, 3, 5, 7, 8] {
-                assert!(faer_matches(&spec, &net, rows));
                 let x: Vec<f32> = (0..rows * 13).map(|_| rng.gen_range(-2.0..2.0)).collect();
                 cache.input_mut(0..rows).copy_from_slice(&x);
                 net.forward(&mut cache, rows, Par::Seq);
@@ -324,5 +372,47 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Every instruction set this processor has (AVX-512, AVX2, the faer path) gives the same
+    /// outputs as an `f64` reference within `f32` rounding, at widths that are and are not
+    /// multiples of the panel and at every row count up to 16 (full and partial row blocks).
+    #[test]
+    fn every_instruction_set_matches_an_f64_reference() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let spec = MlpSpec {
+            input: 49,
+            hidden: vec![400, 37, 64],
+            output: 8,
+            hidden_activation: Activation::Relu,
+            output_activation: Activation::Identity,
+        };
+        let net: Mlp<f32> = Mlp::new(&spec, &mut rng);
+        let mut wide: Mlp<f64> = Mlp::new(&spec, &mut rng);
+        wide.params = net.params.iter().map(|&v| f64::from(v)).collect();
+        let mut reference = MlpCache::new(&wide, 16);
+        let mut ran = Vec::new();
+        for isa in InstructionSet::ALL {
+            let Some(mut small) = SmallBatchMlp::with_instruction_set(&spec, &net, 16, isa) else {
+                continue;
+            };
+            ran.push(isa);
+            for rows in 1..=16 {
+                let x: Vec<f32> = (0..rows * 49).map(|_| rng.gen_range(-2.0..2.0)).collect();
+                for (d, &v) in reference.input_mut(0..rows).iter_mut().zip(&x) {
+                    *d = f64::from(v);
+                }
+                wide.forward(&mut reference, rows, Par::Seq);
+                let got = small.forward(&x, rows);
+                for (a, &b) in got.iter().zip(reference.output(0..rows)) {
+                    let err = (f64::from(*a) - b).abs();
+                    assert!(
+                        err <= 1e-4 * (1.0 + b.abs()),
+                        "{isa}, {rows} rows: {a} vs {b}"
+                    );
+                }
+            }
+        }
+        assert!(ran.contains(&InstructionSet::detect()) && ran.contains(&InstructionSet::Portable));
     }
 }

@@ -124,6 +124,10 @@ pub struct ClusterConfig {
     pub critic_publish_every_updates: u64,
     /// Seconds between periodic checkpoints (0: only at shutdown and on request).
     pub checkpoint_every_secs: f64,
+    /// Seconds the learner spends at start timing a fresh copy of its networks updating back
+    /// to back on a random batch (its standalone rate, as `terl bench sac` measures it), which
+    /// `terl status` compares the in-cluster rate to; 0 skips it (no ratio is shown).
+    pub learner_calibrate_secs: f64,
     /// Periodic checkpoints (`checkpoints/update-*.safetensors`) kept, counting the ones earlier
     /// processes of the same run folder wrote (older ones are deleted).
     pub keep_checkpoints: usize,
@@ -193,6 +197,7 @@ impl Default for ClusterConfig {
             publish_every_updates: 100,
             critic_publish_every_updates: 1000,
             checkpoint_every_secs: 300.0,
+            learner_calibrate_secs: 1.0,
             keep_checkpoints: 3,
             on_checkpoint_error: OnCheckpointError::Stop,
             block_timeout_secs: 30.0,
@@ -371,6 +376,11 @@ impl RunConfig {
         anyhow::ensure!(
             c.checkpoint_every_secs.is_finite() && c.checkpoint_every_secs >= 0.0,
             "cluster.checkpoint_every_secs must be ≥ 0"
+        );
+        anyhow::ensure!(
+            c.learner_calibrate_secs.is_finite()
+                && (0.0..=60.0).contains(&c.learner_calibrate_secs),
+            "cluster.learner_calibrate_secs must be between 0 and 60"
         );
         anyhow::ensure!(
             c.block_timeout_secs.is_finite() && c.block_timeout_secs > 0.0,

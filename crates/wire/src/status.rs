@@ -95,6 +95,14 @@ pub struct LearnerStatus {
     pub checkpoint_failures: u64,
     /// Transition batches lost in transit: gaps in the actors' sequence numbers, summed.
     pub transition_batches_missed: u64,
+    /// Updates/s of a fresh copy of the learner's networks timed alone at start (0: not timed).
+    pub standalone_updates_per_second: f64,
+    /// Updates per second of time spent inside updates, last rate window.
+    pub busy_updates_per_second: f64,
+    /// `busy / standalone` (0 when either is unknown).
+    pub update_speed_ratio: f64,
+    /// Longest staging round of the last rate window, ms.
+    pub staging_max_ms: f64,
 }
 
 /// Statistics of PTR priorities.
@@ -428,6 +436,10 @@ impl TryFrom<pb::LearnerStatus> for LearnerStatus {
             resumed_at_update: m.resumed_at_update,
             checkpoint_failures: m.checkpoint_failures,
             transition_batches_missed: m.transition_batches_missed,
+            standalone_updates_per_second: m.standalone_updates_per_second,
+            busy_updates_per_second: m.busy_updates_per_second,
+            update_speed_ratio: m.update_speed_ratio,
+            staging_max_ms: m.staging_max_ms,
         })
     }
 }
@@ -468,6 +480,10 @@ impl From<LearnerStatus> for pb::LearnerStatus {
             resumed_at_update: d.resumed_at_update,
             checkpoint_failures: d.checkpoint_failures,
             transition_batches_missed: d.transition_batches_missed,
+            standalone_updates_per_second: d.standalone_updates_per_second,
+            busy_updates_per_second: d.busy_updates_per_second,
+            update_speed_ratio: d.update_speed_ratio,
+            staging_max_ms: d.staging_max_ms,
         }
     }
 }

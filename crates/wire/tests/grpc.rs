@@ -73,6 +73,10 @@ fn learner_status() -> LearnerStatus {
         resumed_at_update: 100,
         checkpoint_failures: 1,
         transition_batches_missed: 6,
+        standalone_updates_per_second: 120.5,
+        busy_updates_per_second: 110.25,
+        update_speed_ratio: 110.25 / 120.5,
+        staging_max_ms: 0.75,
     }
 }
 

@@ -171,6 +171,23 @@ fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyho
         l.policy_version, l.replay_size, l.replay_capacity, l.staleness_mean, l.staleness_max,
         l.rejected_batches
     );
+    if l.standalone_updates_per_second > 0.0 {
+        let busy = if l.busy_updates_per_second > 0.0 {
+            format!(
+                "{:.2}x its standalone rate ({:.1} updates/s while updating, {:.1} alone)",
+                l.update_speed_ratio, l.busy_updates_per_second, l.standalone_updates_per_second
+            )
+        } else {
+            format!(
+                "standalone {:.1} updates/s; no update yet",
+                l.standalone_updates_per_second
+            )
+        };
+        println!(
+            "speed     {busy}  longest staging round {:.2} ms",
+            l.staging_max_ms
+        );
+    }
     if !l.resumed_from.is_empty() {
         println!(
             "resumed   from {} (update {}); replay refilled since then",

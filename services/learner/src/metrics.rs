@@ -58,6 +58,15 @@ impl MetricsLog {
                 status.updates_per_second,
             ),
             (
+                "charts/busy_updates_per_second".into(),
+                status.busy_updates_per_second,
+            ),
+            (
+                "charts/update_speed_ratio".into(),
+                status.update_speed_ratio,
+            ),
+            ("charts/staging_max_ms".into(), status.staging_max_ms),
+            (
                 "charts/env_steps_per_second".into(),
                 status.actors.iter().map(|a| a.env_steps_per_second).sum(),
             ),

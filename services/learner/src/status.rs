@@ -49,6 +49,15 @@ pub(crate) struct Counters {
     pub(crate) selected_samples: u64,
     updates_window: (Instant, u64),
     updates_per_second: f64,
+    /// Time spent inside `Sac::update` in the current rate window.
+    pub(crate) update_time: Duration,
+    /// Updates per second of update time over the last window that had updates.
+    busy_updates_per_second: f64,
+    /// The learner's standalone rate, timed at start (0: not timed).
+    pub(crate) standalone_updates_per_second: f64,
+    /// Longest staging round in the current window, and in the last completed one.
+    staging_max: Duration,
+    staging_max_shown: Duration,
     /// Per task, `(guided, all)` env steps in the current rate window.
     pub(crate) guidance_window: Vec<(u64, u64)>,
     /// Per task, the guided share of the last completed window.
@@ -77,6 +86,11 @@ impl Counters {
             selected_samples: 0,
             updates_window: (start, 0),
             updates_per_second: 0.0,
+            update_time: Duration::ZERO,
+            busy_updates_per_second: 0.0,
+            standalone_updates_per_second: 0.0,
+            staging_max: Duration::ZERO,
+            staging_max_shown: Duration::ZERO,
             guidance_window: vec![(0, 0); num_tasks],
             guidance_shown: vec![0.0; num_tasks],
             guided_steps: 0,
@@ -97,6 +111,20 @@ impl Counters {
         }
     }
 
+    /// Records one staging round that took `took`.
+    pub(crate) fn staging_round(&mut self, took: Duration) {
+        self.staging_max = self.staging_max.max(took);
+    }
+
+    /// `busy / standalone` updates per second (0 when either is unknown).
+    pub(crate) fn update_speed_ratio(&self) -> f64 {
+        if self.standalone_updates_per_second > 0.0 && self.busy_updates_per_second > 0.0 {
+            self.busy_updates_per_second / self.standalone_updates_per_second
+        } else {
+            0.0
+        }
+    }
+
     /// Refreshes the windowed rates at `now` with the learner's `updates`; true when a rate
     /// window ([`RATE_WINDOW`]) closed.
     pub(crate) fn refresh_rates(&mut self, updates: u64, now: Instant) -> bool {
@@ -105,6 +133,12 @@ impl Counters {
         let closed = now - t0 >= RATE_WINDOW;
         if closed {
             self.updates_per_second = (updates - u0) as f64 / dt;
+            if updates > u0 && !self.update_time.is_zero() {
+                self.busy_updates_per_second =
+                    (updates - u0) as f64 / self.update_time.as_secs_f64();
+            }
+            self.update_time = Duration::ZERO;
+            self.staging_max_shown = std::mem::take(&mut self.staging_max);
             self.updates_window = (now, updates);
             self.staleness_shown = std::mem::take(&mut self.staleness);
             for (shown, w) in self
@@ -196,6 +230,10 @@ pub(crate) fn snapshot(
             .unwrap_or_default(),
         resumed_at_update: c.resumed.as_ref().map_or(0, |(_, u)| *u),
         checkpoint_failures: shown.checkpoint_failures,
+        standalone_updates_per_second: c.standalone_updates_per_second,
+        busy_updates_per_second: c.busy_updates_per_second,
+        update_speed_ratio: c.update_speed_ratio(),
+        staging_max_ms: c.staging_max_shown.as_secs_f64() * 1e3,
         ..LearnerStatus::default()
     }
 }

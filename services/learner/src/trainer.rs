@@ -104,7 +104,10 @@ fn update_round(
         replay.sample_into(sac.config().batch_size, rng, batch);
         limiter.record_sample(1);
         ran = true;
-        match sac.update(batch) {
+        let began = Instant::now();
+        let result = sac.update(batch);
+        c.update_time += began.elapsed();
+        match result {
             Ok(stats) => {
                 c.failed_in_a_row = 0;
                 metrics.record_update(&stats);
@@ -121,6 +124,23 @@ fn update_round(
         }
     }
     Ok(ran)
+}
+
+/// The learner's standalone update rate ([`terl_rl::sac::standalone_update_rate`]) over
+/// `seconds`, logged; 0 when `seconds` is 0.
+fn calibrate(sac_config: &terl_rl::SacConfig, seconds: f64) -> anyhow::Result<f64> {
+    if seconds <= 0.0 {
+        return Ok(0.0);
+    }
+    let rate = terl_rl::sac::standalone_update_rate(sac_config, seconds)
+        .context("timing the learner's standalone update rate")?;
+    tracing::info!(
+        updates_per_second = format!("{rate:.1}"),
+        batch = sac_config.batch_size,
+        threads = sac_config.threads,
+        "standalone update rate (cluster.learner_calibrate_secs)"
+    );
+    Ok(rate)
 }
 
 /// Runs the training loop on `transport`'s streams until `shared.stop` is set, the training
@@ -175,8 +195,10 @@ pub(crate) fn run<T: Transport>(
         terl,
     );
 
+    let standalone = calibrate(&sac_config, run.cluster.learner_calibrate_secs)?;
     let start = Instant::now();
     let mut c = Counters::new(nt, run.train.success_window, start);
+    c.standalone_updates_per_second = standalone;
     if let Some(found) = resume_from {
         check_compatible(&found, &tasks, run.algorithm)?;
         restore(
@@ -211,6 +233,7 @@ pub(crate) fn run<T: Transport>(
             );
             break;
         }
+        let began = Instant::now();
         let mut busy = staging.round(
             transitions.as_mut(),
             &mut limiter,
@@ -219,6 +242,7 @@ pub(crate) fn run<T: Transport>(
             &mut c,
             publisher.policy_version,
         )?;
+        c.staging_round(began.elapsed());
         while episodes.try_receive_into(&mut episode)? {
             let e = &*episode;
             c.inbound.episode(e);
