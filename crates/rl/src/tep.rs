@@ -40,7 +40,8 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 use terl_nn::tensors::{Tensor, TensorFile};
 use terl_nn::{
-    par_for_threads, Activation, Adam, AdamConfig, Float, InputGrad, Mlp, MlpCache, MlpSpec,
+    clear_upper_state, par_for_threads, Activation, Adam, AdamConfig, Float, InputGrad, Mlp,
+    MlpCache, MlpSpec,
 };
 
 /// Hyper-parameters of the planner. Defaults follow the paper (3 × 512 ReLU, minibatch 1024,
@@ -334,9 +335,11 @@ impl<T: Float> Tep<T> {
             self.rejected_batches += 1;
             return Err(e);
         }
-        let stats = self.in_pool(|tep| tep.compute_gradients_inner(batch))?;
-        self.apply_gradients();
-        Ok(stats)
+        self.in_pool(|tep| {
+            let stats = tep.compute_gradients_inner(batch)?;
+            tep.apply_gradients();
+            Ok(stats)
+        })
     }
 
     /// Losses and gradients without changing any parameter (for gradient checks).
@@ -427,26 +430,22 @@ impl<T: Float> Tep<T> {
             target_min: f64::INFINITY,
             ..TepStats::default()
         };
-        let z: Vec<T> = self
-            .f_target_cache
-            .output(0..b)
-            .iter()
-            .map(|&v| T::of(1.0) + v)
-            .collect();
+        let f_next = self.f_target_cache.output(0..b);
         let (y, dy) = self.f_cache.output_and_grad_mut(0..4 * b);
         let (mut l1, mut l2, mut l3, mut l4) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
         for i in 0..b {
             let (y1, y2, y3, y4) = (y[i], y[b + i], y[2 * b + i], y[3 * b + i]);
+            let z = T::of(1.0) + f_next[i];
             let e1 = y1 - T::of(1.0);
-            let e2 = y2 - z[i];
+            let e2 = y2 - z;
             let e3 = y1 - y3;
             l1 += (e1 * e1).f64();
             l2 += (e2 * e2).f64();
             l3 += (e3 * e3).f64();
             l4 += y4.f64();
             st.goal_distance_mean += y2.f64();
-            st.target_mean += z[i].f64();
-            st.target_min = st.target_min.min(z[i].f64());
+            st.target_mean += z.f64();
+            st.target_min = st.target_min.min(z.f64());
             dy[i] = two * (e1 + e3) * inv_b;
             dy[b + i] = two * e2 * inv_b;
             dy[2 * b + i] = -two * e3 * inv_b;
@@ -503,12 +502,26 @@ impl<T: Float> Tep<T> {
         Ok(st)
     }
 
+    /// Steps F and AN and moves their targets; the two networks side by side when the update
+    /// has more than one thread (called inside the pool).
     fn apply_gradients(&mut self) {
         let tau = T::of(self.config.tau);
-        self.f_adam.step(&mut self.f.params, &self.f_grads);
-        self.an_adam.step(&mut self.an.params, &self.an_grads);
-        self.f_target.polyak_from(&self.f, tau);
-        self.an_target.polyak_from(&self.an, tau);
+        let mut f_step = || {
+            clear_upper_state();
+            self.f_adam.step(&mut self.f.params, &self.f_grads);
+            self.f_target.polyak_from(&self.f, tau);
+        };
+        let mut an_step = || {
+            clear_upper_state();
+            self.an_adam.step(&mut self.an.params, &self.an_grads);
+            self.an_target.polyak_from(&self.an, tau);
+        };
+        if self.config.threads > 1 {
+            rayon::join(f_step, an_step);
+        } else {
+            f_step();
+            an_step();
+        }
         self.updates += 1;
     }
 

@@ -465,3 +465,42 @@ fn two_threads_compute_the_same_update_as_one() {
     };
     assert!(close(&one.0, &two.0) && close(&one.1, &two.1) && close(&one.2, &two.2));
 }
+
+/// `random_batch` fills every row with finite values spread over the tasks, and
+/// `standalone_update_rate` agrees with timing the same updates by hand (a second path; the
+/// bound is loose because the machine may be shared) and refuses an invalid config.
+#[test]
+fn standalone_update_rate_agrees_with_hand_timed_updates() {
+    let cfg = SacConfig {
+        policy_hidden: vec![64, 64],
+        critic_hidden: vec![64, 64],
+        ..small_config(128)
+    };
+    let batch = terl_rl::sac::random_batch(&cfg, 3);
+    assert_eq!(batch.len(), 128);
+    batch.check_finite().unwrap();
+    batch.check_shape(cfg.num_tasks).unwrap();
+    assert!((0..cfg.num_tasks as u32).all(|t| batch.task_ids.contains(&t)));
+
+    let rate = terl_rl::sac::standalone_update_rate(&cfg, 0.3).unwrap();
+    let mut sac: Sac<f32> = Sac::new(cfg.clone()).unwrap();
+    sac.update(&batch).unwrap();
+    let start = std::time::Instant::now();
+    let mut n = 0;
+    while start.elapsed().as_secs_f64() < 0.3 {
+        sac.update(&batch).unwrap();
+        n += 1;
+    }
+    let by_hand = f64::from(n) / start.elapsed().as_secs_f64();
+    assert!(
+        rate > by_hand / 4.0 && rate < by_hand * 4.0,
+        "standalone {rate:.1}/s vs by hand {by_hand:.1}/s"
+    );
+    // Zero seconds still times the minimum of three updates.
+    assert!(terl_rl::sac::standalone_update_rate(&cfg, 0.0).unwrap() > 0.0);
+    let bad = SacConfig {
+        batch_size: 0,
+        ..cfg
+    };
+    assert!(terl_rl::sac::standalone_update_rate(&bad, 0.1).is_err());
+}

@@ -22,7 +22,8 @@ fn run_file(dir: &std::path::Path) -> terl_runtime::RunConfig {
          eval_every_env_steps = 0\n\
          [sac]\npolicy_hidden = [32, 32]\ncritic_hidden = [32, 32]\nbatch_size = 32\nthreads = 1\nseed = 1\n\
          [cluster]\nenvs_per_actor = 1\npublish_every_updates = 10\ncheckpoint_every_secs = 0\n\
-         keep_checkpoints = 2\nblock_timeout_secs = 10\nbuffer_batches = 8\n",
+         keep_checkpoints = 2\nblock_timeout_secs = 10\nbuffer_batches = 8\n\
+         learner_calibrate_secs = 0.1\n",
     )
     .unwrap();
     terl_runtime::RunConfig::load(&path).unwrap()
@@ -147,6 +148,11 @@ fn learner_selector_and_two_actors_train_in_one_process() {
         assert_eq!(selector_status.run_id, run_id);
         assert!(learner_status.env_steps_total >= 500, "{learner_status:?}");
         assert_eq!(learner_status.rejected_batches, 0);
+        // The learner timed its standalone rate before training.
+        assert!(
+            learner_status.standalone_updates_per_second > 0.0,
+            "{learner_status:?}"
+        );
         let mut ids: Vec<u32> = learner_status.actors.iter().map(|a| a.actor_id).collect();
         ids.sort_unstable();
         assert_eq!(ids, [0, 1]);

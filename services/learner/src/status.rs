@@ -402,4 +402,55 @@ mod tests {
         // The actor's rate: 30 steps over the 2 s since its window opened at 0.5 s.
         assert!((status.actors[0].env_steps_per_second - 15.0).abs() < 1e-9);
     }
+
+    /// The busy rate counts only time inside updates; the ratio compares it with the standalone
+    /// rate; the longest staging round of a window is shown after the window closes; a window
+    /// without updates keeps the last busy rate.
+    #[test]
+    fn speed_is_updates_over_update_time_against_the_standalone_rate() {
+        let t0 = Instant::now();
+        let mut c = Counters::new(1, 3, t0);
+        let replay = MultiTaskReplay::new(1, 10, OBS_DIM, ACTION_DIM);
+        let shown = Shown {
+            policy_version: 0,
+            checkpoint_failures: 0,
+        };
+        let at = |c: &Counters, ms: u64| {
+            snapshot(
+                "run",
+                &["reach-v3"],
+                c,
+                shown,
+                &sac(),
+                &replay,
+                10,
+                t0 + Duration::from_millis(ms),
+            )
+        };
+        assert_eq!(at(&c, 0).update_speed_ratio, 0.0);
+        c.standalone_updates_per_second = 40.0;
+        // 10 updates in 2 s of wall time, of which 0.5 s were spent updating.
+        c.update_time = Duration::from_millis(500);
+        c.staging_round(Duration::from_micros(300));
+        c.staging_round(Duration::from_micros(1200));
+        c.staging_round(Duration::from_micros(100));
+        assert_eq!(
+            at(&c, 1000).staging_max_ms,
+            0.0,
+            "shown once the window closes"
+        );
+        assert!(c.refresh_rates(10, t0 + Duration::from_secs(2)));
+        let s = at(&c, 2000);
+        assert!((s.updates_per_second - 5.0).abs() < 1e-9);
+        assert!((s.busy_updates_per_second - 20.0).abs() < 1e-9);
+        assert!((s.update_speed_ratio - 0.5).abs() < 1e-9);
+        assert!((s.standalone_updates_per_second - 40.0).abs() < 1e-9);
+        assert!((s.staging_max_ms - 1.2).abs() < 1e-9);
+        // A window without updates: the wall rate drops to 0, the busy rate stays.
+        assert!(c.refresh_rates(10, t0 + Duration::from_secs(4)));
+        let s = at(&c, 4000);
+        assert_eq!(s.updates_per_second, 0.0);
+        assert!((s.busy_updates_per_second - 20.0).abs() < 1e-9);
+        assert_eq!(s.staging_max_ms, 0.0);
+    }
 }
