@@ -49,6 +49,57 @@ pub fn clip_global_norm<T: Float>(groups: &mut [&mut [T]], max_norm: f64) -> f64
     norm
 }
 
+/// The constants of one Adam step.
+#[derive(Clone, Copy)]
+struct AdamStep<T> {
+    b1: T,
+    b2: T,
+    one_b1: T,
+    one_b2: T,
+    step_size: T,
+    bias2_sqrt: T,
+    eps: T,
+}
+
+/// One Adam step's loop over all parameters.
+struct AdamKernel<'a, T> {
+    k: AdamStep<T>,
+    params: &'a mut [T],
+    grads: &'a [T],
+    m: &'a mut [T],
+    v: &'a mut [T],
+}
+
+impl<T: Float> crate::simd::Kernel for AdamKernel<'_, T> {
+    type Output = ();
+
+    #[inline(always)]
+    fn run(self) {
+        let Self {
+            k,
+            params,
+            grads,
+            m,
+            v,
+        } = self;
+        let AdamStep {
+            b1,
+            b2,
+            one_b1,
+            one_b2,
+            step_size,
+            bias2_sqrt,
+            eps,
+        } = k;
+        for (((p, &g), m), v) in params.iter_mut().zip(grads).zip(m).zip(v) {
+            *m = b1 * *m + one_b1 * g;
+            *v = b2 * *v + one_b2 * g * g;
+            let denom = (*v).sqrt() / bias2_sqrt + eps;
+            *p -= step_size * (*m / denom);
+        }
+    }
+}
+
 /// Adam state (first and second moments, step count) for one flat parameter vector.
 #[derive(Clone, Debug)]
 pub struct Adam<T> {
@@ -93,17 +144,23 @@ impl<T: Float> Adam<T> {
         let (b1, b2) = (T::of(c.beta1), T::of(c.beta2));
         let (one_b1, one_b2) = (T::of(1.0 - c.beta1), T::of(1.0 - c.beta2));
         let eps = T::of(c.eps);
-        for (((p, &g), m), v) in params
-            .iter_mut()
-            .zip(grads)
-            .zip(self.m.iter_mut())
-            .zip(self.v.iter_mut())
-        {
-            *m = b1 * *m + one_b1 * g;
-            *v = b2 * *v + one_b2 * g * g;
-            let denom = (*v).sqrt() / bias2_sqrt + eps;
-            *p -= step_size * (*m / denom);
-        }
+        let (m, v) = (&mut self.m[..], &mut self.v[..]);
+        let k = AdamStep {
+            b1,
+            b2,
+            one_b1,
+            one_b2,
+            step_size,
+            bias2_sqrt,
+            eps,
+        };
+        crate::simd::vectorized(AdamKernel {
+            k,
+            params,
+            grads,
+            m,
+            v,
+        });
     }
 
     /// The optimiser state as tensors `{prefix}.m`, `{prefix}.v` (flat) and `{prefix}.step`.

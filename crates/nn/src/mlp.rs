@@ -8,7 +8,7 @@
 
 use crate::error::NnError;
 use crate::scalar::Float;
-use crate::simd::clear_upper_state;
+use crate::simd::{clear_upper_state, Kernel};
 use crate::tensors::{Tensor, TensorFile};
 use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
@@ -337,9 +337,13 @@ impl<T: Float> Mlp<T> {
             "Polyak averaging between different shapes"
         );
         let keep = T::of(1.0) - tau;
-        for (t, &s) in self.params.iter_mut().zip(&source.params) {
-            *t = *t * keep + tau * s;
-        }
+        let (target, source) = (&mut self.params[..], &source.params[..]);
+        crate::simd::vectorized(Polyak {
+            target,
+            source,
+            keep,
+            tau,
+        });
     }
 
     /// FLOPs of a forward pass over `rows` rows (2 per multiply-add of the GEMMs).
@@ -488,6 +492,11 @@ impl<T: Float> MlpCache<T> {
 
 /// `y ← act(y + bias)` row by row, in one pass.
 fn bias_activation<T: Float>(y: &mut [T], bias: &[T], act: Activation) {
+    crate::simd::vectorized(BiasActivation { y, bias, act });
+}
+
+#[inline(always)]
+fn bias_activation_loops<T: Float>(y: &mut [T], bias: &[T], act: Activation) {
     let zero = T::of(0.0);
     let rows = y.chunks_exact_mut(bias.len());
     match act {
@@ -514,6 +523,74 @@ fn bias_activation<T: Float>(y: &mut [T], bias: &[T], act: Activation) {
     }
 }
 
+/// `t ← t·keep + tau·s` element-wise.
+struct Polyak<'a, T> {
+    target: &'a mut [T],
+    source: &'a [T],
+    keep: T,
+    tau: T,
+}
+
+impl<T: Float> Kernel for Polyak<'_, T> {
+    type Output = ();
+
+    #[inline(always)]
+    fn run(self) {
+        for (t, &s) in self.target.iter_mut().zip(self.source) {
+            *t = *t * self.keep + self.tau * s;
+        }
+    }
+}
+
+/// [`bias_activation`]'s loops.
+struct BiasActivation<'a, T> {
+    y: &'a mut [T],
+    bias: &'a [T],
+    act: Activation,
+}
+
+impl<T: Float> Kernel for BiasActivation<'_, T> {
+    type Output = ();
+
+    #[inline(always)]
+    fn run(self) {
+        bias_activation_loops(self.y, self.bias, self.act);
+    }
+}
+
+/// [`activation_grad`]'s loops.
+struct ActivationGrad<'a, T> {
+    dz: &'a mut [T],
+    y: &'a [T],
+    act: Activation,
+}
+
+impl<T: Float> Kernel for ActivationGrad<'_, T> {
+    type Output = ();
+
+    #[inline(always)]
+    fn run(self) {
+        activation_grad_loops(self.dz, self.y, self.act);
+    }
+}
+
+/// [`activation_grad_with_bias`]'s loops.
+struct ActivationGradWithBias<'a, T> {
+    dz: &'a mut [T],
+    y: &'a [T],
+    db: &'a mut [T],
+    act: Activation,
+}
+
+impl<T: Float> Kernel for ActivationGradWithBias<'_, T> {
+    type Output = ();
+
+    #[inline(always)]
+    fn run(self) {
+        activation_grad_with_bias_loops(self.dz, self.y, self.db, self.act);
+    }
+}
+
 /// Softplus' derivative `σ(z)` from its output `y = ln(1 + e^z)`: `1 − e^{−y}`.
 #[inline(always)]
 fn softplus_grad<T: Float>(y: T) -> T {
@@ -522,6 +599,11 @@ fn softplus_grad<T: Float>(y: T) -> T {
 
 /// `dz ← dy · act'(y)` in place, with `y` the activation output.
 fn activation_grad<T: Float>(dz: &mut [T], y: &[T], act: Activation) {
+    crate::simd::vectorized(ActivationGrad { dz, y, act });
+}
+
+#[inline(always)]
+fn activation_grad_loops<T: Float>(dz: &mut [T], y: &[T], act: Activation) {
     let (zero, one) = (T::of(0.0), T::of(1.0));
     match act {
         Activation::Identity => {}
@@ -539,6 +621,11 @@ fn activation_grad<T: Float>(dz: &mut [T], y: &[T], act: Activation) {
 
 /// [`activation_grad`] fused with the bias gradient `db = Σ_rows dz` (written, not accumulated).
 fn activation_grad_with_bias<T: Float>(dz: &mut [T], y: &[T], db: &mut [T], act: Activation) {
+    crate::simd::vectorized(ActivationGradWithBias { dz, y, db, act });
+}
+
+#[inline(always)]
+fn activation_grad_with_bias_loops<T: Float>(dz: &mut [T], y: &[T], db: &mut [T], act: Activation) {
     let (zero, one) = (T::of(0.0), T::of(1.0));
     db.fill(zero);
     let width = db.len();

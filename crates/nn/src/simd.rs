@@ -80,6 +80,35 @@ pub fn clear_upper_state() {
     }
 }
 
+/// An element-wise loop to run through [`vectorized`]; `run` must be `#[inline(always)]`.
+pub(crate) trait Kernel {
+    type Output;
+    fn run(self) -> Self::Output;
+}
+
+struct Dispatch<K>(K);
+
+impl<K: Kernel> faer::traits::pulp::WithSimd for Dispatch<K> {
+    type Output = K::Output;
+
+    #[inline(always)]
+    fn with_simd<S: faer::traits::pulp::Simd>(self, _simd: S) -> K::Output {
+        self.0.run()
+    }
+}
+
+/// Runs `kernel` compiled for the best instruction set of this processor (pulp's run-time
+/// dispatch), so its loops (bias + activation, Adam, Polyak averaging) are auto-vectorised with
+/// 512- or 256-bit registers instead of baseline SSE, and return with the upper register state
+/// clean. The chain `with_simd` → [`Kernel::run`] is `#[inline(always)]` end to end, so the
+/// loops are compiled inside pulp's target-feature function (a closure would not reliably be
+/// inlined there and would run as baseline code: measured). Floating-point results are
+/// bit-identical to the scalar loops (Rust never reassociates or contracts into FMA).
+#[inline(always)]
+pub(crate) fn vectorized<K: Kernel>(kernel: K) -> K::Output {
+    faer::traits::pulp::Arch::new().dispatch(Dispatch(kernel))
+}
+
 impl fmt::Display for InstructionSet {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(self.as_str())
