@@ -50,6 +50,8 @@ pub(crate) struct Shared {
     pub(crate) started: Instant,
     pub(crate) status: Mutex<LearnerStatus>,
     pub(crate) stop: AtomicBool,
+    /// Timed before the address is announced ([`trainer::calibrate`]); 0 when skipped.
+    pub(crate) standalone_updates_per_second: f64,
 }
 
 #[derive(Debug)]
@@ -159,6 +161,14 @@ async fn run_in_span<T: terl_transport::ServiceTransport>(
         security: config.server_security.clone(),
         ..terl_wire::ServeOptions::default()
     };
+    // Timed before the address appears: a launcher starts the selector and the actors only
+    // once it has, so the learner is timed alone.
+    let standalone = {
+        let config = config.clone();
+        tokio::task::spawn_blocking(move || trainer::calibrate(&config))
+            .await
+            .context("timing the standalone update rate")??
+    };
     terl_runtime::service::announce(&listener, &config.run_dir, "learner", &config.run_id)?;
 
     let shared = Arc::new(Shared {
@@ -168,6 +178,7 @@ async fn run_in_span<T: terl_transport::ServiceTransport>(
             ..LearnerStatus::default()
         }),
         stop: AtomicBool::new(false),
+        standalone_updates_per_second: standalone,
     });
     let hub = WeightHub::with_max_message_bytes(max_message_bytes);
     let (checkpoint_tx, checkpoint_rx) = mpsc::channel();

@@ -126,13 +126,28 @@ fn update_round(
     Ok(ran)
 }
 
+/// The SAC configuration of this run: the run file's `[sac]` with Meta-World's dimensions and
+/// the run's task count.
+pub(crate) fn sac_config(config: &LearnerConfig) -> anyhow::Result<terl_rl::SacConfig> {
+    let tasks = terl_runtime::resolve_tasks(&config.run.tasks)?;
+    let mut sac_config = config.run.sac.clone();
+    sac_config.obs_dim = OBS_DIM;
+    sac_config.act_dim = ACTION_DIM;
+    sac_config.num_tasks = tasks.len();
+    Ok(sac_config)
+}
+
 /// The learner's standalone update rate ([`terl_rl::sac::standalone_update_rate`]) over
-/// `seconds`, logged; 0 when `seconds` is 0.
-fn calibrate(sac_config: &terl_rl::SacConfig, seconds: f64) -> anyhow::Result<f64> {
+/// `cluster.learner_calibrate_secs`, logged; 0 when that is 0. The learner calls it before it
+/// announces its address, so under the launcher nothing else of the cluster runs yet (a
+/// restarted learner is timed beside the running actors).
+pub(crate) fn calibrate(config: &LearnerConfig) -> anyhow::Result<f64> {
+    let seconds = config.run.cluster.learner_calibrate_secs;
     if seconds <= 0.0 {
         return Ok(0.0);
     }
-    let rate = terl_rl::sac::standalone_update_rate(sac_config, seconds)
+    let sac_config = sac_config(config)?;
+    let rate = terl_rl::sac::standalone_update_rate(&sac_config, seconds)
         .context("timing the learner's standalone update rate")?;
     tracing::info!(
         updates_per_second = format!("{rate:.1}"),
@@ -155,10 +170,7 @@ pub(crate) fn run<T: Transport>(
     let run = &config.run;
     let tasks = terl_runtime::resolve_tasks(&run.tasks)?;
     let nt = tasks.len();
-    let mut sac_config = run.sac.clone();
-    sac_config.obs_dim = OBS_DIM;
-    sac_config.act_dim = ACTION_DIM;
-    sac_config.num_tasks = nt;
+    let sac_config = sac_config(config)?;
     let mut sac = Sac::new(sac_config.clone())?;
 
     let mut transitions: Box<dyn MessageSource<TransitionBatch>> =
@@ -195,10 +207,9 @@ pub(crate) fn run<T: Transport>(
         terl,
     );
 
-    let standalone = calibrate(&sac_config, run.cluster.learner_calibrate_secs)?;
     let start = Instant::now();
     let mut c = Counters::new(nt, run.train.success_window, start);
-    c.standalone_updates_per_second = standalone;
+    c.standalone_updates_per_second = shared.standalone_updates_per_second;
     if let Some(found) = resume_from {
         check_compatible(&found, &tasks, run.algorithm)?;
         restore(
