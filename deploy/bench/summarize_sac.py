@@ -21,10 +21,14 @@ for line in sys.stdin:
     line = line.strip()
     if not line.startswith("{"):
         continue
-    r = json.loads(line)
-    c = r["config"]
-    key = (c["layers"], c["hidden"], c["batch"], c["threads"])
-    impl = "rust" if r["implementation"].startswith("terl") else "torch"
+    try:
+        r = json.loads(line)
+        c = r["config"]
+        key = (c["layers"], c["hidden"], c["batch"], c["threads"])
+        impl = "rust" if r["implementation"].startswith("terl") else "torch"
+    except (ValueError, KeyError, TypeError, AttributeError) as e:
+        print(f"skipped a malformed line ({e!r}): {line[:80]}", file=sys.stderr)
+        continue
     runs[key][impl].append(r)
 
 
