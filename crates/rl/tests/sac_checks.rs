@@ -468,7 +468,8 @@ fn two_threads_compute_the_same_update_as_one() {
 
 /// `random_batch` fills every row with finite values spread over the tasks, and
 /// `standalone_update_rate` agrees with timing the same updates by hand (a second path; the
-/// bound is loose because the machine may be shared) and refuses an invalid config.
+/// bound is a factor of 10 because other tests share the machine, loose enough for load and
+/// tight enough to catch a wrong unit or count) and refuses an invalid config.
 #[test]
 fn standalone_update_rate_agrees_with_hand_timed_updates() {
     let cfg = SacConfig {
@@ -493,7 +494,7 @@ fn standalone_update_rate_agrees_with_hand_timed_updates() {
     }
     let by_hand = f64::from(n) / start.elapsed().as_secs_f64();
     assert!(
-        rate > by_hand / 4.0 && rate < by_hand * 4.0,
+        rate > by_hand / 10.0 && rate < by_hand * 10.0,
         "standalone {rate:.1}/s vs by hand {by_hand:.1}/s"
     );
     // Zero seconds still times the minimum of three updates.
