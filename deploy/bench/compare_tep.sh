@@ -16,6 +16,10 @@ TARGET=${CARGO_TARGET_DIR:-target}
 # A busy-waiting OpenMP pool collapses when other processes share the cores; passive waiting
 # is what PyTorch should get on a shared machine (see compare_sac.sh).
 export OMP_WAIT_POLICY=${OMP_WAIT_POLICY:-PASSIVE}
+if ! "$PYTHON" -c 'import torch' 2>/dev/null; then
+  echo "$(basename "$0"): no PyTorch at PYTHON=$PYTHON; run deploy/bench/setup.sh first (or set PYTHON to a Python with torch)" >&2
+  exit 1
+fi
 cargo build --release -q -p terl-bench --example tep_bench
 mkdir -p "$(dirname "$RUNS")"
 : >"$RUNS"

@@ -24,8 +24,10 @@ for line in sys.stdin:
     try:
         r = json.loads(line)
         c = r["config"]
-        key = (c["layers"], c["hidden"], c["batch"], c["threads"])
+        key = tuple(int(c[k]) for k in ("layers", "hidden", "batch", "threads"))
         impl = "rust" if r["implementation"].startswith("terl") else "torch"
+        if not float(r["updates_per_s"]) > 0:
+            raise ValueError(f"updates_per_s {r['updates_per_s']!r} is not positive")
     except (ValueError, KeyError, TypeError, AttributeError) as e:
         print(f"skipped a malformed line ({e!r}): {line[:80]}", file=sys.stderr)
         continue
@@ -33,11 +35,35 @@ for line in sys.stdin:
 
 
 def med(rs, field):
-    return statistics.median(x[field] for x in rs) if rs else float("nan")
+    """Median of a numeric field over runs (NaN when none has it)."""
+    xs = []
+    for x in rs:
+        try:
+            xs.append(float(x[field]))
+        except (KeyError, TypeError, ValueError):
+            pass
+    return statistics.median(xs) if xs else float("nan")
+
+
+def ratios(rs, ts, num, den):
+    """Per-round `num(rust) / den(torch)`-style ratios of paired runs (skips unusable pairs)."""
+    out = []
+    for r, t in zip(rs, ts):
+        try:
+            a, b = float(num(r, t)), float(den(r, t))
+        except (KeyError, TypeError, ValueError):
+            continue
+        if b > 0:
+            out.append(a / b)
+    return out
+
+
+def verdict(ok):
+    return "met" if ok else "NOT met"
 
 
 def isa(rs):
-    return ",".join(sorted({x.get("instruction_set", "?") for x in rs})) or "?"
+    return ",".join(sorted({str(x.get("instruction_set", "?")) for x in rs})) or "?"
 
 
 print(
@@ -49,23 +75,27 @@ for key in sorted(runs, key=lambda k: (-k[2], -k[1], k[3])):
     layers, hidden, batch, threads = key
     rs, ts = runs[key]["rust"], runs[key]["torch"]
     ru, tu = med(rs, "updates_per_s"), med(ts, "updates_per_s")
-    pairs = [r["updates_per_s"] / t["updates_per_s"] for r, t in zip(rs, ts)]
+    pairs = ratios(rs, ts, lambda r, t: r["updates_per_s"], lambda r, t: t["updates_per_s"])
     ratio = statistics.median(pairs) if pairs else float("nan")
     eff = med(rs, "gemm_efficiency")
-    inf_pairs = [t["inference_batch8_us"] / r["inference_batch8_us"] for r, t in zip(rs, ts)]
+    inf_pairs = ratios(
+        rs, ts, lambda r, t: t["inference_batch8_us"], lambda r, t: r["inference_batch8_us"]
+    )
     inf = statistics.median(inf_pairs) if inf_pairs else float("nan")
     floors = []
     if threads == 2:
-        floors.append(f"ratio {'met' if ratio >= RATIO_FLOOR else 'NOT met'}")
+        floors.append(f"ratio {verdict(ratio >= RATIO_FLOOR) if pairs else 'no PyTorch pair'}")
         want = EFFICIENCY_FLOOR.get((layers, hidden, batch))
-        if want is not None:
-            floors.append(f"eff>={want:.0%} {'met' if eff >= want else 'NOT met'}")
+        if want is not None and rs:
+            floors.append(f"eff>={want:.0%} {verdict(eff >= want)}")
     if (layers, hidden) == (3, 400):
-        floors.append(f"infer>={INFERENCE_FLOOR:.0f}x {'met' if inf >= INFERENCE_FLOOR else 'NOT met'}")
+        floors.append(
+            f"infer>={INFERENCE_FLOOR:.0f}x {verdict(inf >= INFERENCE_FLOOR) if inf_pairs else 'no PyTorch pair'}"
+        )
     rounds = " ".join(f"{p:.2f}" for p in pairs)
     print(
         f"| {layers}x{hidden} | {batch} | {threads} | {isa(rs)} / {isa(ts)} | {ru:.2f} | {tu:.2f} "
-        f"| {ratio:.2f}x ({rounds}; {ru / tu:.2f}x) "
+        f"| {ratio:.2f}x ({rounds}; {ru / tu if tu > 0 else float('nan'):.2f}x) "
         f"| {med(rs, 'achieved_gflops'):.1f} ({med(rs, 'gemm_gflops'):.1f}, {eff:.0%}) "
         f"| {med(ts, 'achieved_gflops'):.1f} ({med(ts, 'gemm_gflops'):.1f}, {med(ts, 'gemm_efficiency'):.0%}) "
         f"| {med(rs, 'inference_batch8_us'):.0f} / {med(ts, 'inference_batch8_us'):.0f} ({inf:.1f}x) "

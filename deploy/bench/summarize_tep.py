@@ -18,8 +18,10 @@ for line in sys.stdin:
     try:
         r = json.loads(line)
         c = r["config"]
-        key = (c["layers"], c["hidden"], c["batch"], c["threads"])
+        key = tuple(int(c[k]) for k in ("layers", "hidden", "batch", "threads"))
         impl = "rust" if r["implementation"].startswith("terl") else "torch"
+        if not float(r["updates_per_s"]) > 0:
+            raise ValueError(f"updates_per_s {r['updates_per_s']!r} is not positive")
     except (ValueError, KeyError, TypeError, AttributeError) as e:
         print(f"skipped a malformed line ({e!r}): {line[:80]}", file=sys.stderr)
         continue
@@ -27,7 +29,14 @@ for line in sys.stdin:
 
 
 def med(rs, field):
-    return statistics.median(x[field] for x in rs) if rs else float("nan")
+    """Median of a numeric field over runs (NaN when none has it)."""
+    xs = []
+    for x in rs:
+        try:
+            xs.append(float(x[field]))
+        except (KeyError, TypeError, ValueError):
+            pass
+    return statistics.median(xs) if xs else float("nan")
 
 
 print("| net | batch | threads | runs | Rust upd/s | PyTorch upd/s | ratio (rounds; of medians) | floor 1.0x | ISA Rust / PyTorch | Rust GFLOP/s (GEMM-rate, eff) | PyTorch GFLOP/s (GEMM-rate, eff) | planner b8 µs Rust / PyTorch |")
@@ -36,13 +45,13 @@ for key in sorted(runs, key=lambda k: (-k[2], -k[1], k[3])):
     layers, hidden, batch, threads = key
     rs, ts = runs[key]["rust"], runs[key]["torch"]
     ru, tu = med(rs, "updates_per_s"), med(ts, "updates_per_s")
-    pairs = [r["updates_per_s"] / t["updates_per_s"] for r, t in zip(rs, ts)]
+    pairs = [float(r["updates_per_s"]) / float(t["updates_per_s"]) for r, t in zip(rs, ts)]
     ratio = statistics.median(pairs) if pairs else float("nan")
     print(
         f"| {layers}x{hidden} | {batch} | {threads} | {len(rs)}/{len(ts)} | {ru:.3f} | {tu:.3f} "
-        f"| {ratio:.2f}x (rounds {' '.join(f'{p:.2f}' for p in pairs)}; {ru / tu:.2f}x) "
-        f"| {'met' if ratio >= FLOOR else 'NOT met'} "
-        f"| {','.join(sorted({x.get('instruction_set', '?') for x in rs}))} / {','.join(sorted({x.get('instruction_set', '?') for x in ts}))} "
+        f"| {ratio:.2f}x (rounds {' '.join(f'{p:.2f}' for p in pairs)}; {ru / tu if tu > 0 else float('nan'):.2f}x) "
+        f"| {('met' if ratio >= FLOOR else 'NOT met') if pairs else 'no PyTorch pair'} "
+        f"| {','.join(sorted({str(x.get('instruction_set', '?')) for x in rs}))} / {','.join(sorted({str(x.get('instruction_set', '?')) for x in ts}))} "
         f"| {med(rs, 'achieved_gflops'):.1f} ({med(rs, 'gemm_gflops'):.1f}, {med(rs, 'gemm_efficiency'):.0%}) "
         f"| {med(ts, 'achieved_gflops'):.1f} ({med(ts, 'gemm_gflops'):.1f}, {med(ts, 'gemm_efficiency'):.0%}) "
         f"| {med(rs, 'planner_batch8_us'):.0f} / {med(ts, 'planner_batch8_us'):.0f} |"

@@ -23,8 +23,24 @@ fn ensure(ok: bool, message: &str) -> Result<(), ArgsError> {
 fn positive_seconds(seconds: f64) -> Result<(), ArgsError> {
     ensure(
         seconds > 0.0 && seconds.is_finite(),
-        "--seconds must be positive",
+        "--seconds must be positive and finite",
     )
+}
+
+/// Update threads above this are refused (a benchmark of thousands of threads on a few cores
+/// measures the scheduler, and never finishes).
+pub const MAX_THREADS: usize = 256;
+
+fn threads(threads: usize) -> Result<(), ArgsError> {
+    ensure(
+        (1..=MAX_THREADS).contains(&threads),
+        "--threads must be between 1 and 256",
+    )
+}
+
+fn layers(layers: usize, hidden: usize) -> Result<(), ArgsError> {
+    ensure(layers > 0, "--layers must be at least 1")?;
+    ensure(hidden > 0, "--hidden must be at least 1")
 }
 
 /// Flags of the SAC update benchmark (`terl bench sac`); see [`SacBenchConfig`].
@@ -58,11 +74,13 @@ impl SacArgs {
     /// The benchmark configuration of these flags.
     ///
     /// # Errors
-    /// [`ArgsError`] for a non-positive or non-finite `--seconds`, `--threads 0`, or a
-    /// `--num-tasks` not smaller than `--obs-dim`.
+    /// [`ArgsError`] for a non-positive or non-finite `--seconds`, `--threads` outside
+    /// `1..=MAX_THREADS`, `--layers 0`, `--hidden 0`, or a `--num-tasks` not smaller than
+    /// `--obs-dim`.
     pub fn config(&self) -> Result<SacBenchConfig, ArgsError> {
         positive_seconds(self.seconds)?;
-        ensure(self.threads > 0, "--threads must be at least 1")?;
+        threads(self.threads)?;
+        layers(self.layers, self.hidden)?;
         ensure(
             self.num_tasks < self.obs_dim,
             "--num-tasks must be smaller than --obs-dim (it is part of it)",
@@ -105,10 +123,12 @@ impl TepUpdateArgs {
     /// `act_dim` values (39 and 4 in Meta-World).
     ///
     /// # Errors
-    /// [`ArgsError`] for a non-positive or non-finite `--seconds`, `--threads 0` or `--batch 0`.
+    /// [`ArgsError`] for a non-positive or non-finite `--seconds`, `--threads` outside
+    /// `1..=MAX_THREADS`, `--layers 0`, `--hidden 0` or `--batch 0`.
     pub fn config(&self, obs_dim: usize, act_dim: usize) -> Result<TepBenchConfig, ArgsError> {
         positive_seconds(self.seconds)?;
-        ensure(self.threads > 0, "--threads must be at least 1")?;
+        threads(self.threads)?;
+        layers(self.layers, self.hidden)?;
         ensure(self.batch > 0, "--batch must be at least 1")?;
         Ok(TepBenchConfig {
             obs_dim,
@@ -201,6 +221,9 @@ mod tests {
         assert!(sac(&["--seconds", "0"]).contains("--seconds"));
         assert!(sac(&["--seconds", "inf"]).contains("--seconds"));
         assert!(sac(&["--threads", "0"]).contains("--threads"));
+        assert!(sac(&["--threads", "257"]).contains("--threads"));
+        assert!(sac(&["--layers", "0"]).contains("--layers"));
+        assert!(sac(&["--hidden", "0"]).contains("--hidden"));
         assert!(sac(&["--num-tasks", "49"]).contains("--num-tasks"));
         let tep = |extra: &[&str]| {
             let argv = ["tep"].iter().chain(extra).copied();
@@ -209,6 +232,8 @@ mod tests {
         assert!(tep(&["--seconds=-1"]).contains("--seconds"));
         assert!(tep(&["--threads", "0"]).contains("--threads"));
         assert!(tep(&["--batch", "0"]).contains("--batch"));
+        assert!(tep(&["--layers", "0"]).contains("--layers"));
+        assert!(tep(&["--threads", "1000"]).contains("--threads"));
         // Unknown flags and missing values are clap's errors, not silently ignored.
         assert!(Sac::try_parse_from(["sac", "--hiden", "3"]).is_err());
         assert!(Tep::try_parse_from(["tep", "--batch"]).is_err());

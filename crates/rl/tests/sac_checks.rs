@@ -497,7 +497,7 @@ fn standalone_update_rate_agrees_with_hand_timed_updates() {
         rate > by_hand / 10.0 && rate < by_hand * 10.0,
         "standalone {rate:.1}/s vs by hand {by_hand:.1}/s"
     );
-    // Zero seconds still times the minimum of three updates.
+    // Zero seconds times the warm-up update alone.
     assert!(terl_rl::sac::standalone_update_rate(&cfg, 0.0).unwrap() > 0.0);
     let bad = SacConfig {
         batch_size: 0,

@@ -124,9 +124,10 @@ pub struct ClusterConfig {
     pub critic_publish_every_updates: u64,
     /// Seconds between periodic checkpoints (0: only at shutdown and on request).
     pub checkpoint_every_secs: f64,
-    /// Seconds the learner spends at start timing a fresh copy of its networks updating back
-    /// to back on a random batch (its standalone rate, as `terl bench sac` measures it), which
-    /// `terl status` compares the in-cluster rate to; 0 skips it (no ratio is shown).
+    /// Seconds (0 to 10) the learner spends at start, before it serves, timing a fresh copy of
+    /// its networks updating back to back on a random batch (its standalone rate, as `terl
+    /// bench sac` measures it), which `terl status` compares the in-cluster rate to; 0 skips it
+    /// (no ratio is shown). The launcher waits that much longer for the learner to start.
     pub learner_calibrate_secs: f64,
     /// Periodic checkpoints (`checkpoints/update-*.safetensors`) kept, counting the ones earlier
     /// processes of the same run folder wrote (older ones are deleted).
@@ -184,6 +185,9 @@ pub struct ClusterConfig {
     /// service's `--zenoh-listen`/`--zenoh-connect` replace the lists for that process.
     pub zenoh: terl_transport::ZenohConfig,
 }
+
+/// Largest `cluster.learner_calibrate_secs`.
+pub const MAX_LEARNER_CALIBRATE_SECS: f64 = 10.0;
 
 /// Largest `cluster.max_message_mib`: gRPC frames a message with a 32-bit length.
 pub const MAX_MESSAGE_MIB_LIMIT: usize = 4095;
@@ -379,8 +383,10 @@ impl RunConfig {
         );
         anyhow::ensure!(
             c.learner_calibrate_secs.is_finite()
-                && (0.0..=60.0).contains(&c.learner_calibrate_secs),
-            "cluster.learner_calibrate_secs must be between 0 and 60"
+                && (0.0..=MAX_LEARNER_CALIBRATE_SECS).contains(&c.learner_calibrate_secs),
+            "cluster.learner_calibrate_secs must be between 0 and {MAX_LEARNER_CALIBRATE_SECS} \
+             (got {})",
+            c.learner_calibrate_secs
         );
         anyhow::ensure!(
             c.block_timeout_secs.is_finite() && c.block_timeout_secs > 0.0,

@@ -12,7 +12,10 @@ pub mod eval;
 mod metaworld_vec;
 pub mod service;
 
-pub use config::{token_from_env, Algorithm, ClusterConfig, OnCheckpointError, RunConfig};
+pub use config::{
+    token_from_env, Algorithm, ClusterConfig, OnCheckpointError, RunConfig,
+    MAX_LEARNER_CALIBRATE_SECS,
+};
 pub use metaworld_vec::MetaWorldVec;
 
 /// What a cluster service (learner or selector) needs to start.

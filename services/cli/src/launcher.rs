@@ -427,6 +427,8 @@ struct Launcher {
     restarts_of: BTreeMap<String, u32>,
     worst: i32,
     security: terl_wire::ClientOptions,
+    /// Extra time the learner may take to write its address (its calibration).
+    learner_extra: Duration,
 }
 
 /// The shell's exit code of a process: its code, or 128 + the signal that ended it.
@@ -509,8 +511,9 @@ impl Launcher {
         }
         // The run's token and TLS trust, for the health checks (the services refuse a config
         // that is wrong; then the check is moot).
-        let security = terl_runtime::RunConfig::load(&out.join("config.toml"))
-            .ok()
+        let run = terl_runtime::RunConfig::load(&out.join("config.toml")).ok();
+        let security = run
+            .as_ref()
             .and_then(|run| {
                 run.cluster
                     .client_security(terl_runtime::token_from_env())
@@ -518,6 +521,16 @@ impl Launcher {
             })
             .map(terl_wire::ClientOptions::secured)
             .unwrap_or_default();
+        // The learner times itself before it writes its address (at most a few updates past
+        // `learner_calibrate_secs`): give it that much longer, three times over.
+        let learner_extra = run.map_or(Duration::ZERO, |run| {
+            Duration::from_secs_f64(
+                3.0 * run
+                    .cluster
+                    .learner_calibrate_secs
+                    .clamp(0.0, terl_runtime::MAX_LEARNER_CALIBRATE_SECS),
+            )
+        });
         Ok(Self {
             plan,
             bin,
@@ -527,6 +540,7 @@ impl Launcher {
             restarts_of: BTreeMap::new(),
             worst: 0,
             security,
+            learner_extra,
         })
     }
 
@@ -670,7 +684,12 @@ impl Launcher {
                     }
                 }
             }
-            if phase_start.elapsed() > START_LIMIT {
+            let limit = if role == "learner" && addr.is_none() {
+                START_LIMIT + self.learner_extra
+            } else {
+                START_LIMIT
+            };
+            if phase_start.elapsed() > limit {
                 break;
             }
             self.signals.nap(Duration::from_millis(100)).await;

@@ -147,6 +147,10 @@ pub(crate) fn calibrate(config: &LearnerConfig) -> anyhow::Result<f64> {
         return Ok(0.0);
     }
     let sac_config = sac_config(config)?;
+    tracing::info!(
+        seconds,
+        "timing the standalone update rate before serving (cluster.learner_calibrate_secs)"
+    );
     let rate = terl_rl::sac::standalone_update_rate(&sac_config, seconds)
         .context("timing the learner's standalone update rate")?;
     tracing::info!(
