@@ -7,63 +7,20 @@ it (the two saw about the same background load), `rounds` lists every round's ra
 >= 1.0x PyTorch at 3x400/1280, 3x400/256 and 2x256/256; GEMM efficiency (the update's GFLOP/s
 over the same GEMM shapes alone) >= 85 % at 3x400/1280 and >= 70 % at 2x256/256; batch-8 policy
 inference (3x400) >= 3x faster than PyTorch."""
-import json
 import statistics
 import sys
-from collections import defaultdict
+
+from bench_runs import isa, med, ratios, read_runs, update_ratios
 
 RATIO_FLOOR = 1.0
 EFFICIENCY_FLOOR = {(3, 400, 1280): 0.85, (2, 256, 256): 0.70}
 INFERENCE_FLOOR = 3.0
 
-runs = defaultdict(lambda: defaultdict(list))
-for line in sys.stdin:
-    line = line.strip()
-    if not line.startswith("{"):
-        continue
-    try:
-        r = json.loads(line)
-        c = r["config"]
-        key = tuple(int(c[k]) for k in ("layers", "hidden", "batch", "threads"))
-        impl = "rust" if r["implementation"].startswith("terl") else "torch"
-        if not float(r["updates_per_s"]) > 0:
-            raise ValueError(f"updates_per_s {r['updates_per_s']!r} is not positive")
-    except (ValueError, KeyError, TypeError, AttributeError) as e:
-        print(f"skipped a malformed line ({e!r}): {line[:80]}", file=sys.stderr)
-        continue
-    runs[key][impl].append(r)
-
-
-def med(rs, field):
-    """Median of a numeric field over runs (NaN when none has it)."""
-    xs = []
-    for x in rs:
-        try:
-            xs.append(float(x[field]))
-        except (KeyError, TypeError, ValueError):
-            pass
-    return statistics.median(xs) if xs else float("nan")
-
-
-def ratios(rs, ts, num, den):
-    """Per-round `num(rust) / den(torch)`-style ratios of paired runs (skips unusable pairs)."""
-    out = []
-    for r, t in zip(rs, ts):
-        try:
-            a, b = float(num(r, t)), float(den(r, t))
-        except (KeyError, TypeError, ValueError):
-            continue
-        if b > 0:
-            out.append(a / b)
-    return out
+runs = read_runs(sys.stdin)
 
 
 def verdict(ok):
     return "met" if ok else "NOT met"
-
-
-def isa(rs):
-    return ",".join(sorted({str(x.get("instruction_set", "?")) for x in rs})) or "?"
 
 
 print(
@@ -75,7 +32,7 @@ for key in sorted(runs, key=lambda k: (-k[2], -k[1], k[3])):
     layers, hidden, batch, threads = key
     rs, ts = runs[key]["rust"], runs[key]["torch"]
     ru, tu = med(rs, "updates_per_s"), med(ts, "updates_per_s")
-    pairs = ratios(rs, ts, lambda r, t: r["updates_per_s"], lambda r, t: t["updates_per_s"])
+    pairs = update_ratios(rs, ts)
     ratio = statistics.median(pairs) if pairs else float("nan")
     eff = med(rs, "gemm_efficiency")
     inf_pairs = ratios(
