@@ -216,15 +216,12 @@ impl<T: Float> Mlp<T> {
                 &before[l - 1][..rows * n_in]
             };
             let y = &mut rest[0][..rows * n_out];
-            matmul(
+            gemm(
                 MatMut::from_row_major_slice_mut(y, rows, n_out),
-                Accum::Replace,
                 MatRef::from_row_major_slice(x, rows, n_in),
                 self.weight(l).transpose(),
-                T::of(1.0),
                 par,
             );
-            clear_upper_state();
             bias_activation(y, &self.params[self.bias_range(l)], self.activations[l]);
         }
     }
@@ -282,30 +279,24 @@ impl<T: Float> Mlp<T> {
                     let (gw, gb) =
                         grads[self.offsets[l]..self.bias_range(l).end].split_at_mut(n_out * n_in);
                     activation_grad_with_bias(dz, y, gb, self.activations[l]);
-                    matmul(
+                    gemm(
                         MatMut::from_row_major_slice_mut(gw, n_out, n_in),
-                        Accum::Replace,
                         MatRef::from_row_major_slice(dz, n, n_out).transpose(),
                         MatRef::from_row_major_slice(x, n, n_in),
-                        T::of(1.0),
                         par,
                     );
-                    clear_upper_state();
                 }
                 None => activation_grad(dz, y, self.activations[l]),
             }
             let dz = MatRef::from_row_major_slice(&*dz, n, n_out);
             if l > 0 {
                 let dx = &mut g_before[l - 1][in_rows];
-                matmul(
+                gemm(
                     MatMut::from_row_major_slice_mut(dx, n, n_in),
-                    Accum::Replace,
                     dz,
                     self.weight(l),
-                    T::of(1.0),
                     par,
                 );
-                clear_upper_state();
             } else {
                 let cols = match &input_grad {
                     InputGrad::None => continue,
@@ -317,15 +308,12 @@ impl<T: Float> Mlp<T> {
                     "input gradient columns {cols:?} out of range"
                 );
                 let dx = MatMut::from_row_major_slice_mut(&mut cache.grad_input[in_rows], n, n_in);
-                matmul(
+                gemm(
                     dx.subcols_mut(cols.start, cols.len()),
-                    Accum::Replace,
                     dz,
                     self.weight(0).subcols(cols.start, cols.len()),
-                    T::of(1.0),
                     par,
                 );
-                clear_upper_state();
             }
         }
     }
@@ -488,6 +476,14 @@ impl<T: Float> MlpCache<T> {
         let w = self.sizes[0];
         &self.grad_input[rows.start * w..rows.end * w]
     }
+}
+
+/// `dst ← lhs · rhs` (faer, overwriting), then [`clear_upper_state`] on this thread: faer's
+/// micro-kernels return with the upper vector state dirty, and every scalar pass after a GEMM
+/// would pay for it.
+fn gemm<T: Float>(dst: MatMut<'_, T>, lhs: MatRef<'_, T>, rhs: MatRef<'_, T>, par: Par) {
+    matmul(dst, Accum::Replace, lhs, rhs, T::of(1.0), par);
+    clear_upper_state();
 }
 
 /// `y ← act(y + bias)` row by row, in one pass.
