@@ -33,7 +33,7 @@
 use crate::error::SacError;
 use crate::names;
 use crate::small_mlp::SmallBatchMlp;
-use crate::tep_buffer::TepBatch;
+use crate::tep_buffer::{GoalSampling, TepBatch};
 use faer::Par;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -44,14 +44,23 @@ use terl_nn::{
     MlpCache, MlpSpec,
 };
 
-/// Hyper-parameters of the planner. Defaults follow the paper (3 × 512 ReLU, minibatch 1024,
-/// buffer 6M, τ = 0.005, lr 3e-4).
+/// Hyper-parameters of the planner. Network sizes, minibatch, buffer, τ and learning rates follow
+/// the paper (3 × 512 ReLU, minibatch 1024, buffer 6M, τ = 0.005, lr 3e-4); the F target, its
+/// loss weighting, the output scale, AN's behaviour-cloning weight and the hindsight sampling are
+/// this implementation's means of making F a step count (each measured with `terl planner eval`,
+/// `docs/results/planner/`). `TepConfig::paper()` is Eq. 11–14 exactly.
 ///
 /// ```toml
 /// f_hidden = [512, 512, 512]
 /// an_hidden = [512, 512, 512]
 /// batch_size = 1024
 /// updates_per_sac_update = 1.0
+/// f_target = "gap_bounded"       # or "bootstrap" (Eq. 11), "gap"
+/// goal_loss = "relative"         # or "squared" (Eq. 11)
+/// f_output_scale = 100.0
+/// an_bc_weight = 1.0
+/// near_goal_fraction = 0.5
+/// near_goal_steps = 20
 /// ```
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -80,6 +89,55 @@ pub struct TepConfig {
     pub threads: usize,
     /// Seed of network initialisation.
     pub seed: u64,
+    /// What the hindsight term of F's loss regresses on (see [`FTarget`]).
+    pub f_target: FTarget,
+    /// Weighting of the hindsight term (see [`GoalLoss`]).
+    pub goal_loss: GoalLoss,
+    /// `c` in `F = c · softplus(y)`: F's output in steps is the network's softplus output times
+    /// `c`, so a network of unit-scale outputs represents step counts of an episode (up to 500)
+    /// without its last layer having to grow by two orders of magnitude first. A planner file
+    /// whose recorded config lacks it was written with 1 ([`TepConfig::from_saved_toml`]).
+    pub f_output_scale: f64,
+    /// `λ` of AN's behaviour-cloning term: `L_AN = mean F(s_t, s', AN(s_t, s')) / c + λ · mean
+    /// ‖AN(s_t, s') − a_t‖²` (0 = Eq. 14; `c` = [`TepConfig::f_output_scale`], so λ weighs one
+    /// step of F against one unit of squared action error). It keeps AN on the data's actions,
+    /// where F was trained: minimising a learned F alone finds actions F has never seen.
+    pub an_bc_weight: f64,
+    /// Fraction of hindsight goals drawn within [`TepConfig::near_goal_steps`] steps of `s_t`
+    /// (the rest uniformly over the later states of the trajectory; 0 = uniform as the paper).
+    pub near_goal_fraction: f64,
+    /// Horizon of the near hindsight goals, in steps (≥ 1).
+    pub near_goal_steps: u32,
+}
+
+/// Target `z` of the hindsight term `(F(s_t, s', a_t) − z)²` of F's loss; `k` is the known step
+/// gap from `s_t` to `s'` along the trajectory ([`TepBatch::gaps`]), an upper bound of the true
+/// distance (the trajectory is one way to get there).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FTarget {
+    /// `z = 1 + F̃(s_{t+1}, s', ÃN(s_{t+1}, s'))` (paper Eq. 11): undiscounted and bootstrapped;
+    /// with τ = 0.005 it grows by about one step per ~200 updates.
+    Bootstrap,
+    /// `z = min(k, 1 + F̃(s_{t+1}, s', ÃN(s_{t+1}, s')))`: the bootstrap bounded by the known gap
+    /// (never above what the data shows; below it where the planner knows a shorter way).
+    #[default]
+    GapBounded,
+    /// `z = k`: Monte-Carlo regression on the hindsight gap (no target networks).
+    Gap,
+}
+
+/// Weighting of the hindsight term of F's loss.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GoalLoss {
+    /// `(F − z)²` (paper Eq. 11): far goals dominate (an error of 10 % at 300 steps counts 900
+    /// times one of 10 % at 10 steps).
+    Squared,
+    /// `(F − z)² / z`: errors count relative to the distance, so near and far goals are learned
+    /// to a similar relative accuracy.
+    #[default]
+    Relative,
 }
 
 impl Default for TepConfig {
@@ -97,6 +155,37 @@ impl Default for TepConfig {
             buffer_capacity: 6_000_000,
             threads: 1,
             seed: 0,
+            f_target: FTarget::GapBounded,
+            goal_loss: GoalLoss::Relative,
+            f_output_scale: 100.0,
+            an_bc_weight: 1.0,
+            near_goal_fraction: 0.5,
+            near_goal_steps: 20,
+        }
+    }
+}
+
+impl TepConfig {
+    /// The paper's planner exactly (Eq. 11–14): bootstrapped target, squared loss, unit output
+    /// scale, no behaviour cloning, uniform hindsight goals.
+    pub fn paper() -> Self {
+        Self {
+            f_target: FTarget::Bootstrap,
+            goal_loss: GoalLoss::Squared,
+            f_output_scale: 1.0,
+            an_bc_weight: 0.0,
+            near_goal_fraction: 0.0,
+            ..Self::default()
+        }
+    }
+
+    /// The hindsight sampling of [`TepBuffer::sample_into_with`].
+    ///
+    /// [`TepBuffer::sample_into_with`]: crate::TepBuffer::sample_into_with
+    pub fn goal_sampling(&self) -> GoalSampling {
+        GoalSampling {
+            near_fraction: self.near_goal_fraction,
+            near_steps: self.near_goal_steps,
         }
     }
 }
@@ -106,6 +195,19 @@ impl TepConfig {
     pub fn from_toml(text: &str) -> Result<Self, SacError> {
         let cfg: Self = toml::from_str(text).map_err(|e| SacError::Config(e.to_string()))?;
         cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// Parses the config recorded with a planner (`terl.tep_config` in a planner file's
+    /// metadata). Keys missing there take the values of the version that wrote the file, where
+    /// they change what the weights mean: `f_output_scale` = 1 (files before it existed).
+    pub fn from_saved_toml(text: &str) -> Result<Self, SacError> {
+        let table: toml::Table =
+            toml::from_str(text).map_err(|e| SacError::Config(e.to_string()))?;
+        let mut cfg = Self::from_toml(text)?;
+        if !table.contains_key("f_output_scale") {
+            cfg.f_output_scale = 1.0;
+        }
         Ok(cfg)
     }
 
@@ -128,6 +230,24 @@ impl TepConfig {
         }
         if self.buffer_capacity == 0 || self.threads == 0 {
             return bad("tep buffer_capacity and threads must be positive".into());
+        }
+        if !(self.f_output_scale.is_finite() && self.f_output_scale > 0.0) {
+            return bad(format!(
+                "tep f_output_scale {} must be finite and > 0",
+                self.f_output_scale
+            ));
+        }
+        if !(self.an_bc_weight.is_finite() && self.an_bc_weight >= 0.0) {
+            return bad(format!(
+                "tep an_bc_weight {} must be finite and ≥ 0",
+                self.an_bc_weight
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.near_goal_fraction) || self.near_goal_steps == 0 {
+            return bad(format!(
+                "tep near_goal_fraction {} must be in [0, 1] and near_goal_steps {} ≥ 1",
+                self.near_goal_fraction, self.near_goal_steps
+            ));
         }
         Ok(())
     }
@@ -180,8 +300,12 @@ pub struct TepStats {
     pub goal_loss: f64,
     /// Mean `(F(s_t,s_{t+1},a_t) − F(s_{t+1},s_t,−a_t))²`.
     pub symmetry_loss: f64,
-    /// AN loss: mean `F(s_t, s', AN(s_t, s'))`.
+    /// AN loss's planning part: mean `F(s_t, s', AN(s_t, s'))` in steps (divided by the output
+    /// scale in the optimised loss, see [`TepConfig::an_bc_weight`]).
     pub an_loss: f64,
+    /// AN's behaviour-cloning term: mean `‖AN(s_t, s') − a_t‖²` (optimised with weight
+    /// [`TepConfig::an_bc_weight`]).
+    pub an_bc_loss: f64,
     /// Mean `F(s_t, s', a_t)` (predicted steps to the hindsight goal; ≥ 0).
     pub goal_distance_mean: f64,
     /// Mean bootstrapped target `z = 1 + F̃(s_{t+1}, s', ÃN(s_{t+1}, s'))` (≥ 1, see the module
@@ -359,15 +483,12 @@ impl<T: Float> Tep<T> {
         r
     }
 
-    fn compute_gradients_inner(&mut self, batch: &TepBatch) -> Result<TepStats, SacError> {
+    /// Forward pass of the target chain `ÃN(s_{t+1}, s')` → `F̃(s_{t+1}, s', ÃN(..))` into the
+    /// target caches (raw softplus outputs, before the output scale).
+    fn target_chain(&mut self, batch: &TepBatch, par: Par) {
         let (b, od, ad) = (batch.len(), self.config.obs_dim, self.config.act_dim);
         let (fw, aw) = (self.config.f_input(), self.config.an_input());
-        let par: Par = par_for_threads(self.config.threads);
-        let inv_b = T::of(1.0 / b as f64);
-        let two = T::of(2.0);
         let row = |i: usize| i * od..(i + 1) * od;
-
-        // Target chain: ÃN(s_{t+1}, s') then F̃(s_{t+1}, s', ÃN(..)).
         let tin = self.an_target_cache.input_mut(0..b);
         for i in 0..b {
             let r = &mut tin[i * aw..(i + 1) * aw];
@@ -384,6 +505,27 @@ impl<T: Float> Tep<T> {
             r[2 * od..].copy_from_slice(&ta[i * ad..(i + 1) * ad]);
         }
         self.f_target.forward(&mut self.f_target_cache, b, par);
+    }
+
+    fn compute_gradients_inner(&mut self, batch: &TepBatch) -> Result<TepStats, SacError> {
+        let (b, od, ad) = (batch.len(), self.config.obs_dim, self.config.act_dim);
+        let (fw, aw) = (self.config.f_input(), self.config.an_input());
+        let par: Par = par_for_threads(self.config.threads);
+        let inv_b = T::of(1.0 / b as f64);
+        let two = T::of(2.0);
+        let one = T::of(1.0);
+        let c = T::of(self.config.f_output_scale);
+        let bc = T::of(self.config.an_bc_weight);
+        let (target_mode, relative) = (
+            self.config.f_target,
+            self.config.goal_loss == GoalLoss::Relative,
+        );
+        let row = |i: usize| i * od..(i + 1) * od;
+
+        // Target chain (not needed for `z = k`).
+        if target_mode != FTarget::Gap {
+            self.target_chain(batch, par);
+        }
 
         // AN(s_t, s').
         let ain = self.an_cache.input_mut(0..b);
@@ -425,7 +567,7 @@ impl<T: Float> Tep<T> {
         }
         self.f.forward(&mut self.f_cache, 4 * b, par);
 
-        // Losses and their gradients w.r.t. F's outputs.
+        // Losses and their gradients w.r.t. F's raw outputs y (F = c·y).
         let mut st = TepStats {
             target_min: f64::INFINITY,
             ..TepStats::default()
@@ -434,21 +576,28 @@ impl<T: Float> Tep<T> {
         let (y, dy) = self.f_cache.output_and_grad_mut(0..4 * b);
         let (mut l1, mut l2, mut l3, mut l4) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
         for i in 0..b {
-            let (y1, y2, y3, y4) = (y[i], y[b + i], y[2 * b + i], y[3 * b + i]);
-            let z = T::of(1.0) + f_next[i];
-            let e1 = y1 - T::of(1.0);
+            let (y1, y2, y3, y4) = (c * y[i], c * y[b + i], c * y[2 * b + i], c * y[3 * b + i]);
+            let gap = T::of(f64::from(batch.gaps[i]));
+            let z = match target_mode {
+                FTarget::Bootstrap => one + c * f_next[i],
+                FTarget::GapBounded => gap.min(one + c * f_next[i]),
+                FTarget::Gap => gap,
+            };
+            let w = if relative { one / z.max(one) } else { one };
+            let e1 = y1 - one;
             let e2 = y2 - z;
             let e3 = y1 - y3;
             l1 += (e1 * e1).f64();
-            l2 += (e2 * e2).f64();
+            l2 += (w * e2 * e2).f64();
             l3 += (e3 * e3).f64();
             l4 += y4.f64();
             st.goal_distance_mean += y2.f64();
             st.target_mean += z.f64();
             st.target_min = st.target_min.min(z.f64());
-            dy[i] = two * (e1 + e3) * inv_b;
-            dy[b + i] = two * e2 * inv_b;
-            dy[2 * b + i] = -two * e3 * inv_b;
+            dy[i] = c * two * (e1 + e3) * inv_b;
+            dy[b + i] = c * two * w * e2 * inv_b;
+            dy[2 * b + i] = -c * two * e3 * inv_b;
+            // L_AN's F part is mean F / c = mean y.
             dy[3 * b + i] = inv_b;
         }
         let nb = b as f64;
@@ -483,10 +632,18 @@ impl<T: Float> Tep<T> {
             par,
         );
         let gin = self.f_cache.grad_input(3 * b..4 * b);
-        let dan = self.an_cache.grad_output_mut(0..b);
+        let (an_out, dan) = self.an_cache.output_and_grad_mut(0..b);
+        let mut bc_sum = 0.0f64;
         for i in 0..b {
-            dan[i * ad..(i + 1) * ad].copy_from_slice(&gin[i * fw + 2 * od..(i + 1) * fw]);
+            let d = &mut dan[i * ad..(i + 1) * ad];
+            d.copy_from_slice(&gin[i * fw + 2 * od..(i + 1) * fw]);
+            for (k, dk) in d.iter_mut().enumerate() {
+                let e = an_out[i * ad + k] - T::of_f32(batch.actions[i * ad + k]);
+                bc_sum += (e * e).f64();
+                *dk += two * bc * e * inv_b;
+            }
         }
+        st.an_bc_loss = bc_sum / nb;
         self.an.backward(
             &mut self.an_cache,
             0..b,
@@ -599,6 +756,41 @@ impl<T: Float> Tep<T> {
         Ok(())
     }
 
+    /// Loads a planner file (`checkpoints/planner.safetensors`, `terl planner train --out`): F and
+    /// AN, and their targets when the file has them (else copies of F and AN). Optimiser state
+    /// and counters start afresh. Shapes must match this planner's config; on error nothing is
+    /// changed.
+    pub fn import_planner(&mut self, file: &TensorFile) -> Result<(), SacError> {
+        let (mut f, mut an) = (self.f.clone(), self.an.clone());
+        f.import(names::TEP_F, file)?;
+        an.import(names::TEP_AN, file)?;
+        let has_targets = file
+            .tensors
+            .keys()
+            .any(|k| k.starts_with(&format!("{}.", names::TEP_F_TARGET)));
+        let (mut f_target, mut an_target) = (f.clone(), an.clone());
+        if has_targets {
+            f_target.import(names::TEP_F_TARGET, file)?;
+            an_target.import(names::TEP_AN_TARGET, file)?;
+        }
+        self.f = f;
+        self.an = an;
+        self.f_target = f_target;
+        self.an_target = an_target;
+        Ok(())
+    }
+
+    /// F, AN and both targets as named tensors (`tep_f.*`, `tep_an.*`, `tep_f_target.*`,
+    /// `tep_an_target.*`): the tensors of a planner file (see [`Tep::import_planner`]).
+    pub fn planner_file_tensors(&self) -> Vec<Tensor> {
+        let mut t = Vec::new();
+        self.f.export(names::TEP_F, &mut t);
+        self.an.export(names::TEP_AN, &mut t);
+        self.f_target.export(names::TEP_F_TARGET, &mut t);
+        self.an_target.export(names::TEP_AN_TARGET, &mut t);
+        t
+    }
+
     /// An inference planner with these weights for up to `max_rows` rows per call.
     pub fn planner(&self, max_rows: usize) -> Planner {
         let mut p = Planner::new(&self.config, max_rows);
@@ -623,6 +815,8 @@ pub struct Planner {
     /// Input rows `[s, g, a]` of F and `[s, g]` of AN.
     f_input: Vec<f32>,
     an_input: Vec<f32>,
+    /// F's output scale ([`TepConfig::f_output_scale`]): `F = c · softplus(y)`.
+    f_scale: f32,
     version: u64,
 }
 
@@ -642,6 +836,7 @@ impl Planner {
             an_input: vec![0.0; max_rows * config.an_input()],
             f,
             an,
+            f_scale: config.f_output_scale as f32,
             version: 0,
         }
     }
@@ -690,7 +885,10 @@ impl Planner {
             r[od..2 * od].copy_from_slice(&goals[i * od..(i + 1) * od]);
             r[2 * od..].copy_from_slice(&actions[i * ad..(i + 1) * ad]);
         }
-        out.copy_from_slice(self.f_small.forward(x, n));
+        let c = self.f_scale;
+        for (o, &y) in out.iter_mut().zip(self.f_small.forward(x, n)) {
+            *o = c * y;
+        }
     }
 
     /// `out` rows = `AN(obs_i, goal_i)` (`out.len() / act_dim` rows).

@@ -18,6 +18,23 @@
 use crate::error::SacError;
 use rand::Rng;
 
+/// How hindsight goals are drawn ([`TepBuffer::sample_into_with`]): with probability
+/// `near_fraction` within `near_steps` transitions after `s_t` (never past its segment), otherwise
+/// uniformly over the later transitions of the segment.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GoalSampling {
+    pub near_fraction: f64,
+    pub near_steps: u32,
+}
+
+impl GoalSampling {
+    /// Uniform over the later states of the trajectory (the paper's hindsight goals).
+    pub const UNIFORM: Self = Self {
+        near_fraction: 0.0,
+        near_steps: 1,
+    };
+}
+
 /// A minibatch for [`crate::tep::Tep::update`]: rows `(s_t, a_t, s_{t+1}, s')`, row-major `f32`.
 #[derive(Clone, Debug)]
 pub struct TepBatch {
@@ -219,12 +236,25 @@ impl TepBuffer {
     }
 
     /// Fills `batch` with `rows` hindsight rows drawn uniformly over transitions that have a
-    /// later transition in their segment. Fails if none is found within `64·rows` draws.
+    /// later transition in their segment, goals uniform over the later ones
+    /// ([`GoalSampling::UNIFORM`]). Fails if none is found within `64·rows` draws.
     pub fn sample_into(
         &self,
         rows: usize,
         rng: &mut impl Rng,
         batch: &mut TepBatch,
+    ) -> Result<(), SacError> {
+        self.sample_into_with(rows, rng, batch, GoalSampling::UNIFORM)
+    }
+
+    /// [`TepBuffer::sample_into`] with the goals drawn as `sampling` says (one more uniform draw
+    /// per row when `sampling.near_fraction > 0`).
+    pub fn sample_into_with(
+        &self,
+        rows: usize,
+        rng: &mut impl Rng,
+        batch: &mut TepBatch,
+        sampling: GoalSampling,
     ) -> Result<(), SacError> {
         assert_eq!(
             (batch.obs_dim, batch.act_dim),
@@ -253,7 +283,13 @@ impl TepBuffer {
             if end <= qi {
                 continue;
             }
-            let qj = rng.gen_range(qi + 1..=end);
+            let near = sampling.near_fraction > 0.0 && rng.gen::<f64>() < sampling.near_fraction;
+            let last = if near {
+                end.min(qi + u64::from(sampling.near_steps.max(1)))
+            } else {
+                end
+            };
+            let qj = rng.gen_range(qi + 1..=last);
             let j = (qj % cap) as usize;
             let gap = self.steps[j] + 1 - self.steps[i];
             batch.push(

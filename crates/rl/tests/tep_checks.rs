@@ -3,6 +3,7 @@
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use terl_rl::tep::{FTarget, GoalLoss};
 use terl_rl::{SacError, Tep, TepBatch, TepBuffer, TepConfig};
 
 fn small_config(batch: usize) -> TepConfig {
@@ -14,8 +15,34 @@ fn small_config(batch: usize) -> TepConfig {
         batch_size: batch,
         tau: 0.1,
         seed: 11,
-        ..Default::default()
+        ..TepConfig::paper()
     }
+}
+
+/// [`small_config`] with each of this implementation's means switched on (the defaults), and
+/// with the Monte-Carlo target.
+fn variants(batch: usize) -> Vec<(&'static str, TepConfig)> {
+    let d = TepConfig::default();
+    let means = TepConfig {
+        f_target: d.f_target,
+        goal_loss: d.goal_loss,
+        f_output_scale: 7.0,
+        an_bc_weight: 0.8,
+        near_goal_fraction: d.near_goal_fraction,
+        near_goal_steps: d.near_goal_steps,
+        ..small_config(batch)
+    };
+    vec![
+        ("paper", small_config(batch)),
+        ("gap_bounded + relative + scale + bc", means.clone()),
+        (
+            "gap",
+            TepConfig {
+                f_target: FTarget::Gap,
+                ..means
+            },
+        ),
+    ]
 }
 
 fn random_batch(rows: usize, cfg: &TepConfig, seed: u64) -> TepBatch {
@@ -84,76 +111,96 @@ fn detuned(cfg: TepConfig, batch: &TepBatch) -> Tep<f64> {
 
 #[test]
 fn f_and_an_loss_gradients_match_finite_differences() {
-    let cfg = small_config(7);
-    let batch = random_batch(7, &cfg, 3);
-    let mut tep = detuned(cfg, &batch);
-    tep.compute_gradients(&batch).unwrap();
-    let (gf, gan) = tep.gradients();
-    let (gf, gan) = (gf.to_vec(), gan.to_vec());
-    assert!(gf.iter().any(|v| v.abs() > 1e-6) && gan.iter().any(|v| v.abs() > 1e-6));
+    for (name, cfg) in variants(7) {
+        let batch = random_batch(7, &cfg, 3);
+        let (c, bc) = (cfg.f_output_scale, cfg.an_bc_weight);
+        let mut tep = detuned(cfg, &batch);
+        tep.compute_gradients(&batch).unwrap();
+        let (gf, gan) = tep.gradients();
+        let (gf, gan) = (gf.to_vec(), gan.to_vec());
+        assert!(gf.iter().any(|v| v.abs() > 1e-6) && gan.iter().any(|v| v.abs() > 1e-6));
 
-    let num_f = numeric_grad(&mut tep, &batch, false, |s| s.f_loss);
-    let ef = max_rel_err(&gf, &num_f);
-    let num_an = numeric_grad(&mut tep, &batch, true, |s| s.an_loss);
-    let ean = max_rel_err(&gan, &num_an);
-    println!("gradient check: F loss w.r.t. F max rel err {ef:.3e}; AN loss w.r.t. AN {ean:.3e}");
-    assert!(ef < 1e-4, "F loss gradient relative error {ef}");
-    assert!(ean < 1e-4, "AN loss gradient relative error {ean}");
+        let num_f = numeric_grad(&mut tep, &batch, false, |s| s.f_loss);
+        let ef = max_rel_err(&gf, &num_f);
+        // The optimised AN loss: mean F / c + λ · mean ‖AN − a‖².
+        let num_an = numeric_grad(&mut tep, &batch, true, |s| {
+            s.an_loss / c + bc * s.an_bc_loss
+        });
+        let ean = max_rel_err(&gan, &num_an);
+        println!("{name}: F loss w.r.t. F max rel err {ef:.3e}; AN loss w.r.t. AN {ean:.3e}");
+        assert!(ef < 1e-4, "{name}: F loss gradient relative error {ef}");
+        assert!(ean < 1e-4, "{name}: AN loss gradient relative error {ean}");
+    }
 }
 
-/// The stacked evaluation gives the same losses as evaluating each term through the planner.
+/// The stacked evaluation gives the same losses as evaluating each term through the planner
+/// (Eq. 13 with the plus, Eq. 14; and the same with each of the means of [`variants`]).
 #[test]
 fn losses_equal_a_direct_evaluation_of_eq_13_and_14() {
-    let cfg = small_config(5);
-    let batch = random_batch(5, &cfg, 8);
-    let mut tep: Tep<f32> = Tep::new(cfg.clone()).unwrap();
-    for _ in 0..4 {
-        tep.update(&batch).unwrap();
+    for (name, cfg) in variants(5) {
+        let batch = random_batch(5, &cfg, 8);
+        let mut tep: Tep<f32> = Tep::new(cfg.clone()).unwrap();
+        for _ in 0..4 {
+            tep.update(&batch).unwrap();
+        }
+        let stats = tep.compute_gradients(&batch).unwrap();
+        let (od, ad) = (cfg.obs_dim, cfg.act_dim);
+        let mut online = tep.planner(8);
+        // Target planner: the target weights.
+        let mut target = tep.planner(8);
+        let tf: Vec<f32> = tep.f_target_net().params.clone();
+        let ta: Vec<f32> = tep.an_target_net().params.clone();
+        target.set_params(&tf, &ta, 0).unwrap();
+        let (mut lf, mut lan, mut lbc) = (0.0f64, 0.0f64, 0.0f64);
+        for i in 0..batch.len() {
+            let s = &batch.obs[i * od..(i + 1) * od];
+            let s1 = &batch.next_obs[i * od..(i + 1) * od];
+            let g = &batch.goals[i * od..(i + 1) * od];
+            let a = &batch.actions[i * ad..(i + 1) * ad];
+            let k = f64::from(batch.gaps[i]);
+            let neg: Vec<f32> = a.iter().map(|v| -v).collect();
+            let mut out = [0.0f32];
+            let mut f = |p: &mut terl_rl::Planner, x: &[f32], y: &[f32], u: &[f32]| {
+                p.reach(x, y, u, &mut out);
+                out[0] as f64
+            };
+            let mut ta = vec![0.0f32; ad];
+            target.actions(s1, g, &mut ta);
+            let boot = 1.0 + f(&mut target, s1, g, &ta);
+            let z = match cfg.f_target {
+                FTarget::Bootstrap => boot,
+                FTarget::GapBounded => k.min(boot),
+                FTarget::Gap => k,
+            };
+            let w = match cfg.goal_loss {
+                GoalLoss::Squared => 1.0,
+                GoalLoss::Relative => 1.0 / z.max(1.0),
+            };
+            let y1 = f(&mut online, s, s1, a);
+            let y2 = f(&mut online, s, g, a);
+            let y3 = f(&mut online, s1, s, &neg);
+            lf += (y1 - 1.0).powi(2) + w * (y2 - z).powi(2) + (y1 - y3).powi(2);
+            let mut an = vec![0.0f32; ad];
+            online.actions(s, g, &mut an);
+            lan += f(&mut online, s, g, &an);
+            lbc += an
+                .iter()
+                .zip(a)
+                .map(|(x, y)| f64::from(x - y).powi(2))
+                .sum::<f64>();
+        }
+        let n = batch.len() as f64;
+        for (what, got, want) in [
+            ("F loss", stats.f_loss, lf / n),
+            ("AN loss", stats.an_loss, lan / n),
+            ("AN behaviour cloning", stats.an_bc_loss, lbc / n),
+        ] {
+            assert!(
+                (got - want).abs() < 1e-4 * (1.0 + want.abs()),
+                "{name}: {what} {got} vs {want}"
+            );
+        }
     }
-    let stats = tep.compute_gradients(&batch).unwrap();
-    let (od, ad) = (cfg.obs_dim, cfg.act_dim);
-    let mut online = tep.planner(8);
-    // Target planner: the target weights.
-    let mut target = tep.planner(8);
-    let tf: Vec<f32> = tep.f_target_net().params.clone();
-    let ta: Vec<f32> = tep.an_target_net().params.clone();
-    target.set_params(&tf, &ta, 0).unwrap();
-    let (mut lf, mut lan) = (0.0f64, 0.0f64);
-    for i in 0..batch.len() {
-        let s = &batch.obs[i * od..(i + 1) * od];
-        let s1 = &batch.next_obs[i * od..(i + 1) * od];
-        let g = &batch.goals[i * od..(i + 1) * od];
-        let a = &batch.actions[i * ad..(i + 1) * ad];
-        let neg: Vec<f32> = a.iter().map(|v| -v).collect();
-        let mut out = [0.0f32];
-        let mut f = |p: &mut terl_rl::Planner, x: &[f32], y: &[f32], u: &[f32]| {
-            p.reach(x, y, u, &mut out);
-            out[0] as f64
-        };
-        let mut ta = vec![0.0f32; ad];
-        target.actions(s1, g, &mut ta);
-        let z = 1.0 + f(&mut target, s1, g, &ta);
-        let y1 = f(&mut online, s, s1, a);
-        let y2 = f(&mut online, s, g, a);
-        let y3 = f(&mut online, s1, s, &neg);
-        lf += (y1 - 1.0).powi(2) + (y2 - z).powi(2) + (y1 - y3).powi(2);
-        let mut an = vec![0.0f32; ad];
-        online.actions(s, g, &mut an);
-        lan += f(&mut online, s, g, &an);
-    }
-    let n = batch.len() as f64;
-    assert!(
-        (stats.f_loss - lf / n).abs() < 1e-4 * (1.0 + lf.abs()),
-        "{} vs {}",
-        stats.f_loss,
-        lf / n
-    );
-    assert!(
-        (stats.an_loss - lan / n).abs() < 1e-4 * (1.0 + lan.abs()),
-        "{} vs {}",
-        stats.an_loss,
-        lan / n
-    );
 }
 
 #[test]

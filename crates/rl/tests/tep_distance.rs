@@ -83,7 +83,7 @@ fn trained_f_predicts_held_out_step_distances_within_ten_percent() {
         tau: 0.01,
         batch_size: 512,
         seed: 3,
-        ..Default::default()
+        ..TepConfig::paper()
     };
     let mut rng = ChaCha8Rng::seed_from_u64(17);
     let mut buf = TepBuffer::new(200_000, 2, 2);

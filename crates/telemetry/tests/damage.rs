@@ -98,6 +98,8 @@ fn sample(i: usize) -> TepSample {
             .is_multiple_of(3)
             .then(|| std::array::from_fn(|k| v(k + 2))),
         action: std::array::from_fn(|k| v(k) * 0.5),
+        success: i % 5 == 4,
+        variation: i.is_multiple_of(2).then_some((i % 50) as u32),
     }
 }
 

@@ -81,6 +81,8 @@ fn samples(n: usize) -> Vec<TepSample> {
                 next_obs,
                 goal_obs: (i % 2 == 0).then_some(goal),
                 action,
+                success: i % 7 == 6,
+                variation: (i % 3 == 0).then_some((i % 50) as u32),
             }
         })
         .collect()

@@ -24,6 +24,10 @@ pub struct TepSample {
     /// `None` when the sample was recorded without a goal state.
     pub goal_obs: Option<[f32; OBS_DIM]>,
     pub action: [f32; ACTION_DIM],
+    /// Meta-World's success flag after this step (`false` when not recorded).
+    pub success: bool,
+    /// Goal-variation index (0..50) of the trajectory, when the writer knew it.
+    pub variation: Option<u32>,
 }
 
 fn fixed<const N: usize>(field: &str, values: &[f32]) -> Result<[f32; N], Status> {
@@ -70,6 +74,8 @@ impl TryFrom<pb::TepSample> for TepSample {
                 Some(fixed("TepSample.goal_obs", &m.goal_obs)?)
             },
             action,
+            success: m.success,
+            variation: m.variation,
             task: m.task,
             trajectory_id: m.trajectory_id,
             step: m.step,
@@ -89,6 +95,8 @@ impl From<TepSample> for pb::TepSample {
             next_obs: d.next_obs.to_vec(),
             goal_obs: d.goal_obs.map(|g| g.to_vec()).unwrap_or_default(),
             action: d.action.to_vec(),
+            success: d.success,
+            variation: d.variation,
         }
     }
 }
@@ -105,6 +113,8 @@ impl From<&TepSample> for pb::TepSample {
             next_obs: d.next_obs.to_vec(),
             goal_obs: d.goal_obs.map(|g| g.to_vec()).unwrap_or_default(),
             action: d.action.to_vec(),
+            success: d.success,
+            variation: d.variation,
         }
     }
 }
@@ -223,6 +233,8 @@ mod tests {
             next_obs: [0.2; OBS_DIM],
             goal_obs: None,
             action: [0.5, -0.5, 1.0, -1.0],
+            success: false,
+            variation: None,
         }
     }
 

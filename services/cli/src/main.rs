@@ -8,6 +8,7 @@ mod cluster;
 mod env;
 mod eval;
 mod launcher;
+mod planner;
 mod report;
 mod results;
 mod router;
@@ -50,6 +51,10 @@ enum Command {
     /// per-task breakdown and learning curves (results.md, PNG/SVG), and each cluster run's
     /// training-episode table (report.md, learning-curves.svg).
     Report(report::ReportArgs),
+    /// The planner offline: datasets from scripted policies, training, and evaluation against
+    /// true step gaps and in the real environment.
+    #[command(subcommand)]
+    Planner(planner::PlannerCommand),
     /// Zenoh's router, for clusters whose processes run with `[cluster.zenoh] mode = "client"`
     /// (e.g. the Kubernetes manifests in deploy/k8s); stops on SIGINT/SIGTERM.
     ZenohRouter(router::RouterArgs),
@@ -76,6 +81,7 @@ fn run(cli: Cli) -> Result<std::process::ExitCode> {
         Command::Status(a) => status::run(a),
         Command::Cluster(c) => cluster::run(c),
         Command::Report(a) => report::run(a),
+        Command::Planner(c) => planner::run(c),
         Command::ZenohRouter(a) => router::run(a),
     }
 }

@@ -93,6 +93,8 @@ fn terl_services_refuse_bad_datasets_configs_and_missing_addresses() {
             next_obs: [0.0; 39],
             goal_obs: None,
             action: [0.0; 4],
+            success: false,
+            variation: None,
         },
         1,
     )

@@ -128,6 +128,8 @@ mod tests {
                     next_obs: [v + 0.01; terl_transport::OBS_DIM],
                     goal_obs: None,
                     action: [0.1; terl_transport::ACTION_DIM],
+                    success: false,
+                    variation: None,
                 },
                 u64::from(step),
             )
@@ -173,6 +175,8 @@ mod tests {
             next_obs: [0.5; terl_transport::OBS_DIM],
             goal_obs: None,
             action: [0.1; terl_transport::ACTION_DIM],
+            success: false,
+            variation: None,
         };
         // Two trajectories of 25 steps, flushed apart: one chunk each (after the schema chunk).
         for trajectory_id in [3, 4] {

@@ -160,7 +160,11 @@ impl PlannerTrainer {
             .min(MAX_TEP_UPDATES_PER_ROUND);
         let mut ran = 0;
         for _ in 0..due {
-            if let Err(e) = self.buffer.sample_into(bs, &mut self.rng, &mut self.batch) {
+            let sampling = self.tep.config().goal_sampling();
+            if let Err(e) =
+                self.buffer
+                    .sample_into_with(bs, &mut self.rng, &mut self.batch, sampling)
+            {
                 // Only trajectories of one selected step each: wait for more data.
                 tracing::debug!("no TEP minibatch yet: {e}");
                 break;

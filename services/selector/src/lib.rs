@@ -249,6 +249,8 @@ impl Selecting {
                 next_obs: s.next_obs,
                 goal_obs: None,
                 action: s.action,
+                success: false,
+                variation: None,
             };
             self.dataset.write(&sample, log_time)?;
         }

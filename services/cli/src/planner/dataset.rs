@@ -1,0 +1,299 @@
+//! `terl planner dataset --tasks SET --episodes-per-task N --policy scripted [--noise σ]
+//! [--variations RANGE] --out D.mcap`: trajectories in the TEP dataset format (the selector's
+//! MCAP, `terl.v1.TepSample`), from Meta-World's scripted policies (`crates/sim`'s
+//! `metaworld::policies`, ported from `metaworld/policies/*.py`) with Gaussian action noise, as
+//! Meta-World's own policy tests run them (`action + N(0, σ²)`, clipped to [−1, 1]).
+//!
+//! Episode `e` of a task starts from goal variation `variations[e mod len]` of the task's 50
+//! (`--variation-seed`, the same list `terl eval` and the cluster use), so a training set and a
+//! held-out set are two disjoint ranges. Each sample records the step's success flag and the
+//! variation; an episode ends `--after-success` steps after its first success (default: at it)
+//! or at Meta-World's 500-step limit. Episodes that never succeed are dropped unless
+//! `--keep-failures` (a planner dataset is the paper's "selected successful trajectories").
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, Result};
+use clap::Args;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
+use terl_sim::metaworld::{policies, NUM_VARIATIONS};
+use terl_sim::{Env, ACTION_DIM, OBS_DIM};
+use terl_telemetry::TepDatasetWriter;
+use terl_wire::TepSample;
+
+#[derive(Debug, Args)]
+pub struct DatasetArgs {
+    /// Tasks: a task set (mt10, mt1-ind, …; see `terl env list`) or comma-separated names.
+    #[arg(long)]
+    pub tasks: String,
+    /// Episodes per task.
+    #[arg(long, default_value_t = 200)]
+    pub episodes_per_task: usize,
+    /// Where the actions come from: `scripted` (Meta-World's scripted policies).
+    #[arg(long, default_value = "scripted")]
+    pub policy: String,
+    /// Standard deviation of the Gaussian noise added to each action component.
+    #[arg(long, default_value_t = 0.1)]
+    pub noise: f64,
+    /// Goal variations to start from: a range `A..B` (B excluded) or a comma-separated list of
+    /// indices in 0..50.
+    #[arg(long, default_value = "0..50")]
+    pub variations: String,
+    /// Seed of the goal-variation list (as `terl eval --seed` and the run file's variation_seed).
+    #[arg(long, default_value_t = 0)]
+    pub variation_seed: u64,
+    /// Steps kept after the first success.
+    #[arg(long, default_value_t = 0)]
+    pub after_success: u32,
+    /// Keep episodes that never succeed.
+    #[arg(long)]
+    pub keep_failures: bool,
+    /// Seed of the action noise.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// The dataset to write (must not exist).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Print the summary as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Parses `A..B` or `i,j,k` into variation indices (each below 50, no repeats).
+pub fn parse_variations(spec: &str) -> Result<Vec<usize>> {
+    let spec = spec.trim();
+    let out: Vec<usize> = if let Some((a, b)) = spec.split_once("..") {
+        let a: usize = a
+            .trim()
+            .parse()
+            .with_context(|| format!("variations {spec:?}"))?;
+        let b: usize = b
+            .trim()
+            .parse()
+            .with_context(|| format!("variations {spec:?}"))?;
+        anyhow::ensure!(a < b, "variations {spec:?}: an empty range");
+        (a..b).collect()
+    } else {
+        spec.split(',')
+            .map(|p| {
+                p.trim()
+                    .parse::<usize>()
+                    .with_context(|| format!("variations {spec:?}: {p:?} is not an index"))
+            })
+            .collect::<Result<_>>()?
+    };
+    anyhow::ensure!(!out.is_empty(), "variations {spec:?}: none given");
+    if let Some(bad) = out.iter().find(|&&v| v >= NUM_VARIATIONS) {
+        anyhow::bail!("variation {bad} is not in 0..{NUM_VARIATIONS}");
+    }
+    let mut sorted = out.clone();
+    sorted.sort_unstable();
+    sorted.dedup();
+    anyhow::ensure!(
+        sorted.len() == out.len(),
+        "variations {spec:?}: an index twice"
+    );
+    Ok(out)
+}
+
+/// What one task contributed.
+#[derive(Debug, Serialize)]
+struct TaskSummary {
+    task: String,
+    episodes: usize,
+    successes: usize,
+    kept: usize,
+    transitions: usize,
+    /// Mean steps to the first success over the successful episodes.
+    mean_steps_to_success: f64,
+}
+
+/// One episode's samples and whether it succeeded.
+fn episode(
+    env: &mut Env,
+    policy: policies::Policy,
+    variation_seed: u64,
+    variation: usize,
+    noise: f64,
+    after_success: u32,
+    rng: &mut ChaCha8Rng,
+    trajectory_id: u64,
+) -> Result<(Vec<TepSample>, Option<u32>)> {
+    let mut obs = env.reset_variation(variation_seed, variation)?;
+    let mut z = [0.0f64; ACTION_DIM];
+    let mut samples = Vec::new();
+    let mut first_success = None;
+    for step in 0u32.. {
+        let mut action = policy(&obs);
+        terl_nn::gaussian::fill_standard_normal(rng, &mut z);
+        for (a, n) in action.iter_mut().zip(&z) {
+            *a = (f64::from(*a) + noise * n).clamp(-1.0, 1.0) as f32;
+        }
+        let s = env.step(&action)?;
+        samples.push(TepSample {
+            task: env.name().to_string(),
+            trajectory_id,
+            step,
+            priority: 0.0,
+            obs: obs.map(|v| v as f32),
+            next_obs: s.obs.map(|v| v as f32),
+            goal_obs: None,
+            action,
+            success: s.success,
+            variation: Some(variation as u32),
+        });
+        obs = s.obs;
+        if s.success && first_success.is_none() {
+            first_success = Some(step);
+        }
+        let done_after_success = first_success.is_some_and(|f| step >= f + after_success);
+        if s.truncated || s.unstable || done_after_success {
+            break;
+        }
+    }
+    Ok((samples, first_success))
+}
+
+pub fn run(args: DatasetArgs) -> Result<ExitCode> {
+    anyhow::ensure!(
+        args.policy == "scripted",
+        "--policy {:?}: only `scripted` is supported (a checkpoint's policy gives its own \
+         datasets through the cluster's selector: runs/<id>/tep-dataset.mcap)",
+        args.policy
+    );
+    anyhow::ensure!(
+        args.noise.is_finite() && args.noise >= 0.0,
+        "--noise must be finite and ≥ 0"
+    );
+    anyhow::ensure!(
+        args.episodes_per_task > 0,
+        "--episodes-per-task must be ≥ 1"
+    );
+    let tasks = terl_runtime::resolve_tasks(&args.tasks)?;
+    let variations = parse_variations(&args.variations)?;
+    let mut policies_of = Vec::new();
+    for t in &tasks {
+        policies_of.push(policies::policy(t)?);
+    }
+    let mut writer = TepDatasetWriter::create(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    // Tasks run on the available cores; samples are written in task order (deterministic).
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let results: Vec<Result<(TaskSummary, Vec<TepSample>)>> = std::thread::scope(|scope| {
+        let chunks: Vec<Vec<usize>> = (0..threads)
+            .map(|w| (w..tasks.len()).step_by(threads).collect())
+            .collect();
+        let handles: Vec<_> = chunks
+            .into_iter()
+            .map(|ids| {
+                let (tasks, policies_of, variations, args) =
+                    (&tasks, &policies_of, &variations, &args);
+                scope.spawn(move || {
+                    ids.into_iter()
+                        .map(|k| {
+                            task_samples(k, tasks[k], policies_of[k], variations, args)
+                                .map(|r| (k, r))
+                        })
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        let mut all: Vec<(usize, Result<(TaskSummary, Vec<TepSample>)>)> = Vec::new();
+        for h in handles {
+            for r in h.join().expect("dataset worker panicked") {
+                match r {
+                    Ok((k, v)) => all.push((k, Ok(v))),
+                    Err(e) => all.push((usize::MAX, Err(e))),
+                }
+            }
+        }
+        all.sort_by_key(|(k, _)| *k);
+        all.into_iter().map(|(_, r)| r).collect()
+    });
+    let log_time = terl_telemetry::unix_nanos();
+    let mut summaries = Vec::new();
+    for r in results {
+        let (summary, samples) = r?;
+        for s in &samples {
+            writer.write(s, log_time)?;
+        }
+        writer.flush()?;
+        summaries.push(summary);
+    }
+    let total = writer.finish()?;
+    if args.json {
+        println!(
+            "{}",
+            serde_json::json!({"out": args.out, "transitions": total, "tasks": summaries})
+        );
+    } else {
+        println!(
+            "{:<28} {:>8} {:>9} {:>6} {:>11} {:>14}",
+            "task", "episodes", "successes", "kept", "transitions", "steps to goal"
+        );
+        for s in &summaries {
+            println!(
+                "{:<28} {:>8} {:>9} {:>6} {:>11} {:>14.1}",
+                s.task, s.episodes, s.successes, s.kept, s.transitions, s.mean_steps_to_success
+            );
+        }
+        println!("{} transitions written to {}", total, args.out.display());
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// All episodes of task number `k`.
+fn task_samples(
+    k: usize,
+    task: &'static str,
+    policy: policies::Policy,
+    variations: &[usize],
+    args: &DatasetArgs,
+) -> Result<(TaskSummary, Vec<TepSample>)> {
+    let mut env = Env::new(task)?;
+    let mut rng = ChaCha8Rng::seed_from_u64(args.seed ^ ((k as u64 + 1) << 32));
+    let mut out = Vec::new();
+    let (mut successes, mut kept, mut to_goal) = (0, 0, 0u64);
+    for e in 0..args.episodes_per_task {
+        let id = ((k as u64) << 32) | e as u64;
+        let (samples, first) = episode(
+            &mut env,
+            policy,
+            args.variation_seed,
+            variations[e % variations.len()],
+            args.noise,
+            args.after_success,
+            &mut rng,
+            id,
+        )?;
+        if let Some(f) = first {
+            successes += 1;
+            to_goal += u64::from(f) + 1;
+        }
+        if first.is_some() || args.keep_failures {
+            kept += 1;
+            out.extend(samples);
+        }
+    }
+    debug_assert!(out
+        .iter()
+        .all(|s| s.obs.len() == OBS_DIM && s.action.len() == ACTION_DIM));
+    Ok((
+        TaskSummary {
+            task: task.to_string(),
+            episodes: args.episodes_per_task,
+            successes,
+            kept,
+            transitions: out.len(),
+            mean_steps_to_success: if successes > 0 {
+                to_goal as f64 / successes as f64
+            } else {
+                f64::NAN
+            },
+        },
+        out,
+    ))
+}

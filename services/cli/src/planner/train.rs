@@ -1,0 +1,294 @@
+//! `terl planner train --dataset D.mcap... --updates N [--config RUN.toml] [--set KEY=VALUE]...
+//! --out P.safetensors`: F and AN trained offline ("training the planner separately", paper
+//! Sec. V) with the learner's own parts: the datasets go into a [`TepBuffer`] one segment per
+//! trajectory, minibatches are drawn with the config's hindsight sampling, and each step is
+//! [`Tep::update`]. The planner file holds F, AN and their targets with the config in its
+//! metadata (`terl.tep_config`), the format of a learner's `checkpoints/planner.safetensors`;
+//! a JSON-lines log of the losses (and of ρ on `--eval-dataset`) goes to `P.train.jsonl`.
+
+use std::collections::BTreeMap;
+use std::io::{IsTerminal, Write};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use clap::Args;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use terl_nn::par_for_threads;
+use terl_rl::planner_eval::{predict_gaps, score, PairSet};
+use terl_rl::{Tep, TepBatch, TepBuffer, TepConfig};
+use terl_wire::{ACTION_DIM, OBS_DIM};
+
+use super::files::{read_trajectories, Trajectory};
+
+#[derive(Debug, Args)]
+pub struct TrainArgs {
+    /// TEP datasets to train on (repeatable).
+    #[arg(long = "dataset", required = true)]
+    pub datasets: Vec<PathBuf>,
+    /// Planner updates.
+    #[arg(long, default_value_t = 5000)]
+    pub updates: u64,
+    /// A run file (its `[tep]` table) or a TOML file of planner settings.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// A planner setting over the config, TOML value syntax (`f_target="gap"`,
+    /// `f_hidden=[256,256]`); repeatable.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+    /// Held-out datasets: Spearman ρ of F on them is logged every `--eval-every` updates.
+    #[arg(long = "eval-dataset")]
+    pub eval_datasets: Vec<PathBuf>,
+    /// Updates between log lines (and held-out checks).
+    #[arg(long, default_value_t = 500)]
+    pub eval_every: u64,
+    /// Seed of initialisation and sampling.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Threads of the update (default: the config's `threads`).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// The planner file to write (replaced if it exists).
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// The planner settings: `[tep]` of a run file (or the whole file), then `--set` overrides.
+pub fn planner_config(path: Option<&Path>, set: &[String]) -> Result<TepConfig> {
+    let mut table = match path {
+        Some(p) => {
+            let text = std::fs::read_to_string(p)
+                .with_context(|| format!("cannot read {}", p.display()))?;
+            let mut t: toml::Table =
+                toml::from_str(&text).with_context(|| format!("{} is not TOML", p.display()))?;
+            match t.remove("tep") {
+                Some(toml::Value::Table(tep)) => tep,
+                Some(_) => anyhow::bail!("{}: [tep] is not a table", p.display()),
+                None if t.contains_key("cluster") || t.contains_key("sac") => toml::Table::new(),
+                None => t,
+            }
+        }
+        None => toml::Table::new(),
+    };
+    for kv in set {
+        let (k, v) = kv
+            .split_once('=')
+            .with_context(|| format!("--set {kv:?}: expected KEY=VALUE"))?;
+        let parsed: toml::Table = toml::from_str(&format!("v = {}", v.trim()))
+            .with_context(|| format!("--set {kv:?}: the value is not TOML"))?;
+        table.insert(k.trim().to_string(), parsed["v"].clone());
+    }
+    let text = toml::to_string(&table)?;
+    let mut cfg = TepConfig::from_toml(&text).context("planner settings")?;
+    cfg.obs_dim = OBS_DIM;
+    cfg.act_dim = ACTION_DIM;
+    cfg.validate()?;
+    Ok(cfg)
+}
+
+/// Evaluation pairs of the held-out trajectories (up to each first success, at most
+/// `max_pairs` per trajectory), with task indices into `tasks`.
+pub fn held_out_pairs(
+    trajectories: &[Trajectory],
+    tasks: &mut Vec<String>,
+    max_pairs: usize,
+    seed: u64,
+) -> PairSet {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut pairs = PairSet::new(OBS_DIM, ACTION_DIM);
+    for t in trajectories {
+        let k = match tasks.iter().position(|x| *x == t.task) {
+            Some(k) => k,
+            None => {
+                tasks.push(t.task.clone());
+                tasks.len() - 1
+            }
+        };
+        let n = t.until_success();
+        if n == 0 || !t.contiguous() {
+            // Pairs need the true step gap: only trajectories without holes give it.
+            continue;
+        }
+        pairs.add_trajectory(
+            k,
+            &t.obs[..n * OBS_DIM],
+            &t.actions[..n * ACTION_DIM],
+            &t.next_obs[..n * OBS_DIM],
+            max_pairs,
+            &mut rng,
+        );
+    }
+    pairs
+}
+
+/// Fills a TEP buffer with the trajectories (one segment each).
+pub fn fill_buffer(trajectories: &[Trajectory], tasks: &[String]) -> Result<TepBuffer> {
+    let total: usize = trajectories.iter().map(Trajectory::len).sum();
+    let mut buffer = TepBuffer::new(total.max(1), OBS_DIM, ACTION_DIM);
+    for t in trajectories {
+        let task = tasks.iter().position(|x| *x == t.task).unwrap_or(0) as u32;
+        buffer.push_segment(task, t.id, &t.steps, &t.obs, &t.actions, &t.next_obs)?;
+    }
+    Ok(buffer)
+}
+
+pub fn run(args: TrainArgs) -> Result<ExitCode> {
+    let mut cfg = planner_config(args.config.as_deref(), &args.set)?;
+    cfg.seed = args.seed;
+    if let Some(t) = args.threads {
+        anyhow::ensure!((1..=256).contains(&t), "--threads must be in 1..=256");
+        cfg.threads = t;
+    }
+    anyhow::ensure!(args.updates > 0, "--updates must be ≥ 1");
+    anyhow::ensure!(args.eval_every > 0, "--eval-every must be ≥ 1");
+    let trajectories = read_trajectories(&args.datasets)?;
+    let mut tasks: Vec<String> = Vec::new();
+    for t in &trajectories {
+        if !tasks.contains(&t.task) {
+            tasks.push(t.task.clone());
+        }
+    }
+    let buffer = fill_buffer(&trajectories, &tasks)?;
+    let held_out = if args.eval_datasets.is_empty() {
+        None
+    } else {
+        let mut eval_tasks = tasks.clone();
+        let t = read_trajectories(&args.eval_datasets)?;
+        Some(held_out_pairs(&t, &mut eval_tasks, 64, 1))
+    };
+    tracing::info!(
+        transitions = buffer.len(),
+        trajectories = trajectories.len(),
+        tasks = tasks.len(),
+        "planner training data"
+    );
+    let mut tep: Tep<f32> = Tep::new(cfg.clone())?;
+    let mut rng = ChaCha8Rng::seed_from_u64(args.seed ^ 0x7e9_5a3d);
+    let mut batch = TepBatch::with_capacity(cfg.batch_size, OBS_DIM, ACTION_DIM);
+    let log_path = log_path(&args.out);
+    if let Some(parent) = args.out.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent)?;
+    }
+    let mut log = std::io::BufWriter::new(
+        std::fs::File::create(&log_path)
+            .with_context(|| format!("cannot create {}", log_path.display()))?,
+    );
+    let bar = std::io::stderr().is_terminal().then(|| {
+        let b = indicatif::ProgressBar::new(args.updates);
+        if let Ok(style) = indicatif::ProgressStyle::with_template(
+            "{bar:40} {pos}/{len} updates  {elapsed_precise} (eta {eta})  {msg}",
+        ) {
+            b.set_style(style);
+        }
+        b
+    });
+    let started = Instant::now();
+    let mut window = Window::default();
+    let sampling = cfg.goal_sampling();
+    for u in 1..=args.updates {
+        buffer.sample_into_with(cfg.batch_size, &mut rng, &mut batch, sampling)?;
+        let st = tep.update(&batch)?;
+        window.add(&st);
+        if u % args.eval_every == 0 || u == args.updates {
+            let mut line = window.take(u, started.elapsed().as_secs_f64());
+            if let Some(pairs) = &held_out {
+                let pred = predict_gaps(&tep, pairs, par_for_threads(cfg.threads));
+                let s = score(&pred, &pairs.gaps);
+                line.insert("held_out_spearman".into(), s.spearman.into());
+                for b in &s.bins {
+                    line.insert(
+                        format!("held_out_rel_err_{}_{}", b.lo, b.hi.min(9999)),
+                        b.median_relative_error.into(),
+                    );
+                }
+            }
+            writeln!(log, "{}", serde_json::Value::Object(line.clone()))?;
+            log.flush()?;
+            let msg = format!(
+                "F loss {:.3}  goal distance {:.1} (gap {:.1})  AN bc {:.3}{}",
+                line["f_loss"].as_f64().unwrap_or(f64::NAN),
+                line["goal_distance_mean"].as_f64().unwrap_or(f64::NAN),
+                line["gap_mean"].as_f64().unwrap_or(f64::NAN),
+                line["an_bc_loss"].as_f64().unwrap_or(f64::NAN),
+                line.get("held_out_spearman")
+                    .and_then(|v| v.as_f64())
+                    .map(|r| format!("  held-out ρ {r:.3}"))
+                    .unwrap_or_default()
+            );
+            match &bar {
+                Some(b) => b.set_message(msg),
+                None => eprintln!("[planner train] update {u}: {msg}"),
+            }
+        }
+        if let Some(b) = &bar {
+            b.inc(1);
+        }
+    }
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    let mut meta = BTreeMap::new();
+    meta.insert("format".to_string(), "pt".to_string());
+    meta.insert(
+        "terl.tep_config".to_string(),
+        toml::to_string(tep.config())?,
+    );
+    meta.insert("terl.tep_updates".to_string(), tep.updates().to_string());
+    meta.insert("terl.tep_tasks".to_string(), tasks.join(","));
+    terl_nn::tensors::save_file(&args.out, &tep.planner_file_tensors(), &meta)
+        .with_context(|| format!("cannot write {}", args.out.display()))?;
+    eprintln!(
+        "[planner train] {} updates in {:.0} s on {} transitions of {} tasks → {} (log {})",
+        tep.updates(),
+        started.elapsed().as_secs_f64(),
+        buffer.len(),
+        tasks.len(),
+        args.out.display(),
+        log_path.display()
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `P.safetensors` → `P.train.jsonl`.
+fn log_path(out: &Path) -> PathBuf {
+    out.with_extension("train.jsonl")
+}
+
+/// Mean losses over the updates since the last log line.
+#[derive(Default)]
+struct Window {
+    sums: BTreeMap<&'static str, f64>,
+    n: u64,
+}
+
+impl Window {
+    fn add(&mut self, st: &terl_rl::TepStats) {
+        for (k, v) in [
+            ("f_loss", st.f_loss),
+            ("step_loss", st.step_loss),
+            ("goal_loss", st.goal_loss),
+            ("symmetry_loss", st.symmetry_loss),
+            ("an_loss", st.an_loss),
+            ("an_bc_loss", st.an_bc_loss),
+            ("goal_distance_mean", st.goal_distance_mean),
+            ("target_mean", st.target_mean),
+            ("gap_mean", st.gap_mean),
+        ] {
+            *self.sums.entry(k).or_default() += v;
+        }
+        self.n += 1;
+    }
+
+    fn take(&mut self, update: u64, secs: f64) -> serde_json::Map<String, serde_json::Value> {
+        let mut m = serde_json::Map::new();
+        m.insert("update".into(), update.into());
+        m.insert("seconds".into(), secs.into());
+        for (k, v) in std::mem::take(&mut self.sums) {
+            m.insert(k.into(), (v / self.n.max(1) as f64).into());
+        }
+        self.n = 0;
+        m
+    }
+}
