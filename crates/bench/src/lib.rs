@@ -3,6 +3,7 @@
 //! as JSON).
 //!
 //! - [`env`]: env steps/s per task against the bare physics of the same model (`terl-sim`);
+//! - [`memory`]: RSS per Meta-World environment and the `mjData` arena they use (`terl-sim`);
 //! - [`sac`]: SAC update throughput, achieved GFLOP/s against faer's GEMM rate, inference
 //!   latency (`terl-rl`);
 //! - [`tep`]: the same for the TEP update, and planner latency;
@@ -16,6 +17,7 @@
 pub mod args;
 pub mod env;
 pub mod grpc;
+pub mod memory;
 pub mod sac;
 pub mod tep;
 pub mod transport;

@@ -17,6 +17,16 @@ pub enum SimError {
     AssetsMissing { path: PathBuf },
     #[error("MuJoCo could not load {path}: {message}")]
     ModelLoad { path: PathBuf, message: String },
+    #[error(
+        "{task}: MuJoCo ran out of its mjData arena ({arena_bytes} bytes, peak use \
+         {peak_bytes}) and dropped contacts or constraints (mjWARN_CONTACTFULL/CNSTRFULL); \
+         the episode is void: raise TERL_MUJOCO_ARENA_BYTES"
+    )]
+    ArenaFull {
+        task: &'static str,
+        arena_bytes: usize,
+        peak_bytes: usize,
+    },
     #[error("MuJoCo could not allocate {what}")]
     Alloc { what: &'static str },
     #[error("no {kind} named {name:?} in the model")]

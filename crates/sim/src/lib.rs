@@ -8,7 +8,7 @@ mod ffi;
 pub mod mujoco;
 
 pub use error::{Result, SimError};
-pub use mujoco::Simulation;
+pub use mujoco::{Model, Simulation};
 pub mod metaworld;
 pub mod trace;
 pub mod vec_env;

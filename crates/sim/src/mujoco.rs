@@ -1,15 +1,25 @@
-//! A thin, safe wrapper over MuJoCo 3.3.7: one [`Simulation`] owns one `mjModel` and one `mjData`.
+//! A thin, safe wrapper over MuJoCo 3.3.7: a compiled [`Model`] shared read-only (`Arc`) by any
+//! number of [`Simulation`]s, each with its own `mjData` and its own copy of the few model arrays
+//! that tasks write at run time.
 //!
 //! This is the only module of the project with `unsafe`. The library is loaded once per process
-//! (path baked in by `build.rs`, overridable with `TERL_MUJOCO_LIB`). Every pointer handed to
-//! MuJoCo comes from a `Simulation` that owns it exclusively, and every slice we hand out is sized
-//! from the model's own counts, so the safe API cannot read past MuJoCo's arrays.
+//! (path baked in by `build.rs`, overridable with `TERL_MUJOCO_LIB`). Every slice we hand out is
+//! sized from the model's own counts, so the safe API cannot read past MuJoCo's arrays.
+//!
+//! Sharing. MuJoCo's simulation functions (`mj_step`, `mj_forward`, `mj_kinematics`,
+//! `mj_resetData`, ...) take `const mjModel*`, so one model can serve many `mjData` on many
+//! threads ("Multi-threading" in the MuJoCo programming guide). Meta-World writes three model
+//! arrays at reset (`model.body_pos`, `model.site_pos`; `eq_data` by `reset_mocap_welds`), which
+//! in Python is harmless because every env compiles its own model. Here each `Simulation` sees the
+//! model through its own copy of the `mjModel` struct (a few KB) whose `body_pos`, `site_pos` and
+//! `eq_data` pointers are redirected to per-simulation arrays; every other pointer reads the
+//! shared buffer, which nothing writes after [`Model::from_xml`] returns.
 #![allow(unsafe_code)]
 
 use std::ffi::{c_char, CStr, CString};
 use std::path::{Path, PathBuf};
 use std::ptr::NonNull;
-use std::sync::OnceLock;
+use std::sync::{Arc, OnceLock};
 
 use crate::error::{Result, SimError};
 use crate::ffi;
@@ -47,6 +57,27 @@ extern "C" fn log_mujoco_warning(msg: *const c_char) {
     tracing::warn!(target: "mujoco", "{text}");
 }
 
+/// Handler of MuJoCo's fatal errors. When the stack part of the `mjData` arena runs out,
+/// `mj_stackAlloc` calls `mju_error`, which must not return. The default handler prints and calls `exit(1)`; this one
+/// says what to change first, then exits the same way.
+extern "C" fn report_mujoco_error(msg: *const c_char) {
+    let text = if msg.is_null() {
+        "(no message)".into()
+    } else {
+        // SAFETY: MuJoCo passes a NUL-terminated message valid for the duration of the call.
+        unsafe { CStr::from_ptr(msg) }.to_string_lossy()
+    };
+    let hint = if text.contains("stack") || text.contains("memory") {
+        " The mjData arena is too small for this scene: raise TERL_MUJOCO_ARENA_BYTES \
+         (see terl_sim::metaworld::arena_bytes)."
+    } else {
+        ""
+    };
+    tracing::error!(target: "mujoco", "fatal MuJoCo error: {text}.{hint}");
+    eprintln!("fatal MuJoCo error: {text}.{hint}");
+    std::process::exit(1);
+}
+
 fn load() -> std::result::Result<Loaded, String> {
     let path = library_path();
     if !path.exists() {
@@ -79,6 +110,15 @@ fn load() -> std::result::Result<Loaded, String> {
         let sym: libloading::Symbol<*mut Handler> =
             vars.get(b"mju_user_warning\0").map_err(|e| e.to_string())?;
         **sym = Some(log_mujoco_warning);
+    }
+    // SAFETY: `mju_user_error` is a global `void (*)(const char*)` in libmujoco, written once
+    // before any simulation exists; the handler never returns (it exits the process), as
+    // mju_error requires. The XML compiler installs its own thread-local handler, so compile
+    // errors still come back through mj_loadXML's error buffer.
+    unsafe {
+        let sym: libloading::Symbol<*mut Handler> =
+            vars.get(b"mju_user_error\0").map_err(|e| e.to_string())?;
+        **sym = Some(report_mujoco_error);
     }
     Ok(Loaded { api, _vars: vars })
 }
@@ -137,15 +177,258 @@ pub const UNSTABLE_WARNINGS: [usize; 3] = [
     ffi::mjWARN_BADQACC as usize,
 ];
 
-/// One MuJoCo model with its data, owned exclusively.
+/// Warning kinds that mean the `mjData` arena ran out (contacts or constraints were dropped).
+pub const ARENA_WARNINGS: [usize; 2] = [
+    ffi::mjWARN_CONTACTFULL as usize,
+    ffi::mjWARN_CNSTRFULL as usize,
+];
+
+/// A compiled MuJoCo model, read-only once built; share it with `Arc` between simulations (and
+/// threads). Dropping the last reference frees it (`mj_deleteModel`).
+pub struct Model {
+    api: &'static ffi::MuJoCoLib,
+    ptr: NonNull<ffi::mjModel>,
+    released_bytes: usize,
+}
+
+// SAFETY: after construction nothing writes through `ptr` (all `&mut` accessors of Simulation
+// write per-simulation arrays, see `Simulation::new`); MuJoCo only reads a `const mjModel*`, which
+// its documentation allows from several threads at once.
+unsafe impl Send for Model {}
+// SAFETY: see above: shared references only lead to reads.
+unsafe impl Sync for Model {}
+
+impl std::fmt::Debug for Model {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Model")
+            .field("nbuffer", &self.m().nbuffer)
+            .field("narena", &self.m().narena)
+            .field("released_bytes", &self.released_bytes)
+            .finish()
+    }
+}
+
+impl Drop for Model {
+    fn drop(&mut self) {
+        // SAFETY: the pointer came from mj_loadXML and is freed once; no Simulation outlives the
+        // Arc<Model> it holds.
+        unsafe { self.api.mj_deleteModel(self.ptr.as_ptr()) }
+    }
+}
+
+/// Bytes of one OS page (4 KiB on x86-64 Linux; only used to align `madvise` ranges).
+const PAGE: usize = 4096;
+
+impl Model {
+    /// Compiles an MJCF file: `mj_parseXML`, `mj_compile`, `mj_deleteSpec`, which is what
+    /// `mj_loadXML` does except that `mj_loadXML` keeps the parsed spec as MuJoCo's global
+    /// "last model" (for `mj_saveLastXML`), ~48 MB of decoded meshes for a Meta-World scene.
+    pub fn from_xml(path: &Path) -> Result<Self> {
+        let api = api()?;
+        let fail = |message: String| SimError::ModelLoad {
+            path: path.to_path_buf(),
+            message,
+        };
+        let cpath = CString::new(path.to_string_lossy().as_bytes())
+            .map_err(|_| fail("path contains a NUL byte".into()))?;
+        let mut err = [0 as c_char; 1024];
+        // SAFETY: cpath is NUL-terminated; err is a writable buffer of the size we pass.
+        let spec = unsafe {
+            api.mj_parseXML(
+                cpath.as_ptr(),
+                std::ptr::null(),
+                err.as_mut_ptr(),
+                err.len() as i32,
+            )
+        };
+        if spec.is_null() {
+            // SAFETY: MuJoCo NUL-terminates the error buffer.
+            let message = unsafe { CStr::from_ptr(err.as_ptr()) };
+            return Err(fail(message.to_string_lossy().into_owned()));
+        }
+        // SAFETY: spec is a valid parsed spec; compile reads the files it names from disk.
+        let model = unsafe { api.mj_compile(spec, std::ptr::null()) };
+        let compile_error = NonNull::new(model).is_none().then(|| {
+            // SAFETY: mjs_getError returns a NUL-terminated string owned by the spec, read
+            // before the spec is deleted.
+            unsafe { CStr::from_ptr(api.mjs_getError(spec)) }
+                .to_string_lossy()
+                .into_owned()
+        });
+        // SAFETY: the spec came from mj_parseXML and is deleted once; the model owns copies of
+        // everything it needs.
+        unsafe { api.mj_deleteSpec(spec) };
+        let ptr = match (NonNull::new(model), compile_error) {
+            (Some(ptr), _) => ptr,
+            (None, message) => return Err(fail(message.unwrap_or_default())),
+        };
+        // MuJoCo keeps decoded mesh and texture files in a process-wide asset cache (capacity
+        // 500 MB by default; ~90 MB after one Meta-World scene) to speed up later compiles of
+        // the same files. A process here compiles each scene once, so the cache is emptied: a
+        // later compile decodes the files again, to the same values. The compiler's freed
+        // temporaries stay resident in glibc's heap unless trimmed; give them back too.
+        // SAFETY: mj_getCache returns MuJoCo's global cache; clearing it only drops cached
+        // assets (compiles copy what they use into their model).
+        unsafe { api.mj_clearCache(api.mj_getCache()) };
+        #[cfg(all(target_os = "linux", target_env = "gnu"))]
+        // SAFETY: malloc_trim only returns free heap pages to the OS; no preconditions.
+        unsafe {
+            libc::malloc_trim(0);
+        }
+        Ok(Self {
+            api,
+            ptr,
+            released_bytes: 0,
+        })
+    }
+
+    fn m(&self) -> &ffi::mjModel {
+        // SAFETY: the pointer is valid for the life of self.
+        unsafe { self.ptr.as_ref() }
+    }
+
+    /// Bytes of the model's array buffer (`mjModel.nbuffer`).
+    pub fn buffer_bytes(&self) -> usize {
+        self.m().nbuffer as usize
+    }
+
+    /// Bytes of the `mjData` arena (contacts, constraints and the stack) that each new
+    /// simulation allocates (`mjModel.narena`, MJCF `<size memory="..."/>`).
+    pub fn arena_bytes(&self) -> usize {
+        self.m().narena as usize
+    }
+
+    /// Sets the arena size of simulations made from now on (`mjModel.narena`, read only by
+    /// `mj_makeData`). Only possible before the model is shared.
+    pub fn set_arena_bytes(&mut self, bytes: usize) {
+        // SAFETY: `&mut self` proves no Simulation holds this model yet (they hold an Arc);
+        // narena is a plain size field.
+        unsafe { self.ptr.as_mut().narena = bytes as ffi::mjtSize };
+    }
+
+    /// Bytes of the buffer given back to the OS by [`Model::release_render_data`].
+    pub fn released_bytes(&self) -> usize {
+        self.released_bytes
+    }
+
+    /// Gives back to the OS the pages of the arrays only rendering and ray casting read:
+    /// texture pixels (`tex_data`), mesh normals, texture coordinates and faces (`mesh_normal`,
+    /// `mesh_texcoord`, `mesh_face`, `mesh_facenormal`, `mesh_facetexcoord`), and the per-face
+    /// bounding-volume trees of meshes (the `bvh_*` nodes past the bodies' own trees). In MuJoCo
+    /// 3.3.7 the engine reads these only in `engine_ray.c`, `engine_vis_*.c`, `engine_print.c`
+    /// and (mesh normals) the camera sensors of `engine_sensor.c`; collisions use the body trees
+    /// (`body_bvhadr`), `mesh_vert`, `mesh_graph` and the `mesh_poly*` arrays, which stay. The
+    /// released arrays' pointers are set to null so a reader would fault instead of seeing
+    /// zeros. Skipped (returns 0) for models with sensors, flexes or dynamic trees, which may
+    /// read them. Returns the bytes released; they no longer count in the process's RSS.
+    ///
+    /// Never call MuJoCo's ray, rendering, printing or `mj_copyModel` on such a model; this
+    /// module offers none of them.
+    pub fn release_render_data(&mut self) -> usize {
+        let m = self.m();
+        if m.nsensor > 0 || m.nflex > 0 || m.nbvhdynamic > 0 || self.released_bytes > 0 {
+            return 0;
+        }
+        // SAFETY: body_bvhadr/body_bvhnum and mesh_bvhadr have nbody and nmesh entries.
+        let (bvhadr, bvhnum, mesh_bvhadr) = unsafe {
+            (
+                slice(m.body_bvhadr, m.nbody as usize),
+                slice(m.body_bvhnum, m.nbody as usize),
+                slice(m.mesh_bvhadr, m.nmesh as usize),
+            )
+        };
+        // Bodies' trees must all come before the first mesh tree for the tail to be mesh-only.
+        let body_nodes = bvhadr
+            .iter()
+            .zip(bvhnum)
+            .filter(|(_, n)| **n > 0)
+            .map(|(a, n)| (a + n) as usize)
+            .max()
+            .unwrap_or(0);
+        let tail_ok = mesh_bvhadr
+            .iter()
+            .filter(|a| **a >= 0)
+            .all(|a| *a as usize >= body_nodes);
+        let nbvh = m.nbvh as usize;
+        let nface = 3 * m.nmeshface as usize;
+        let spans: Vec<(*const u8, usize)> = {
+            let mut v = vec![
+                (m.tex_data.cast_const(), m.ntexdata as usize),
+                (m.mesh_normal.cast(), 12 * m.nmeshnormal as usize),
+                (m.mesh_texcoord.cast(), 8 * m.nmeshtexcoord as usize),
+                (m.mesh_face.cast(), 4 * nface),
+                (m.mesh_facenormal.cast(), 4 * nface),
+                (m.mesh_facetexcoord.cast(), 4 * nface),
+            ];
+            if tail_ok && body_nodes < nbvh {
+                let tail = nbvh - body_nodes;
+                // SAFETY: pointer arithmetic only; each array has nbvh rows (bvh_aabb:
+                // nbvhstatic = nbvh, as nbvhdynamic = 0 was checked above), so row `body_nodes`
+                // is in bounds.
+                unsafe {
+                    v.push((m.bvh_depth.add(body_nodes).cast(), 4 * tail));
+                    v.push((m.bvh_child.add(2 * body_nodes).cast(), 8 * tail));
+                    v.push((m.bvh_nodeid.add(body_nodes).cast(), 4 * tail));
+                    v.push((m.bvh_aabb.add(6 * body_nodes).cast(), 48 * tail));
+                }
+            }
+            v
+        };
+        let mut released = 0;
+        for (ptr, len) in spans {
+            if ptr.is_null() || len == 0 {
+                continue;
+            }
+            let start = (ptr as usize).div_ceil(PAGE) * PAGE;
+            let end = (ptr as usize + len) / PAGE * PAGE;
+            if end > start {
+                // SAFETY: [start, end) lies inside one array of the model buffer, which this
+                // Model owns exclusively (`&mut self`, before sharing); after this call nothing
+                // reads it: the arrays' pointers are nulled below and the mesh-tree tail is
+                // reached only through `mesh_bvhadr`, read only by ray casting and
+                // visualisation. MADV_DONTNEED on private anonymous memory keeps the mapping
+                // (later reads see zeros), so the allocator's bookkeeping stays valid.
+                let rc = unsafe {
+                    libc::madvise(start as *mut libc::c_void, end - start, libc::MADV_DONTNEED)
+                };
+                if rc == 0 {
+                    released += end - start;
+                }
+            }
+        }
+        // SAFETY: `&mut self` before sharing; plain pointer fields.
+        unsafe {
+            let m = self.ptr.as_mut();
+            m.tex_data = std::ptr::null_mut();
+            m.mesh_normal = std::ptr::null_mut();
+            m.mesh_texcoord = std::ptr::null_mut();
+            m.mesh_face = std::ptr::null_mut();
+            m.mesh_facenormal = std::ptr::null_mut();
+            m.mesh_facetexcoord = std::ptr::null_mut();
+        }
+        self.released_bytes = released;
+        released
+    }
+}
+
+/// One simulation: its own `mjData` over a shared [`Model`].
 pub struct Simulation {
     api: &'static ffi::MuJoCoLib,
+    /// Keeps the shared buffer alive that most of `view`'s pointers read.
+    shared: Arc<Model>,
+    /// This simulation's copy of the `mjModel` struct (from `Box::into_raw`, freed in Drop):
+    /// the shared model's pointers, except `body_pos`, `site_pos` and `eq_data`, which point
+    /// into `overlay`. Every MuJoCo call gets this pointer.
     model: NonNull<ffi::mjModel>,
+    /// Storage of the per-simulation model arrays: `body_pos` (3 × nbody), `site_pos`
+    /// (3 × nsite), `eq_data` (mjNEQDATA × neq). Accessed only through `model`'s pointers.
+    _overlay: Vec<f64>,
     data: NonNull<ffi::mjData>,
 }
 
-// SAFETY: a Simulation exclusively owns its mjModel and mjData; MuJoCo functions touch only the
-// model/data they are given, so moving the pair to another thread is sound.
+// SAFETY: a Simulation exclusively owns its mjData, its mjModel struct copy and overlay; the rest
+// of the model is the Sync shared `Model`. MuJoCo functions touch only the model/data they are
+// given, so moving the simulation to another thread is sound.
 unsafe impl Send for Simulation {}
 
 impl std::fmt::Debug for Simulation {
@@ -160,10 +443,11 @@ impl std::fmt::Debug for Simulation {
 
 impl Drop for Simulation {
     fn drop(&mut self) {
-        // SAFETY: both pointers were created by MuJoCo for this Simulation and are freed once.
+        // SAFETY: data was created by mj_makeData for this Simulation and model by
+        // Box::into_raw; each is freed once. The shared buffer is freed by Model's Drop.
         unsafe {
             self.api.mj_deleteData(self.data.as_ptr());
-            self.api.mj_deleteModel(self.model.as_ptr());
+            drop(Box::from_raw(self.model.as_ptr()));
         }
     }
 }
@@ -197,58 +481,56 @@ fn vec3(s: &[f64], i: usize) -> [f64; 3] {
 }
 
 impl Simulation {
-    /// Compiles an MJCF file.
+    /// Compiles an MJCF file into a model of its own (see [`Model::from_xml`]).
     pub fn from_xml(path: &Path) -> Result<Self> {
-        let api = api()?;
-        let cpath =
-            CString::new(path.to_string_lossy().as_bytes()).map_err(|_| SimError::ModelLoad {
-                path: path.to_path_buf(),
-                message: "path contains a NUL byte".into(),
-            })?;
-        let mut err = [0 as c_char; 1024];
-        // SAFETY: cpath is NUL-terminated; err is a writable buffer of the size we pass.
-        let model = unsafe {
-            api.mj_loadXML(
-                cpath.as_ptr(),
-                std::ptr::null(),
-                err.as_mut_ptr(),
-                err.len() as i32,
-            )
-        };
-        let Some(model) = NonNull::new(model) else {
-            // SAFETY: MuJoCo NUL-terminates the error buffer.
-            let message = unsafe { CStr::from_ptr(err.as_ptr()) }
-                .to_string_lossy()
-                .into_owned();
-            return Err(SimError::ModelLoad {
-                path: path.to_path_buf(),
-                message,
-            });
-        };
-        Self::with_model(api, model)
+        Self::new(&Arc::new(Model::from_xml(path)?))
     }
 
-    fn with_model(api: &'static ffi::MuJoCoLib, model: NonNull<ffi::mjModel>) -> Result<Self> {
-        // SAFETY: model is a valid compiled model.
-        let data = unsafe { api.mj_makeData(model.as_ptr()) };
+    /// A simulation over a shared model: new `mjData` in MuJoCo's default state (`mj_makeData`,
+    /// arena of [`Model::arena_bytes`]) and fresh copies of the model's `body_pos`, `site_pos`
+    /// and `eq_data`, which this simulation alone may change.
+    pub fn new(model: &Arc<Model>) -> Result<Self> {
+        let api = model.api;
+        let m = model.m();
+        let (nb, ns) = (3 * m.nbody as usize, 3 * m.nsite as usize);
+        let ne = ffi::mjNEQDATA as usize * m.neq as usize;
+        let mut overlay = Vec::with_capacity(nb + ns + ne);
+        // SAFETY: body_pos, site_pos and eq_data have nb, ns and ne entries.
+        unsafe {
+            overlay.extend_from_slice(slice(m.body_pos, nb));
+            overlay.extend_from_slice(slice(m.site_pos, ns));
+            overlay.extend_from_slice(slice(m.eq_data, ne));
+        }
+        let mut view: ffi::mjModel = *m;
+        let base = overlay.as_mut_ptr();
+        // SAFETY: offsets within the overlay's nb + ns + ne entries. The Vec is never resized
+        // nor borrowed again, so these pointers stay valid and unaliased for its life.
+        unsafe {
+            view.body_pos = base;
+            view.site_pos = base.add(nb);
+            view.eq_data = base.add(nb + ns);
+        }
+        let view = NonNull::from(Box::leak(Box::new(view)));
+        // SAFETY: view is a valid model: the shared model's sizes and arrays with three arrays
+        // replaced by copies of the same length.
+        let data = unsafe { api.mj_makeData(view.as_ptr()) };
         let Some(data) = NonNull::new(data) else {
-            // SAFETY: model was allocated by MuJoCo and is not used after this.
-            unsafe { api.mj_deleteModel(model.as_ptr()) };
+            // SAFETY: from Box::leak above, not used after this.
+            drop(unsafe { Box::from_raw(view.as_ptr()) });
             return Err(SimError::Alloc { what: "mjData" });
         };
-        Ok(Self { api, model, data })
+        Ok(Self {
+            api,
+            shared: Arc::clone(model),
+            model: view,
+            _overlay: overlay,
+            data,
+        })
     }
 
-    /// A fresh simulation with a deep copy of this model (including run-time model edits) and new
-    /// data in MuJoCo's default state. Much cheaper than compiling the XML again.
-    pub fn clone_model(&self) -> Result<Self> {
-        // SAFETY: self.model is valid; a null destination asks MuJoCo to allocate.
-        let model = unsafe {
-            self.api
-                .mj_copyModel(std::ptr::null_mut(), self.model.as_ptr())
-        };
-        let model = NonNull::new(model).ok_or(SimError::Alloc { what: "mjModel" })?;
-        Self::with_model(self.api, model)
+    /// The shared model this simulation steps.
+    pub fn shared_model(&self) -> &Arc<Model> {
+        &self.shared
     }
 
     fn m(&self) -> &ffi::mjModel {
@@ -323,6 +605,29 @@ impl Simulation {
     pub fn instability_count(&self) -> i64 {
         let w = self.warning_counts();
         UNSTABLE_WARNINGS.iter().map(|&i| i64::from(w[i])).sum()
+    }
+
+    /// Total count of the warnings that mean the arena ran out and MuJoCo dropped contacts or
+    /// constraints (`mjWARN_CONTACTFULL`, `mjWARN_CNSTRFULL`) since the last reset.
+    pub fn arena_overflow_count(&self) -> i64 {
+        let w = self.warning_counts();
+        ARENA_WARNINGS.iter().map(|&i| i64::from(w[i])).sum()
+    }
+
+    /// Size of this simulation's arena in bytes (`mjData.narena`).
+    pub fn arena_bytes(&self) -> usize {
+        self.d().narena as usize
+    }
+
+    /// Peak arena use since the last reset in bytes, stack included (`mjData.maxuse_arena`).
+    pub fn arena_peak_bytes(&self) -> usize {
+        self.d().maxuse_arena as usize
+    }
+
+    /// Peak contacts and constraint rows since the last reset (`maxuse_con`, `maxuse_efc`).
+    pub fn peak_contacts_constraints(&self) -> (usize, usize) {
+        let d = self.d();
+        (d.maxuse_con.max(0) as usize, d.maxuse_efc.max(0) as usize)
     }
 
     // ------------------------------------------------------------------ names

@@ -9,7 +9,9 @@ use terl_bench::args::{SacArgs, TepUpdateArgs};
 
 #[derive(Debug, Subcommand)]
 pub enum BenchCommand {
-    /// Env steps/s per task against the bare physics rate of the same model.
+    /// Env steps/s per task against the bare physics rate of the same model; with `--memory`,
+    /// RSS per environment instead (1 vs N environments of each task, each task in a fresh
+    /// process, and an MT10 actor's 10-environment set) and the peak `mjData` arena use.
     Env {
         /// Task set or comma-separated task names.
         #[arg(long, default_value = "mt10")]
@@ -17,9 +19,29 @@ pub enum BenchCommand {
         /// Seconds per measurement.
         #[arg(long, default_value_t = 2.0)]
         seconds: f64,
+        /// Measure memory (RSS from /proc) instead of speed.
+        #[arg(long)]
+        memory: bool,
+        /// With `--memory`: environments of each task in the N measurement (at least 2).
+        #[arg(long, default_value_t = 8)]
+        envs: usize,
+        /// With `--memory`: full episodes per task (random and scripted, alternating) over
+        /// which the peak arena use is taken.
+        #[arg(long, default_value_t = 20)]
+        episodes: usize,
         /// Print JSON (the default output is JSON too; the flag is accepted for scripts).
         #[arg(long)]
         json: bool,
+    },
+    /// One memory probe in this fresh process (started by `env --memory`); prints JSON.
+    #[command(hide = true)]
+    EnvMemoryProbe {
+        #[arg(long)]
+        tasks: String,
+        #[arg(long)]
+        envs: usize,
+        #[arg(long)]
+        episodes: usize,
     },
     /// Transitions/s through iceoryx2 shared memory (1 and N publishers into one subscriber)
     /// and, in the same run, over a tonic stream on loopback.
@@ -110,8 +132,72 @@ pub enum BenchTransport {
     Zenoh,
 }
 
+/// Runs one memory probe in a fresh `terl` process, so no earlier measurement's freed pages or
+/// compiled models count in (or hide) this one's RSS.
+fn memory_probe_process(
+    tasks: &str,
+    envs: usize,
+    episodes: usize,
+) -> Result<terl_bench::memory::MemoryProbe> {
+    use anyhow::Context;
+    let exe = std::env::current_exe().context("cannot find the terl executable")?;
+    let out = std::process::Command::new(&exe)
+        .args(["bench", "env-memory-probe", "--tasks", tasks])
+        .args([
+            "--envs",
+            &envs.to_string(),
+            "--episodes",
+            &episodes.to_string(),
+        ])
+        .stderr(std::process::Stdio::inherit())
+        .output()
+        .with_context(|| format!("cannot run {}", exe.display()))?;
+    anyhow::ensure!(
+        out.status.success(),
+        "memory probe of {tasks} failed ({})",
+        out.status
+    );
+    serde_json::from_slice(&out.stdout)
+        .with_context(|| format!("memory probe of {tasks}: unreadable output"))
+}
+
 pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
     match cmd {
+        BenchCommand::Env {
+            tasks,
+            memory: true,
+            envs,
+            episodes,
+            ..
+        } => {
+            anyhow::ensure!(envs >= 2, "--envs must be at least 2 (1 vs N environments)");
+            anyhow::ensure!(envs <= 256, "--envs must be at most 256");
+            let tasks = terl_runtime::resolve_tasks(&tasks)?;
+            let mut per_task = Vec::with_capacity(tasks.len());
+            for task in &tasks {
+                let probe = memory_probe_process(task, envs, episodes)?;
+                tracing::info!(
+                    task,
+                    mb_per_additional_env = probe.mb_per_additional_env,
+                    "measured"
+                );
+                per_task.push(probe);
+            }
+            let mt10 = memory_probe_process("mt10", 1, 0)?;
+            let report = terl_bench::memory::memory_report(per_task, mt10, episodes);
+            println!("{}", serde_json::to_string_pretty(&report)?);
+            Ok(ExitCode::SUCCESS)
+        }
+        BenchCommand::EnvMemoryProbe {
+            tasks,
+            envs,
+            episodes,
+        } => {
+            let tasks = terl_runtime::resolve_tasks(&tasks)?;
+            let probe = terl_bench::memory::memory_probe(&tasks, envs, episodes)?;
+            println!("{}", serde_json::to_string(&probe)?);
+            Ok(ExitCode::SUCCESS)
+        }
         BenchCommand::Env { tasks, seconds, .. } => {
             anyhow::ensure!(
                 seconds > 0.0 && seconds.is_finite(),

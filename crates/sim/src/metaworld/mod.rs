@@ -16,12 +16,12 @@ pub mod tasks;
 
 use std::collections::HashMap;
 use std::path::PathBuf;
-use std::sync::{Mutex, OnceLock};
+use std::sync::{Arc, Mutex, OnceLock};
 
 use rand::{Rng, SeedableRng};
 
 use crate::error::{Result, SimError};
-use crate::mujoco::Simulation;
+use crate::mujoco::{Model, Simulation};
 pub use scene::{Density, Scene, FRAME_SKIP, TARGET_RADIUS};
 pub use tasks::{task_names, task_set, task_set_names, TaskSpec};
 
@@ -86,24 +86,54 @@ pub fn assets_dir() -> PathBuf {
         .unwrap_or_else(|| PathBuf::from(env!("TERL_METAWORLD_ASSETS_DEFAULT")))
 }
 
-/// Compiled models, one per task, copied for every new environment (compiling the XML costs
-/// tens of milliseconds, copying microseconds).
-fn compiled_model(xml: &str) -> Result<Simulation> {
-    static CACHE: OnceLock<Mutex<HashMap<String, Simulation>>> = OnceLock::new();
-    let cache = CACHE.get_or_init(Default::default);
-    let mut cache = cache.lock().unwrap_or_else(|e| e.into_inner());
-    if let Some(sim) = cache.get(xml) {
-        return sim.clone_model();
-    }
+/// Default size of every Meta-World simulation's `mjData` arena (contacts, constraint rows and
+/// MuJoCo's stack), in bytes: about 2× the largest peak (`mjData.maxuse_arena`) measured over
+/// random and scripted rollouts of all 50 tasks (see `docs/results/env-memory/`), rounded up.
+/// MuJoCo's own guess from the scenes' `<size>` (none given) is 14.7 MB.
+pub const DEFAULT_ARENA_BYTES: usize = 1 << 20;
+
+/// The arena size simulations get: `TERL_MUJOCO_ARENA_BYTES` if set to a positive integer,
+/// else [`DEFAULT_ARENA_BYTES`].
+pub fn arena_bytes() -> usize {
+    std::env::var("TERL_MUJOCO_ARENA_BYTES")
+        .ok()
+        .and_then(|v| v.trim().parse::<usize>().ok())
+        .filter(|n| *n > 0)
+        .unwrap_or(DEFAULT_ARENA_BYTES)
+}
+
+/// Compiles a task's scene for sharing: the arena of [`arena_bytes`] and the pages only
+/// rendering reads given back ([`Model::release_render_data`]).
+fn compile(xml: &str) -> Result<Model> {
     let dir = assets_dir();
     let path = dir.join(xml);
     if !path.exists() {
         return Err(SimError::AssetsMissing { path: dir });
     }
-    let sim = Simulation::from_xml(&path)?;
-    let copy = sim.clone_model()?;
-    cache.insert(xml.to_string(), sim);
-    Ok(copy)
+    let mut model = Model::from_xml(&path)?;
+    model.set_arena_bytes(arena_bytes());
+    let released = model.release_render_data();
+    tracing::debug!(
+        xml,
+        buffer_bytes = model.buffer_bytes(),
+        released,
+        "compiled Meta-World scene"
+    );
+    Ok(model)
+}
+
+/// The process's compiled model of a scene, shared by every environment of the tasks using it
+/// (compiled once, on first use; kept until the process ends).
+pub fn shared_model(xml: &str) -> Result<Arc<Model>> {
+    static CACHE: OnceLock<Mutex<HashMap<String, Arc<Model>>>> = OnceLock::new();
+    let cache = CACHE.get_or_init(Default::default);
+    let mut cache = cache.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some(model) = cache.get(xml) {
+        return Ok(Arc::clone(model));
+    }
+    let model = Arc::new(compile(xml)?);
+    cache.insert(xml.to_string(), Arc::clone(&model));
+    Ok(model)
 }
 
 /// One Meta-World task instance.
@@ -122,9 +152,28 @@ pub struct Env {
 impl Env {
     /// Creates the task by its Meta-World v3 name (e.g. `"reach-v3"`); reset before stepping.
     pub fn new(task: &str) -> Result<Self> {
+        let spec = tasks::constructor(task)?.spec;
+        Self::with_model(task, &shared_model(spec.xml)?)
+    }
+
+    /// Like [`Env::new`] but over a model compiled for this env alone, as MuJoCo compiles it
+    /// (full arrays, the scene's own arena size): the reference the shared path is tested
+    /// against.
+    #[doc(hidden)]
+    pub fn new_unshared(task: &str) -> Result<Self> {
+        let spec = tasks::constructor(task)?.spec;
+        let dir = assets_dir();
+        let path = dir.join(spec.xml);
+        if !path.exists() {
+            return Err(SimError::AssetsMissing { path: dir });
+        }
+        Self::with_model(task, &Arc::new(Model::from_xml(&path)?))
+    }
+
+    fn with_model(task: &str, model: &Arc<Model>) -> Result<Self> {
         let make = tasks::constructor(task)?;
         let spec = make.spec;
-        let sim = compiled_model(spec.xml)?;
+        let sim = Simulation::new(model)?;
         let mut scene = Scene::new(sim, spec.mocap_low(), spec.mocap_high())?;
         scene.hand_init_pos = spec.hand_init_pos;
         scene.model_id = name_hash(spec.xml);
@@ -162,6 +211,35 @@ impl Env {
     pub fn scene(&self) -> &Scene {
         &self.scene
     }
+    /// The compiled model this env steps, shared with the process's other envs of its scene.
+    pub fn model(&self) -> &Arc<Model> {
+        self.scene.sim.shared_model()
+    }
+
+    /// Peak `mjData` arena use since the last reset, bytes (`mjData.maxuse_arena`), and the
+    /// arena's size (`mjData.narena`).
+    pub fn arena_use(&self) -> (usize, usize) {
+        (
+            self.scene.sim.arena_peak_bytes(),
+            self.scene.sim.arena_bytes(),
+        )
+    }
+    /// Peak contacts and constraint rows since the last reset (`maxuse_con`, `maxuse_efc`).
+    pub fn peak_contacts_constraints(&self) -> (usize, usize) {
+        self.scene.sim.peak_contacts_constraints()
+    }
+
+    fn check_arena(&mut self, before: i64) -> Result<()> {
+        if self.scene.sim.arena_overflow_count() > before {
+            self.needs_reset = true;
+            return Err(SimError::ArenaFull {
+                task: self.spec.name,
+                arena_bytes: self.scene.sim.arena_bytes(),
+                peak_bytes: self.scene.sim.arena_peak_bytes(),
+            });
+        }
+        Ok(())
+    }
     /// Current goal (obs[36..39]).
     pub fn goal(&self) -> [f64; 3] {
         self.scene.target_pos
@@ -185,6 +263,8 @@ impl Env {
         first?;
         self.scene.sim.reset_data();
         self.task.reset_model(&mut self.scene, rand_vec)?;
+        // mj_resetData cleared the warning counters, so any count is from this reset.
+        self.check_arena(0)?;
         self.steps = 0;
         self.needs_reset = false;
         let mut obs = [0.0; OBS_DIM];
@@ -263,11 +343,13 @@ impl Env {
         }
         let action: [f32; ACTION_DIM] = action.try_into().expect("length checked");
         let before = self.scene.sim.instability_count();
+        let arena_before = self.scene.sim.arena_overflow_count();
         self.scene
             .apply_xyz_action([action[0], action[1], action[2]]);
         let grip = f64::from(action[3]);
         self.scene.do_simulation([grip, -grip], FRAME_SKIP);
         self.steps += 1;
+        self.check_arena(arena_before)?;
         // Python calls mj_forward here. Observations and rewards read only poses (contact
         // forces feed only Python's `grasp_success` info, not reward or success), and
         // mj_forward changes no state the next mj_step uses, so the kinematics pass suffices;
@@ -306,6 +388,7 @@ impl Env {
         }
         if self.task.reads_contacts(&self.scene, &obs) {
             self.scene.sim.forward();
+            self.check_arena(arena_before)?;
         }
         let eval = self.task.evaluate(&self.scene, &obs, &action);
         let truncated = self.steps >= MAX_PATH_LENGTH;
