@@ -126,12 +126,29 @@ pub fn guidance_probability(sigma: f64, episodes: u64) -> f64 {
     sigma.powf(episodes as f64)
 }
 
-/// Guidance settings (`[guidance]`). The goal state is always [`goal_state`] (the observation
-/// with the object or hand position set to the goal in both frames).
+/// Where the goal state `g` of an episode comes from (`[guidance] goal_source`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GoalSource {
+    /// The final state (at success) of the selected successful trajectory of the same task whose
+    /// goal position is nearest this episode's, with its goal position and its object (reach:
+    /// hand) position set to this episode's goal ([`GoalLibrary::goal_into`]); chosen at the
+    /// episode's first step and fixed for the episode. A state the planner was trained to reach.
+    #[default]
+    FinalState,
+    /// [`goal_state`] of the current observation, rebuilt every step (the object or hand moved
+    /// to the goal, everything else as it is now). `"obs_goal"` in run files of earlier versions.
+    #[serde(alias = "obs_goal")]
+    Replace,
+}
+
+/// Guidance settings (`[guidance]`).
 ///
 /// ```toml
 /// sigma = 0.98
 /// episode_counter = "actor"   # or "environment"
+/// goal_source = "final_state" # or "replace"
+/// min_spearman = 0.8
 /// ```
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -139,22 +156,23 @@ pub struct GuidanceConfig {
     /// Decay σ of the guidance probability per finished episode, in [0, 1] (paper: 0.98).
     pub sigma: f64,
     /// Which episodes `N` of `σ^N` counts: `"actor"` (every episode the actor completed, the
-    /// paper's reading; default) or `"environment"` (each environment's own).
+    /// paper's reading; default) or `"environment"` (each environment's own). Either way `N`
+    /// counts from the moment the task's planner was validated. The paper also says "the number
+    /// of steps in one episode was set to 4096": with Meta-World's 500-step episodes we count
+    /// episodes as episodes; `steps_per_episode` below gives the other reading.
     pub episode_counter: EpisodeCounter,
-    /// Read-only compatibility with run files written before the goal-source switch was
-    /// removed: they carry `goal_source = "obs_goal"`, which is what guidance does. Any other
-    /// value is refused when the file is read; it is never written.
-    #[serde(default, skip_serializing, rename = "goal_source")]
-    pub legacy_goal_source: Option<LegacyGoalSource>,
-}
-
-/// The one value the removed `goal_source` key accepts (see
-/// [`GuidanceConfig::legacy_goal_source`]).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum LegacyGoalSource {
-    /// [`goal_state`] — the only goal source.
-    ObsGoal,
+    /// When set, `N` counts blocks of this many environment steps instead of episodes (the
+    /// paper's "4096 steps in one episode"); `None` (default) counts finished episodes.
+    pub steps_per_episode: Option<u64>,
+    /// Where the goal state comes from.
+    pub goal_source: GoalSource,
+    /// A task is guided only once F's Spearman ρ against the true step gap on that task's
+    /// held-out selected trajectories reaches this ([`crate::planner_eval`]).
+    pub min_spearman: f64,
+    /// Held-out trajectories per task the learner keeps out of the TEP buffer for that check.
+    pub validation_trajectories: usize,
+    /// TEP updates between two checks.
+    pub validate_every_updates: u64,
 }
 
 impl Default for GuidanceConfig {
@@ -162,8 +180,101 @@ impl Default for GuidanceConfig {
         Self {
             sigma: 0.98,
             episode_counter: EpisodeCounter::Actor,
-            legacy_goal_source: None,
+            steps_per_episode: None,
+            goal_source: GoalSource::FinalState,
+            min_spearman: 0.8,
+            validation_trajectories: 4,
+            validate_every_updates: 200,
         }
+    }
+}
+
+impl GuidanceConfig {
+    /// Checks the values (σ in [0, 1], ρ threshold in [−1, 1], positive counts).
+    pub fn validate(&self) -> Result<(), String> {
+        if !(0.0..=1.0).contains(&self.sigma) {
+            return Err(format!("guidance sigma {} not in [0, 1]", self.sigma));
+        }
+        if !(-1.0..=1.0).contains(&self.min_spearman) {
+            return Err(format!(
+                "guidance min_spearman {} not in [-1, 1]",
+                self.min_spearman
+            ));
+        }
+        if self.validation_trajectories == 0 || self.validate_every_updates == 0 {
+            return Err(
+                "guidance validation_trajectories and validate_every_updates must be ≥ 1".into(),
+            );
+        }
+        if self.steps_per_episode == Some(0) {
+            return Err("guidance steps_per_episode must be ≥ 1".into());
+        }
+        Ok(())
+    }
+}
+
+/// Final states of selected successful trajectories, per task: the goal states of
+/// [`GoalSource::FinalState`]. Row `i` is task `tasks[i]`'s state `states[i·obs_dim..]`.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct GoalLibrary {
+    pub obs_dim: usize,
+    pub tasks: Vec<u32>,
+    pub states: Vec<f32>,
+}
+
+impl GoalLibrary {
+    pub fn new(obs_dim: usize) -> Self {
+        Self {
+            obs_dim,
+            ..Self::default()
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.tasks.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.tasks.is_empty()
+    }
+
+    /// Adds the final state of a successful trajectory of `task`.
+    pub fn push(&mut self, task: u32, state: &[f32]) {
+        assert_eq!(state.len(), self.obs_dim, "goal library state width");
+        self.tasks.push(task);
+        self.states.extend_from_slice(state);
+    }
+
+    /// Whether `task` has a goal state.
+    pub fn has_task(&self, task: u32) -> bool {
+        self.tasks.contains(&task)
+    }
+
+    /// The goal state for an episode of `task` that starts at `obs`: the library's state of that
+    /// task whose goal position (`[36..39]`) is nearest `obs`'s, with its goal position and the
+    /// `target` position (both frames) set to `obs`'s goal, written into `out`. `false` (and
+    /// `out` untouched) when the task has none.
+    pub fn goal_into(&self, task: u32, obs: &[f32], target: GoalTarget, out: &mut [f32]) -> bool {
+        let od = self.obs_dim;
+        let goal = &obs[GOAL_POS];
+        let dist = |i: usize| -> f32 {
+            self.states[i * od..(i + 1) * od][GOAL_POS]
+                .iter()
+                .zip(goal)
+                .map(|(a, b)| (a - b) * (a - b))
+                .sum()
+        };
+        let best = (0..self.len())
+            .filter(|&i| self.tasks[i] == task)
+            .min_by(|&a, &b| dist(a).total_cmp(&dist(b)));
+        let Some(i) = best else {
+            return false;
+        };
+        out.copy_from_slice(&self.states[i * od..(i + 1) * od]);
+        out[GOAL_POS].copy_from_slice(goal);
+        out[target.range()].copy_from_slice(goal);
+        out[target.previous_range()].copy_from_slice(goal);
+        true
     }
 }
 
@@ -276,6 +387,24 @@ pub struct BatchGuidance {
     per_env: Vec<Guidance>,
     counter: EpisodeCounter,
     targets: Vec<GoalTarget>,
+    /// Task index of each environment (into the run's task list and the planner's gate).
+    env_tasks: Vec<u32>,
+    /// Per environment: its task passed the planner check, so it may be guided.
+    enabled: Vec<bool>,
+    /// Whether a gate was ever given ([`Self::set_validated`]); without one every task is
+    /// guided (tools and planners trained offline on the run's own tasks).
+    gated: bool,
+    goal_source: GoalSource,
+    library: GoalLibrary,
+    /// The episode's fixed goal state per environment ([`GoalSource::FinalState`]).
+    episode_goals: Vec<f32>,
+    /// Whether `episode_goals[env]` holds this episode's goal.
+    have_goal: Vec<bool>,
+    /// Decisions with an `f_{t−1}` and how many of them had `f_t ≥ f_{t−1}`.
+    compared: u64,
+    non_improving: u64,
+    /// Sum over guided rows of ‖AN(s, g) − π(s)‖ (Euclidean, action units).
+    action_gap_sum: f64,
     next_draw: Option<f64>,
     guided: Vec<bool>,
     obs_dim: usize,
@@ -289,6 +418,7 @@ pub struct BatchGuidance {
     planned: Vec<f32>,
     f_rows: u64,
     an_rows: u64,
+    an_rows_window: u64,
 }
 
 impl BatchGuidance {
@@ -313,10 +443,85 @@ impl BatchGuidance {
             actions: vec![0.0; n * ad],
             reach: vec![0.0; n],
             planned: vec![0.0; n * ad],
+            env_tasks: vec![0; n],
+            enabled: vec![true; n],
+            gated: false,
+            goal_source: GoalSource::Replace,
+            library: GoalLibrary::new(od),
+            episode_goals: vec![0.0; n * od],
+            have_goal: vec![false; n],
+            compared: 0,
+            non_improving: 0,
+            action_gap_sum: 0.0,
             targets,
             f_rows: 0,
             an_rows: 0,
+            an_rows_window: 0,
         }
+    }
+
+    /// The task index of each environment (required for a gate or a goal library).
+    pub fn with_tasks(mut self, env_tasks: Vec<u32>) -> Self {
+        assert_eq!(
+            env_tasks.len(),
+            self.per_env.len(),
+            "one task per environment"
+        );
+        self.env_tasks = env_tasks;
+        self
+    }
+
+    /// Chooses the goal source (default [`GoalSource::Replace`] until a library arrives).
+    pub fn with_goal_source(mut self, source: GoalSource) -> Self {
+        self.goal_source = source;
+        self
+    }
+
+    /// The goal states of [`GoalSource::FinalState`]; an environment whose task has none uses
+    /// [`goal_state`] of its observation. Takes effect at each environment's next episode.
+    pub fn set_library(&mut self, library: GoalLibrary) {
+        self.library = library;
+    }
+
+    /// Which tasks passed the planner check (`validated[task]`). An environment is guided only
+    /// once its task has; its `N` counts from that moment (a task validated now starts at
+    /// `σ^0 = 1`). Validation latches: a task once validated stays guided.
+    pub fn set_validated(&mut self, validated: &[bool]) {
+        let first = !self.gated;
+        self.gated = true;
+        for i in 0..self.per_env.len() {
+            let ok = validated
+                .get(self.env_tasks[i] as usize)
+                .copied()
+                .unwrap_or(false);
+            let was = self.enabled[i] && !first;
+            if ok && !was {
+                self.per_env[i] = Guidance::new(self.per_env[i].sigma);
+                self.have_goal[i] = false;
+            }
+            self.enabled[i] = ok || was;
+        }
+    }
+
+    /// Whether environment `env` may be guided (its task passed the check).
+    pub fn enabled(&self, env: usize) -> bool {
+        self.enabled[env]
+    }
+
+    /// `(decisions with an f_{t−1}, of which f_t ≥ f_{t−1}, mean ‖AN − π‖ over guided rows)`
+    /// since the last call; counters restart.
+    pub fn take_decision_stats(&mut self) -> (u64, u64, f64) {
+        let mean = if self.an_rows_window > 0 {
+            self.action_gap_sum / self.an_rows_window as f64
+        } else {
+            0.0
+        };
+        let out = (self.compared, self.non_improving, mean);
+        self.compared = 0;
+        self.non_improving = 0;
+        self.action_gap_sum = 0.0;
+        self.an_rows_window = 0;
+        out
     }
 
     /// Chooses which episodes `N` counts (default [`EpisodeCounter::Actor`]).
@@ -385,6 +590,9 @@ impl BatchGuidance {
         let u_next: f64 = rng.gen();
         self.next_draw = Some(u_next);
         for i in 0..n {
+            if !self.enabled[i] {
+                continue;
+            }
             let p = self.per_env[i].probability();
             if u_t < p || u_next < p {
                 self.draws[self.rows.len()] = u_t;
@@ -400,7 +608,21 @@ impl BatchGuidance {
         for (j, &i) in self.rows.iter().enumerate() {
             let o = &obs[i * od..(i + 1) * od];
             self.obs[j * od..(j + 1) * od].copy_from_slice(o);
-            goal_state_into(o, self.targets[i], &mut self.goals[j * od..(j + 1) * od]);
+            let g = &mut self.goals[j * od..(j + 1) * od];
+            let fixed = self.goal_source == GoalSource::FinalState
+                && (self.have_goal[i]
+                    || self.library.goal_into(
+                        self.env_tasks[i],
+                        o,
+                        self.targets[i],
+                        &mut self.episode_goals[i * od..(i + 1) * od],
+                    ));
+            if fixed {
+                self.have_goal[i] = true;
+                g.copy_from_slice(&self.episode_goals[i * od..(i + 1) * od]);
+            } else {
+                goal_state_into(o, self.targets[i], g);
+            }
             self.actions[j * ad..(j + 1) * ad].copy_from_slice(&actions[i * ad..(i + 1) * ad]);
         }
         self.planner.reach(
@@ -414,6 +636,10 @@ impl BatchGuidance {
         let mut m = 0;
         for j in 0..k {
             let i = self.rows[j];
+            if let Some(prev) = self.per_env[i].prev {
+                self.compared += 1;
+                self.non_improving += u64::from(f64::from(self.reach[j]) >= prev);
+            }
             if self.per_env[i].decide_with_draw(f64::from(self.reach[j]), self.draws[j]) {
                 self.guided[i] = true;
                 self.rows[m] = i;
@@ -431,13 +657,18 @@ impl BatchGuidance {
             &mut self.planned[..m * ad],
         );
         self.an_rows += m as u64;
+        self.an_rows_window += m as u64;
         for (j, &i) in self.rows[..m].iter().enumerate() {
+            let mut gap = 0.0f64;
             for (d, &p) in actions[i * ad..(i + 1) * ad]
                 .iter_mut()
                 .zip(&self.planned[j * ad..(j + 1) * ad])
             {
-                *d = p.clamp(-1.0, 1.0);
+                let p = p.clamp(-1.0, 1.0);
+                gap += f64::from(p - *d).powi(2);
+                *d = p;
             }
+            self.action_gap_sum += gap.sqrt();
         }
         m
     }
@@ -448,13 +679,14 @@ impl BatchGuidance {
     /// first planner version): counting earlier ones would decay the probability to nothing
     /// before a planner exists.
     pub fn end_episode(&mut self, env: usize) {
-        if !self.active() {
+        self.have_goal[env] = false;
+        if !self.active() || !self.enabled[env] {
             return;
         }
         self.per_env[env].end_episode();
         if self.counter == EpisodeCounter::Actor {
             for (i, g) in self.per_env.iter_mut().enumerate() {
-                if i != env {
+                if i != env && self.enabled[i] {
                     g.count_episode();
                 }
             }

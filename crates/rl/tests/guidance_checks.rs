@@ -258,18 +258,33 @@ fn episode_counter_decides_whose_episodes_decay_guidance() {
     assert_eq!(p1, 1.0);
 }
 
-/// `[guidance]` accepts the counter choice and no longer offers a goal source it cannot honour
-/// ("nearest_successful_final" was refused at load and is gone). Run files written before
-/// carry `goal_source = "obs_goal"` (guidance's only goal source): they still load, and the key
-/// is not written again.
+/// `[guidance]` accepts the counter choice and the two goal sources; run files written before
+/// carry `goal_source = "obs_goal"`, today's `replace`; an unknown source is refused.
 #[test]
 fn guidance_config_keys() {
-    use terl_rl::guidance::EpisodeCounter;
+    use terl_rl::guidance::{EpisodeCounter, GoalSource};
     let c: GuidanceConfig = toml::from_str("episode_counter = \"environment\"").unwrap();
     assert_eq!(c.episode_counter, EpisodeCounter::Environment);
     assert_eq!(c.sigma, 0.98);
+    assert_eq!(c.goal_source, GoalSource::FinalState);
     let old: GuidanceConfig = toml::from_str("goal_source = \"obs_goal\"").unwrap();
-    assert!(!toml::to_string(&old).unwrap().contains("goal_source"));
+    assert_eq!(old.goal_source, GoalSource::Replace);
+    assert!(toml::to_string(&old)
+        .unwrap()
+        .contains("goal_source = \"replace\""));
+    assert!(GuidanceConfig {
+        min_spearman: 2.0,
+        ..c.clone()
+    }
+    .validate()
+    .is_err());
+    assert!(GuidanceConfig {
+        steps_per_episode: Some(0),
+        ..c.clone()
+    }
+    .validate()
+    .is_err());
+    assert!(c.validate().is_ok());
     let e = toml::from_str::<GuidanceConfig>("goal_source = \"nearest_successful_final\"")
         .unwrap_err()
         .to_string();

@@ -430,6 +430,9 @@ impl RunConfig {
             cfg.guidance.sigma.is_finite() && (0.0..=1.0).contains(&cfg.guidance.sigma),
             "guidance.sigma must be in [0, 1]"
         );
+        cfg.guidance
+            .validate()
+            .map_err(|e| anyhow::anyhow!("[guidance]: {e}"))?;
         Ok(cfg)
     }
 

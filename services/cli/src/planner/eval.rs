@@ -7,9 +7,11 @@
 //! (b) **AN alone in the real environment**: for `K` held-out trajectories per task (those that
 //! record their goal variation), the environment is reset to the same variation (the same start
 //! state) and AN acts for up to 500 steps toward a goal state from one of two sources:
-//! - `final-state`: the last state (at success) of the successful trajectory of the same task in
-//!   the goal library (`--goals`, default the held-out datasets) whose goal position `obs[36..39]`
-//!   is nearest to this episode's, never one of the same variation; fixed for the episode;
+//! - `final-state` ([`terl_rl::guidance::GoalSource::FinalState`]): the last state (at success)
+//!   of the successful trajectory of the same task in the goal library (`--goals`, default the
+//!   held-out datasets) whose goal position `obs[36..39]` is nearest to this episode's, never one
+//!   of the same variation, with the goal and the object (reach: hand) position set to this
+//!   episode's goal ([`GoalLibrary::goal_into`], what the actor does); fixed for the episode;
 //! - `replace`: the current observation with the object's (reach: the hand's) position replaced
 //!   by the goal position in both frames, rebuilt every step (the guidance of the committed runs).
 //!
@@ -26,7 +28,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 use terl_nn::par_for_threads;
-use terl_rl::guidance::{goal_state_into, GoalTarget, GOAL_POS};
+use terl_rl::guidance::{goal_state_into, GoalLibrary, GoalTarget, GOAL_POS};
 use terl_rl::planner_eval::{predict_gaps, score, ReachScore};
 use terl_rl::{Planner, Tep};
 use terl_sim::{Env, ACTION_DIM, OBS_DIM};
@@ -120,35 +122,34 @@ struct Report {
     tasks: Vec<TaskReport>,
 }
 
-/// The successful trajectories of one task as goal candidates: (goal position, final state,
-/// variation).
-type GoalLibrary = Vec<([f32; 3], Vec<f32>, Option<u32>)>;
+/// The successful trajectories of one task as goal candidates: (variation, final state).
+type GoalCandidates = Vec<(Option<u32>, Vec<f32>)>;
 
-fn library(trajectories: &[Trajectory], task: &str) -> GoalLibrary {
+fn candidates(trajectories: &[Trajectory], task: &str) -> GoalCandidates {
     trajectories
         .iter()
         .filter(|t| t.task == task && t.succeeded() && t.contiguous())
-        .map(|t| {
-            let goal: [f32; 3] = t.obs_at(0)[GOAL_POS].try_into().expect("3 values");
-            (
-                goal,
-                t.next_obs_at(t.until_success() - 1).to_vec(),
-                t.variation,
-            )
-        })
+        .map(|t| (t.variation, t.next_obs_at(t.until_success() - 1).to_vec()))
         .collect()
 }
 
-/// The final state of the library trajectory nearest in goal position, not of `variation`.
-fn nearest_goal<'a>(lib: &'a GoalLibrary, goal: &[f32], variation: u32) -> Option<&'a [f32]> {
-    lib.iter()
-        .filter(|(_, _, v)| *v != Some(variation))
-        .min_by(|a, b| {
-            let d =
-                |g: &[f32; 3]| -> f32 { g.iter().zip(goal).map(|(x, y)| (x - y).powi(2)).sum() };
-            d(&a.0).total_cmp(&d(&b.0))
-        })
-        .map(|(_, s, _)| s.as_slice())
+/// The goal of [`terl_rl::guidance::GoalSource::FinalState`] for an episode of variation `variation` starting at
+/// `start`: [`GoalLibrary::goal_into`] (the actor's own selection) over the candidates of other
+/// variations.
+fn final_state_goal(
+    cands: &GoalCandidates,
+    start: &[f32],
+    variation: u32,
+    target: GoalTarget,
+) -> Option<Vec<f32>> {
+    let mut lib = GoalLibrary::new(OBS_DIM);
+    for (v, s) in cands {
+        if *v != Some(variation) {
+            lib.push(0, s);
+        }
+    }
+    let mut g = vec![0.0; OBS_DIM];
+    lib.goal_into(0, start, target, &mut g).then_some(g)
 }
 
 enum Actor<'a> {
@@ -206,7 +207,7 @@ fn rollout(
 fn task_rollouts(
     task: &str,
     held_out: &[&Trajectory],
-    lib: &GoalLibrary,
+    lib: &GoalCandidates,
     tep: &Tep<f32>,
     args: &EvalArgs,
 ) -> Result<[Option<Arm>; 3]> {
@@ -225,15 +226,19 @@ fn task_rollouts(
     for e in 0..args.rollouts {
         let v = with_variation[e % with_variation.len()];
         let start = env.reset_variation(args.variation_seed, v as usize)?;
-        let goal_pos: Vec<f32> = start[GOAL_POS].iter().map(|&x| x as f32).collect();
+        let start: Vec<f32> = start.iter().map(|&x| x as f32).collect();
         if want_final {
-            let g = nearest_goal(lib, &goal_pos, v).with_context(|| {
-                format!("{task}: no successful trajectory of another variation in the goal library")
-            })?;
+            let g = final_state_goal(lib, &start, v, GoalTarget::for_task(task)).with_context(
+                || {
+                    format!(
+                        "{task}: no successful trajectory of another variation in the goal library"
+                    )
+                },
+            )?;
             let (s, d) = rollout(
                 &mut env,
                 &mut planner,
-                Actor::FinalState(g),
+                Actor::FinalState(&g),
                 args.variation_seed,
                 v,
                 &mut rng,
@@ -317,7 +322,7 @@ pub fn run(args: EvalArgs) -> Result<ExitCode> {
                                 let task = &tasks[k];
                                 let mine: Vec<&Trajectory> =
                                     held_out.iter().filter(|t| t.task == *task).collect();
-                                let lib = library(goals, task);
+                                let lib = candidates(goals, task);
                                 (k, task_rollouts(task, &mine, &lib, tep, args))
                             })
                             .collect::<Vec<_>>()

@@ -50,10 +50,6 @@ impl Trajectory {
     pub fn next_obs_at(&self, i: usize) -> &[f32] {
         &self.next_obs[i * OBS_DIM..(i + 1) * OBS_DIM]
     }
-
-    pub fn obs_at(&self, i: usize) -> &[f32] {
-        &self.obs[i * OBS_DIM..(i + 1) * OBS_DIM]
-    }
 }
 
 /// Reads TEP datasets into trajectories (grouped by trajectory id, sorted by step, duplicates
