@@ -398,9 +398,10 @@ pub struct FinalStats {
     pub mean: Ci,
     /// Sample std (n − 1) over seeds of each seed's mean over tasks.
     pub std: f64,
-    /// For [`FinalKind::LastInRun`]: the fewest in-run evaluations a run had among the last
-    /// `last_evals`, and the env steps those evaluations span over the group's runs.
-    pub evals_used: usize,
+    /// The fewest and most evaluations a run contributed (1 for [`FinalKind::FinalEval`]; for
+    /// [`FinalKind::LastInRun`] up to `last_evals`), and the env steps those evaluations span
+    /// over the group's runs.
+    pub evals_used: (usize, usize),
     pub env_steps: (u64, u64),
     pub episodes_per_task: usize,
 }
@@ -557,7 +558,10 @@ fn final_stats(
         mean: bootstrap.mean(&m)?.into(),
         std: mean_std(&per_seed).1,
         scores: rows,
-        evals_used: scores.evals_per_run.iter().copied().min().unwrap_or(0),
+        evals_used: (
+            scores.evals_per_run.iter().copied().min().unwrap_or(0),
+            scores.evals_per_run.iter().copied().max().unwrap_or(0),
+        ),
         env_steps: (steps.clone().min().unwrap_or(0), steps.max().unwrap_or(0)),
         episodes_per_task: scores
             .points
@@ -855,7 +859,11 @@ pub fn markdown(summary: &Summary) -> String {
             st.mean.point,
             st.std,
             seeds_cell(st, g),
-            st.evals_used,
+            if st.evals_used.0 == st.evals_used.1 {
+                st.evals_used.0.to_string()
+            } else {
+                format!("{}–{}", st.evals_used.0, st.evals_used.1)
+            },
             st.episodes_per_task,
             steps_label(st.env_steps)
         );
@@ -1413,7 +1421,7 @@ mod tests {
         // The last 3 in-run: task 0 (50 + 70 + 90) / 3 = 70, task 1 50.
         let l = s[0].last_in_run.as_ref().unwrap();
         assert!((l.scores[0][0] - 70.0).abs() < 1e-9 && (l.scores[0][1] - 50.0).abs() < 1e-9);
-        assert_eq!((l.evals_used, l.env_steps), (3, (2, 4)));
+        assert_eq!((l.evals_used, l.env_steps), ((3, 3), (2, 4)));
         assert_eq!(l.kind, FinalKind::LastInRun);
         let md = markdown(&summary(&[run("terl", 1, &[(1, 0.5)])], &opts()).unwrap());
         assert!(
