@@ -340,7 +340,7 @@ impl Default for StatsOptions {
 /// In-run evaluations averaged for the second definition of final success unless told.
 pub const DEFAULT_LAST_EVALS: usize = 3;
 
-/// A point estimate with its 95 % (or `--confidence`) bootstrap interval, in % (success) or as a
+/// A point estimate with its 95 % stratified bootstrap interval, in % (success) or as a
 /// probability (improvement).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Ci {
