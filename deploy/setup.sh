@@ -8,7 +8,8 @@
 # - records what it did in .deps/setup.done so a re-run is instant and works offline.
 #
 # - creates the Python environments the tests use (.deps/grpc-venv, .deps/mcap-venv,
-#   .deps/k8s-venv); `--no-test-tools` skips them (the container image's build stage).
+#   .deps/k8s-venv, .deps/rliable-venv); `--no-test-tools` skips them (the container image's
+#   build stage).
 #
 # Nothing else is needed: the sim crate bakes the absolute path of .deps/mujoco/lib into every
 # binary it builds (override at run time with TERL_MUJOCO_LIB=/path/to/libmujoco.so).
@@ -94,6 +95,15 @@ setup_mcap_venv() {
         || die "creating .deps/mcap-venv failed" "re-run crates/telemetry/tests/python/setup-venv.sh and read its output"
 }
 
+# ---------------------------------------------------------------- rliable (crates/stats)
+# The terl-stats test compares the crate's IQM, mean, probability of improvement and bootstrap
+# intervals with rliable's on the same scores; its venv lives in .deps/rliable-venv. Idempotent.
+setup_rliable_venv() {
+    python3 -c "import ensurepip, venv" 2>/dev/null || apt_install python3-venv
+    "$ROOT/crates/stats/tests/python/setup-venv.sh" >&2 \
+        || die "creating .deps/rliable-venv failed" "re-run crates/stats/tests/python/setup-venv.sh and read its output"
+}
+
 setup_k8s_venv() {
     python3 -c "import ensurepip, venv" 2>/dev/null || apt_install python3-venv
     "$ROOT/deploy/k8s/setup-validator.sh" >&2 \
@@ -105,6 +115,7 @@ setup_test_tools() {
     setup_grpc_venv
     setup_mcap_venv
     setup_k8s_venv
+    setup_rliable_venv
 }
 
 [ "$have_all" = 1 ] && { say "already set up ($STAMP_CONTENT)"; setup_test_tools; exit 0; }
@@ -160,5 +171,5 @@ mv "$ROOT/assets/metaworld.tmp" "$ROOT/assets/metaworld"
 echo "$STAMP_CONTENT" >"$STAMP"
 say "done: libmujoco in .deps/mujoco/lib, Meta-World assets in assets/metaworld"
 
-# gRPC interop client, MCAP reader and Kubernetes validator venvs (see setup_test_tools above).
+# gRPC interop client, MCAP reader, Kubernetes validator and rliable venvs (see setup_test_tools above).
 setup_test_tools

@@ -3,7 +3,8 @@
 # (deploy/local-cluster.sh) in runs/<experiment>-<algorithm>[-<variant>]-<tasks>-s<seed>/; when
 # it ends, its final checkpoint is evaluated on all 50 goal variations of every task
 # (`terl eval --json` → eval-final.json). `terl report runs/<experiment>-*` then regenerates the
-# table (mean ± std over seeds, next to the paper's numbers) and the learning curves.
+# table (IQM and mean with stratified bootstrap intervals, mean ± std over seeds, next to the
+# paper's numbers; the probability of improvement) and the learning curves.
 #
 #   deploy/experiments/run.sh mt1-ind [options]   each MT1-Ind task alone (door-open, button-press,
 #                                                 pick-place, window-open, sweep-into), MTSAC and

@@ -1,6 +1,7 @@
-//! Learning-curve charts of `terl report`: per experiment, one line per algorithm (the mean
-//! over seeds of each seed's curve) with ± one standard deviation shaded, drawn by `plotters`
-//! as PNG (text rendered from DejaVu Sans) and SVG.
+//! Learning-curve charts of `terl report`: per experiment, one line per algorithm, the IQM
+//! over seeds × tasks (Agarwal et al. 2021, rliable `aggregate_iqm`) with its stratified
+//! bootstrap interval shaded, drawn by `plotters` as PNG (text rendered from DejaVu Sans) and
+//! SVG.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -8,7 +9,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use plotters::prelude::*;
 
-use crate::results::{mean_std, EvalPoint, RunEval};
+use terl_stats::{Bootstrap, ScoreMatrix};
+
+use crate::results::{EvalPoint, RunEval};
 
 /// Which evaluation quantity a curve shows.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -20,12 +23,6 @@ pub enum CurveMetric {
 }
 
 impl CurveMetric {
-    fn of(self, p: &EvalPoint) -> f64 {
-        match self {
-            Self::Success => 100.0 * p.mean_success,
-            Self::Return => p.mean_return,
-        }
-    }
     fn label(self) -> &'static str {
         match self {
             Self::Success => "evaluation success (%)",
@@ -34,14 +31,14 @@ impl CurveMetric {
     }
 }
 
-/// One curve of a chart: an algorithm's mean over seeds, with ± one std, on a common grid of
-/// env steps. Each seed's curve is linearly interpolated onto the grid, which runs from the
-/// first to the last env steps that every seed evaluated.
+/// One curve of a chart: an algorithm's IQM with its stratified bootstrap interval, on a
+/// common grid of env steps. Each (seed, task) curve is linearly interpolated onto the grid,
+/// which runs from the first to the last env steps that every such curve evaluated.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Band {
     pub label: String,
-    /// `(env steps, mean, std)`.
-    pub points: Vec<(f64, f64, f64)>,
+    /// `(env steps, IQM, interval lower, interval upper)`.
+    pub points: Vec<(f64, f64, f64, f64)>,
 }
 
 fn interpolate(points: &[(f64, f64)], x: f64) -> f64 {
@@ -59,35 +56,18 @@ fn interpolate(points: &[(f64, f64)], x: f64) -> f64 {
     }
 }
 
-/// Mean of several curves on the union of their x values inside their common range (each
-/// linearly interpolated); one curve is returned as it is.
-fn mean_curve(curves: &[Vec<(f64, f64)>]) -> Vec<(f64, f64)> {
-    match curves {
-        [] => Vec::new(),
-        [one] => one.clone(),
-        _ => common_grid(curves)
-            .into_iter()
-            .map(|x| {
-                let ys: Vec<f64> = curves.iter().map(|c| interpolate(c, x)).collect();
-                (x, mean_std(&ys).0)
-            })
-            .collect(),
-    }
-}
-
 /// The union of the curves' x values inside the range every curve covers: no invented
 /// resolution. Curves must be non-empty and sorted by x.
-fn common_grid(curves: &[Vec<(f64, f64)>]) -> Vec<f64> {
-    let lo = curves.iter().map(|c| c[0].0).fold(f64::MIN, f64::max);
+fn common_grid<'a>(curves: impl Iterator<Item = &'a Vec<(f64, f64)>> + Clone) -> Vec<f64> {
+    let lo = curves.clone().map(|c| c[0].0).fold(f64::MIN, f64::max);
     let hi = curves
-        .iter()
+        .clone()
         .map(|c| c[c.len() - 1].0)
         .fold(f64::MAX, f64::min);
     if hi <= lo {
         return vec![lo];
     }
     let mut xs: Vec<f64> = curves
-        .iter()
         .flat_map(|c| c.iter().map(|p| p.0))
         .filter(|&x| x >= lo && x <= hi)
         .collect();
@@ -96,36 +76,62 @@ fn common_grid(curves: &[Vec<(f64, f64)>]) -> Vec<f64> {
     xs
 }
 
-/// The band of one group of runs: per seed the mean curve of its runs (one per task when tasks
-/// train alone), then mean ± std over seeds.
-pub fn band(label: &str, runs: &[&RunEval], metric: CurveMetric) -> Option<Band> {
-    let mut by_seed: BTreeMap<u64, Vec<Vec<(f64, f64)>>> = BTreeMap::new();
-    for r in runs {
-        let c: Vec<(f64, f64)> = r
-            .points
-            .iter()
-            .map(|p| (p.env_steps as f64, metric.of(p)))
-            .collect();
-        if !c.is_empty() {
-            by_seed.entry(r.seed).or_default().push(c);
+/// The band of one group of runs. Success: one curve per seed and task (a multi-task run gives
+/// all its tasks, runs of tasks trained alone one each); return, which runs log only as a mean
+/// over their tasks: one curve per seed and run. At each grid point the seeds × curves matrix
+/// (seeds lacking a curve that another seed has are left out) gives the IQM and its stratified
+/// bootstrap interval ([`terl_stats`], strata = tasks).
+pub fn band(
+    label: &str,
+    runs: &[&RunEval],
+    metric: CurveMetric,
+    bootstrap: &Bootstrap,
+) -> Result<Option<Band>> {
+    // seed → column (task, or the run's task list) → curve.
+    let mut by_seed: BTreeMap<u64, BTreeMap<String, Vec<(f64, f64)>>> = BTreeMap::new();
+    for r in runs.iter().filter(|r| !r.points.is_empty()) {
+        let seed = by_seed.entry(r.seed).or_default();
+        let curve = |f: &dyn Fn(&EvalPoint) -> f64| -> Vec<(f64, f64)> {
+            r.points
+                .iter()
+                .map(|p| (p.env_steps as f64, f(p)))
+                .collect()
+        };
+        match metric {
+            CurveMetric::Success => {
+                for (k, t) in r.tasks.iter().enumerate() {
+                    seed.insert(t.clone(), curve(&|p| 100.0 * p.per_task_success[k]));
+                }
+            }
+            CurveMetric::Return => {
+                seed.insert(r.tasks.join(","), curve(&|p| p.mean_return));
+            }
         }
     }
-    let curves: Vec<Vec<(f64, f64)>> = by_seed.values().map(|c| mean_curve(c)).collect();
-    if curves.is_empty() {
-        return None;
-    }
-    let points = common_grid(&curves)
-        .into_iter()
-        .map(|x| {
-            let ys: Vec<f64> = curves.iter().map(|c| interpolate(c, x)).collect();
-            let (m, s) = mean_std(&ys);
-            (x, m, s)
-        })
+    let mut columns: Vec<&String> = by_seed.values().flat_map(BTreeMap::keys).collect();
+    columns.sort();
+    columns.dedup();
+    let complete: Vec<&BTreeMap<String, Vec<(f64, f64)>>> = by_seed
+        .values()
+        .filter(|c| columns.iter().all(|k| c.contains_key(*k)))
         .collect();
-    Some(Band {
+    if complete.is_empty() || columns.is_empty() {
+        return Ok(None);
+    }
+    let curves = || complete.iter().flat_map(|c| c.values());
+    let mut points = Vec::new();
+    for x in common_grid(curves()) {
+        let rows: Vec<Vec<f64>> = complete
+            .iter()
+            .map(|c| columns.iter().map(|k| interpolate(&c[*k], x)).collect())
+            .collect();
+        let i = bootstrap.iqm(&ScoreMatrix::from_rows(&rows)?)?;
+        points.push((x, i.point, i.lower, i.upper));
+    }
+    Ok(Some(Band {
         label: label.to_string(),
         points,
-    })
+    }))
 }
 
 const FONT_PATHS: [&str; 3] = [
@@ -185,11 +191,11 @@ where
         CurveMetric::Return => {
             let lo = bands
                 .iter()
-                .flat_map(|b| b.points.iter().map(|p| p.1 - p.2))
+                .flat_map(|b| b.points.iter().map(|p| p.2))
                 .fold(0.0f64, f64::min);
             let hi = bands
                 .iter()
-                .flat_map(|b| b.points.iter().map(|p| p.1 + p.2))
+                .flat_map(|b| b.points.iter().map(|p| p.3))
                 .fold(1.0f64, f64::max);
             (lo, hi * 1.05)
         }
@@ -223,9 +229,9 @@ where
         let mut outline: Vec<(f64, f64)> = b
             .points
             .iter()
-            .map(|&(x, m, s)| (x, clamp(m + s)))
+            .map(|&(x, _, _, hi)| (x, clamp(hi)))
             .collect();
-        outline.extend(b.points.iter().rev().map(|&(x, m, s)| (x, clamp(m - s))));
+        outline.extend(b.points.iter().rev().map(|&(x, _, lo, _)| (x, clamp(lo))));
         chart
             .draw_series(std::iter::once(Polygon::new(
                 outline,
@@ -234,7 +240,7 @@ where
             .map_err(|e| anyhow::anyhow!("{e}"))?;
         chart
             .draw_series(LineSeries::new(
-                b.points.iter().map(|&(x, m, _)| (x, m)),
+                b.points.iter().map(|&(x, m, _, _)| (x, m)),
                 color.stroke_width(2),
             ))
             .map_err(|e| anyhow::anyhow!("{e}"))?
@@ -248,7 +254,7 @@ where
             .draw_series(
                 b.points
                     .iter()
-                    .map(|&(x, m, _)| Circle::new((x, m), 3, color.filled())),
+                    .map(|&(x, m, _, _)| Circle::new((x, m), 3, color.filled())),
             )
             .map_err(|e| anyhow::anyhow!("{e}"))?;
     }

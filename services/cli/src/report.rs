@@ -1,9 +1,11 @@
 //! `terl report RUN_DIR...`: reports of one or more runs.
 //!
-//! Across runs ([`crate::results`]): `results.md` (a Table-I-style table of final deterministic
-//! evaluation success, mean ± std over seeds, next to the paper's numbers, and a per-task
-//! breakdown), `results.json`, and per experiment the evaluation success and return curves
-//! (PNG and SVG).
+//! Across runs ([`crate::results`]): `results.md` (Table I of final deterministic evaluation
+//! success: IQM and mean over seeds × tasks with stratified bootstrap intervals, mean ± std
+//! over seeds, next to the paper's numbers; the same with final = the mean of the last
+//! `--last-evals` in-run evaluations; the probability of improvement between the algorithms of
+//! an experiment; a per-task breakdown), `results.json`, and per experiment the evaluation
+//! success and return curves, IQM with its interval (PNG and SVG).
 //!
 //! Per cluster run, from its MCAP logs (training episodes, not evaluations):
 //! - `report.md`: per task, the training success rate over the last `--window` episodes and
@@ -41,6 +43,15 @@ pub struct ReportArgs {
     /// Episodes per task in the rolling success window.
     #[arg(long, default_value_t = 50)]
     pub window: usize,
+    /// The second definition of a run's final success: the mean of its last this many in-run
+    /// evaluations (beside its final evaluation, `eval-final.json`).
+    #[arg(long, default_value_t = crate::results::DEFAULT_LAST_EVALS)]
+    pub last_evals: usize,
+    /// Resamples of every stratified bootstrap interval (IQM, mean, probability of
+    /// improvement, curves). The resampling stream has a fixed seed, so a report is the same
+    /// on every run.
+    #[arg(long, default_value_t = terl_stats::DEFAULT_REPS)]
+    pub bootstrap_reps: usize,
 }
 
 /// Per-task statistics of the episode log.
@@ -273,6 +284,15 @@ fn eval_markdown(evals: &[terl_wire::EvalResult]) -> String {
 
 pub fn run(args: ReportArgs) -> Result<ExitCode> {
     anyhow::ensure!(args.window > 0, "--window must be at least 1");
+    anyhow::ensure!(args.last_evals > 0, "--last-evals must be at least 1");
+    anyhow::ensure!(
+        args.bootstrap_reps > 0,
+        "--bootstrap-reps must be at least 1"
+    );
+    let opts = crate::results::StatsOptions {
+        last_evals: args.last_evals,
+        bootstrap: terl_stats::Bootstrap::with_reps(args.bootstrap_reps),
+    };
     let out = match (&args.out, args.run_dirs.as_slice()) {
         (Some(o), _) => o.clone(),
         (None, [one]) => one.clone(),
@@ -316,7 +336,7 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
         }
     }
     if !evaluated.is_empty() {
-        let (md, files) = crate::results::write_results(&evaluated, &out)?;
+        let (md, files) = crate::results::write_results(&evaluated, &out, &opts)?;
         print!("{md}");
         for f in files {
             eprintln!("wrote {}", f.display());

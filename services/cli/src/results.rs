@@ -9,11 +9,16 @@
 //!   per task), which is then the run's final point.
 //!
 //! Runs are grouped by experiment (the run file's `experiment`, else its `tasks`) and
-//! algorithm; each group reports the **final** evaluation's success rate as mean ± standard
-//! deviation over seeds (sample std, n − 1; 0 for one seed), with the number of seeds,
-//! evaluation episodes per task and env steps stated, next to the paper's Table I. Curves put
-//! one line per algorithm (mean over seeds) with the seeds' spread (± one std) shaded; they are
-//! drawn by `plotters` as PNG (for documents) and SVG ([`crate::charts`]).
+//! algorithm. Each group's final success is a seeds × tasks score matrix (%), under two
+//! definitions: the run's final evaluation (`eval-final.json`), and per task the mean of its
+//! last few in-run evaluations ([`StatsOptions::last_evals`]). Of each matrix the group reports
+//! the IQM and the mean with stratified bootstrap intervals ([`terl_stats`], as rliable), the
+//! mean ± standard deviation over seeds of each seed's mean over tasks (sample std, n − 1; 0 for
+//! one seed), with the number of seeds, evaluation episodes per task, env steps and networks,
+//! next to the paper's Table I; and for two algorithms of an experiment the probability of
+//! improvement with its interval. Curves put one line per algorithm (the IQM over seeds ×
+//! tasks) with its interval shaded; they are drawn by `plotters` as PNG (for documents) and SVG
+//! ([`crate::charts`]).
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -22,6 +27,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use serde::Serialize;
 use terl_runtime::RunConfig;
+
+use terl_stats::{Bootstrap, Interval, ScoreMatrix};
 
 use crate::charts::{band, write_chart, Band, CurveMetric};
 
@@ -51,8 +58,17 @@ pub struct RunEval {
     /// The run's training seed (`[train] seed`).
     pub seed: u64,
     pub tasks: Vec<String>,
-    /// In order of env steps.
+    /// In order of env steps: the in-run evaluations, then `eval-final.json` when the run has
+    /// one (which replaces in-run evaluations from its env steps on).
     pub points: Vec<EvalPoint>,
+    /// Whether the last point is the run's `eval-final.json`.
+    pub has_final_eval: bool,
+    /// Every valid in-run evaluation (`progress.jsonl` or `eval.mcap`), in order of env steps,
+    /// including those at or after the final evaluation's env steps.
+    #[serde(skip)]
+    pub in_run: Vec<EvalPoint>,
+    /// The networks of the run file, e.g. `3×256` (policy and critic) or `3×256; TEP 3×512`.
+    pub networks: String,
 }
 
 impl EvalPoint {
@@ -122,8 +138,10 @@ pub fn load_run(dir: &Path) -> Result<RunEval> {
         );
     }
     points.sort_by_key(|p| p.env_steps);
+    let in_run = points.clone();
     let final_eval = dir.join(FINAL_EVAL);
-    if final_eval.exists() {
+    let has_final_eval = final_eval.exists();
+    if has_final_eval {
         let at = if cfg.train.total_env_steps > 0 {
             cfg.train.total_env_steps
         } else {
@@ -153,7 +171,51 @@ pub fn load_run(dir: &Path) -> Result<RunEval> {
         seed: cfg.train.seed,
         tasks,
         points,
+        has_final_eval,
+        in_run,
+        networks: networks_label(&cfg),
     })
+}
+
+/// `3×256` for three hidden layers of 256; `400-300` for unequal widths; `linear` for none.
+fn layers_label(hidden: &[usize]) -> String {
+    match hidden {
+        [] => "linear".into(),
+        [first, rest @ ..] if rest.iter().all(|h| h == first) => {
+            format!("{}×{first}", hidden.len())
+        }
+        _ => hidden
+            .iter()
+            .map(ToString::to_string)
+            .collect::<Vec<_>>()
+            .join("-"),
+    }
+}
+
+/// The run file's networks: policy and critic (`π …, Q …` when they differ), and for TERL the
+/// TEP's forward model (`TEP f …, AN …` when its action network differs).
+fn networks_label(cfg: &RunConfig) -> String {
+    let (pi, q) = (
+        layers_label(&cfg.sac.policy_hidden),
+        layers_label(&cfg.sac.critic_hidden),
+    );
+    let sac = if pi == q {
+        pi
+    } else {
+        format!("π {pi}, Q {q}")
+    };
+    if cfg.algorithm != terl_runtime::Algorithm::Terl {
+        return sac;
+    }
+    let (f, an) = (
+        layers_label(&cfg.tep.f_hidden),
+        layers_label(&cfg.tep.an_hidden),
+    );
+    if f == an {
+        format!("{sac}; TEP {f}")
+    } else {
+        format!("{sac}; TEP f {f}, AN {an}")
+    }
 }
 
 /// File name of a run's final evaluation: `terl eval --checkpoint RUN/checkpoints/final.safetensors
@@ -255,6 +317,95 @@ pub fn mean_std(values: &[f64]) -> (f64, f64) {
     (mean, var.sqrt())
 }
 
+/// How `terl report` summarizes final success: the second definition of "final" and the
+/// bootstrap of every interval.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StatsOptions {
+    /// "Final" as the mean of a run's last this many in-run evaluations (fewer when it has
+    /// fewer), beside its final evaluation.
+    pub last_evals: usize,
+    /// Resamples, coverage and seed of the stratified bootstrap intervals.
+    pub bootstrap: Bootstrap,
+}
+
+impl Default for StatsOptions {
+    fn default() -> Self {
+        Self {
+            last_evals: DEFAULT_LAST_EVALS,
+            bootstrap: Bootstrap::default(),
+        }
+    }
+}
+
+/// In-run evaluations averaged for the second definition of final success unless told.
+pub const DEFAULT_LAST_EVALS: usize = 3;
+
+/// A point estimate with its 95 % stratified bootstrap interval, in % (success) or as a
+/// probability (improvement).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Ci {
+    pub point: f64,
+    pub lower: f64,
+    pub upper: f64,
+}
+
+impl From<Interval> for Ci {
+    fn from(i: Interval) -> Self {
+        Self {
+            point: i.point,
+            lower: i.lower,
+            upper: i.upper,
+        }
+    }
+}
+
+impl Ci {
+    /// `52.5 [41.0, 64.0]` with `digits` decimals.
+    fn label(&self, digits: usize) -> String {
+        format!(
+            "{:.d$} [{:.d$}, {:.d$}]",
+            self.point,
+            self.lower,
+            self.upper,
+            d = digits
+        )
+    }
+}
+
+/// Which result of a run is its final success.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FinalKind {
+    /// The run's last evaluation: `eval-final.json` (all goal variations) when it has one, else
+    /// its last in-run evaluation.
+    FinalEval,
+    /// Per task, the mean of the run's last `last_evals` in-run evaluations.
+    LastInRun,
+}
+
+/// The field's statistics of one group under one definition of final success, over the seeds
+/// that have a score for every task of the group.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FinalStats {
+    pub kind: FinalKind,
+    /// Seeds in the score matrix (rows), ascending.
+    pub seeds: Vec<u64>,
+    /// The score matrix, seeds × tasks (the group's task order), success in %.
+    pub scores: Vec<Vec<f64>>,
+    /// rliable `aggregate_iqm` and `aggregate_mean` of `scores` with their stratified bootstrap
+    /// intervals (strata = tasks).
+    pub iqm: Ci,
+    pub mean: Ci,
+    /// Sample std (n − 1) over seeds of each seed's mean over tasks.
+    pub std: f64,
+    /// The fewest and most evaluations a run contributed (1 for [`FinalKind::FinalEval`]; for
+    /// [`FinalKind::LastInRun`] up to `last_evals`), and the env steps those evaluations span
+    /// over the group's runs.
+    pub evals_used: (usize, usize),
+    pub env_steps: (u64, u64),
+    pub episodes_per_task: usize,
+}
+
 /// Final results of one (experiment, algorithm) group.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct GroupSummary {
@@ -276,6 +427,40 @@ pub struct GroupSummary {
     pub paper_success: Option<f64>,
     /// `(seed, task)` pairs with no final evaluation while another seed of the group has one.
     pub missing: Vec<(u64, String)>,
+    /// The runs' networks (distinct labels, joined by ` / `).
+    pub networks: String,
+    /// Runs of the group without `eval-final.json` (their last in-run evaluation is final).
+    pub without_final_eval: Vec<PathBuf>,
+    /// The statistics with final = the run's last evaluation (`eval-final.json`).
+    pub final_eval: Option<FinalStats>,
+    /// The statistics with final = the mean of the last in-run evaluations (none when no run
+    /// of the group has any, as for zero-shot evaluation folders).
+    pub last_in_run: Option<FinalStats>,
+}
+
+/// The probability that algorithm `x` improves on `y` in one experiment (rliable
+/// `probability_of_improvement`, intervals by its `StratifiedIndependentBootstrap`).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Comparison {
+    pub experiment: String,
+    pub x: String,
+    pub y: String,
+    /// P(X > Y) with final = `eval-final.json`, and with final = the last in-run evaluations
+    /// (none when either group lacks that definition).
+    pub final_eval: Option<Ci>,
+    pub last_in_run: Option<Ci>,
+}
+
+/// Everything `results.md` and `results.json` summarize.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Summary {
+    pub groups: Vec<GroupSummary>,
+    pub comparisons: Vec<Comparison>,
+    /// `last_evals`, bootstrap resamples, coverage and seed, as used.
+    pub last_evals: usize,
+    pub bootstrap_reps: usize,
+    pub confidence: f64,
+    pub bootstrap_seed: u64,
 }
 
 /// Groups runs by (experiment, algorithm), in a stable order.
@@ -290,35 +475,138 @@ pub fn group_runs(runs: &[RunEval]) -> BTreeMap<(String, String), Vec<&RunEval>>
     groups
 }
 
+/// seed → task → final success (%) of a group under `kind`, with the runs' contributing
+/// evaluations. A task scored twice for one seed is an error.
+struct SeedScores {
+    by_seed: BTreeMap<u64, BTreeMap<String, f64>>,
+    /// The evaluations behind the scores (one per run for `FinalEval`, the last few for
+    /// `LastInRun`), and per run how many were averaged.
+    points: Vec<EvalPoint>,
+    evals_per_run: Vec<usize>,
+}
+
+fn seed_scores(
+    experiment: &str,
+    algorithm: &str,
+    members: &[&RunEval],
+    kind: FinalKind,
+    last_evals: usize,
+) -> Result<SeedScores> {
+    let mut out = SeedScores {
+        by_seed: BTreeMap::new(),
+        points: Vec::new(),
+        evals_per_run: Vec::new(),
+    };
+    for m in members {
+        let used: &[EvalPoint] = match kind {
+            FinalKind::FinalEval => m.points.last().map_or(&[], std::slice::from_ref),
+            FinalKind::LastInRun => &m.in_run[m.in_run.len().saturating_sub(last_evals)..],
+        };
+        if used.is_empty() {
+            continue;
+        }
+        out.points.extend(used.iter().cloned());
+        out.evals_per_run.push(used.len());
+        let seed = out.by_seed.entry(m.seed).or_default();
+        for (k, t) in m.tasks.iter().enumerate() {
+            let v = used.iter().map(|p| p.per_task_success[k]).sum::<f64>() / used.len() as f64;
+            anyhow::ensure!(
+                seed.insert(t.clone(), 100.0 * v).is_none(),
+                "experiment {experiment} / {algorithm}: seed {} evaluates {t} in two runs (one is {})",
+                m.seed,
+                m.dir.display()
+            );
+        }
+    }
+    Ok(out)
+}
+
+/// The seeds × tasks matrix of the seeds that score every task, with those seeds.
+fn complete_matrix(
+    by_seed: &BTreeMap<u64, BTreeMap<String, f64>>,
+    tasks: &[String],
+) -> Option<(Vec<u64>, Vec<Vec<f64>>)> {
+    let (seeds, rows): (Vec<u64>, Vec<Vec<f64>>) = by_seed
+        .iter()
+        .filter_map(|(seed, per)| {
+            let row: Option<Vec<f64>> = tasks.iter().map(|t| per.get(t).copied()).collect();
+            row.map(|r| (*seed, r))
+        })
+        .unzip();
+    (!seeds.is_empty() && !tasks.is_empty()).then_some((seeds, rows))
+}
+
+fn final_stats(
+    kind: FinalKind,
+    scores: &SeedScores,
+    tasks: &[String],
+    bootstrap: &Bootstrap,
+) -> Result<Option<FinalStats>> {
+    let Some((seeds, rows)) = complete_matrix(&scores.by_seed, tasks) else {
+        return Ok(None);
+    };
+    let m = ScoreMatrix::from_rows(&rows)?;
+    let per_seed: Vec<f64> = rows
+        .iter()
+        .map(|r| r.iter().sum::<f64>() / r.len() as f64)
+        .collect();
+    let steps = scores.points.iter().map(|p| p.env_steps);
+    Ok(Some(FinalStats {
+        kind,
+        seeds,
+        iqm: bootstrap.iqm(&m)?.into(),
+        mean: bootstrap.mean(&m)?.into(),
+        std: mean_std(&per_seed).1,
+        scores: rows,
+        evals_used: (
+            scores.evals_per_run.iter().copied().min().unwrap_or(0),
+            scores.evals_per_run.iter().copied().max().unwrap_or(0),
+        ),
+        env_steps: (steps.clone().min().unwrap_or(0), steps.max().unwrap_or(0)),
+        episodes_per_task: scores
+            .points
+            .iter()
+            .map(|p| p.episodes_per_task)
+            .min()
+            .unwrap_or(0),
+    }))
+}
+
 /// The final-evaluation summary of each group.
 ///
 /// A seed's result is the mean over tasks of its runs' final per-task success: one run per
 /// seed for a multi-task experiment (MT10), or one run per task and seed when each task trains
 /// alone (MT1-Ind). A task evaluated twice for one seed is an error. The group reports the mean
-/// and standard deviation of the seeds' results.
-pub fn summarize(runs: &[RunEval]) -> Result<Vec<GroupSummary>> {
+/// and standard deviation of the seeds' results, and under both definitions of final success
+/// the IQM and mean of the seeds × tasks score matrix with stratified bootstrap intervals.
+pub fn summarize(runs: &[RunEval], opts: &StatsOptions) -> Result<Vec<GroupSummary>> {
     let mut out = Vec::new();
     for ((experiment, algorithm), members) in group_runs(runs) {
         let mut tasks: Vec<String> = Vec::new();
-        // seed → task → final success (%).
-        let mut by_seed: BTreeMap<u64, BTreeMap<String, f64>> = BTreeMap::new();
-        let mut finals: Vec<&EvalPoint> = Vec::new();
         for m in &members {
-            let Some(last) = m.last() else { continue };
-            finals.push(last);
-            let seed = by_seed.entry(m.seed).or_default();
-            for (t, s) in m.tasks.iter().zip(&last.per_task_success) {
-                anyhow::ensure!(
-                    seed.insert(t.clone(), 100.0 * s).is_none(),
-                    "experiment {experiment} / {algorithm}: seed {} evaluates {t} in two runs (one is {})",
-                    m.seed,
-                    m.dir.display()
-                );
-                if !tasks.contains(t) {
-                    tasks.push(t.clone());
+            if m.last().is_some() {
+                for t in &m.tasks {
+                    if !tasks.contains(t) {
+                        tasks.push(t.clone());
+                    }
                 }
             }
         }
+        let finals = seed_scores(
+            &experiment,
+            &algorithm,
+            &members,
+            FinalKind::FinalEval,
+            opts.last_evals,
+        )?;
+        let last = seed_scores(
+            &experiment,
+            &algorithm,
+            &members,
+            FinalKind::LastInRun,
+            opts.last_evals,
+        )?;
+        let by_seed = &finals.by_seed;
         let success: Vec<f64> = by_seed
             .values()
             .map(|per| per.values().sum::<f64>() / per.len().max(1) as f64)
@@ -344,23 +632,45 @@ pub fn summarize(runs: &[RunEval]) -> Result<Vec<GroupSummary>> {
                     .map(move |t| (*seed, t.clone()))
             })
             .collect();
-        let steps: Vec<u64> = finals.iter().map(|p| p.env_steps).collect();
+        let steps: Vec<u64> = finals.points.iter().map(|p| p.env_steps).collect();
+        let mut networks: Vec<&str> = Vec::new();
+        for m in &members {
+            if !networks.contains(&m.networks.as_str()) {
+                networks.push(&m.networks);
+            }
+        }
         out.push(GroupSummary {
             missing,
             paper_success: paper_success(&experiment, &algorithm)
                 .filter(|_| !algorithm.contains('(')),
             seeds: by_seed.keys().copied().collect(),
             runs: members.iter().map(|m| m.dir.clone()).collect(),
-            return_mean: mean_std(&finals.iter().map(|p| p.mean_return).collect::<Vec<_>>()).0,
+            return_mean: mean_std(
+                &finals
+                    .points
+                    .iter()
+                    .map(|p| p.mean_return)
+                    .collect::<Vec<_>>(),
+            )
+            .0,
             env_steps: (
                 steps.iter().copied().min().unwrap_or(0),
                 steps.iter().copied().max().unwrap_or(0),
             ),
             episodes_per_task: finals
+                .points
                 .iter()
                 .map(|p| p.episodes_per_task)
                 .min()
                 .unwrap_or(0),
+            networks: networks.join(" / "),
+            without_final_eval: members
+                .iter()
+                .filter(|m| !m.has_final_eval)
+                .map(|m| m.dir.clone())
+                .collect(),
+            final_eval: final_stats(FinalKind::FinalEval, &finals, &tasks, &opts.bootstrap)?,
+            last_in_run: final_stats(FinalKind::LastInRun, &last, &tasks, &opts.bootstrap)?,
             experiment,
             algorithm,
             tasks,
@@ -370,6 +680,69 @@ pub fn summarize(runs: &[RunEval]) -> Result<Vec<GroupSummary>> {
         });
     }
     Ok(out)
+}
+
+/// P(X > Y) of `x` over `y` on the tasks of `x` (none when `y` lacks one of them).
+fn improvement(
+    x: &GroupSummary,
+    y: &GroupSummary,
+    pick: impl Fn(&GroupSummary) -> Option<&FinalStats>,
+    bootstrap: &Bootstrap,
+) -> Result<Option<Ci>> {
+    let (Some(fx), Some(fy)) = (pick(x), pick(y)) else {
+        return Ok(None);
+    };
+    let columns: Option<Vec<usize>> = x
+        .tasks
+        .iter()
+        .map(|t| y.tasks.iter().position(|u| u == t))
+        .collect();
+    let Some(columns) = columns.filter(|_| x.tasks.len() == y.tasks.len()) else {
+        return Ok(None);
+    };
+    let mx = ScoreMatrix::from_rows(&fx.scores)?;
+    let rows_y: Vec<Vec<f64>> = fy
+        .scores
+        .iter()
+        .map(|r| columns.iter().map(|&c| r[c]).collect())
+        .collect();
+    let my = ScoreMatrix::from_rows(&rows_y)?;
+    Ok(Some(bootstrap.probability_of_improvement(&mx, &my)?.into()))
+}
+
+/// Per experiment, every pair of its algorithms `(x, y)` with `x` after `y` in the groups'
+/// order (so `terl` over `mtsac`, `(reference)` over `(before)`).
+pub fn compare(groups: &[GroupSummary], opts: &StatsOptions) -> Result<Vec<Comparison>> {
+    let mut out = Vec::new();
+    for (i, y) in groups.iter().enumerate() {
+        for x in groups[i + 1..]
+            .iter()
+            .filter(|x| x.experiment == y.experiment)
+        {
+            out.push(Comparison {
+                experiment: x.experiment.clone(),
+                x: x.algorithm.clone(),
+                y: y.algorithm.clone(),
+                final_eval: improvement(x, y, |g| g.final_eval.as_ref(), &opts.bootstrap)?,
+                last_in_run: improvement(x, y, |g| g.last_in_run.as_ref(), &opts.bootstrap)?,
+            });
+        }
+    }
+    Ok(out)
+}
+
+/// The groups and comparisons of a set of runs.
+pub fn summary(runs: &[RunEval], opts: &StatsOptions) -> Result<Summary> {
+    let groups = summarize(runs, opts)?;
+    let comparisons = compare(&groups, opts)?;
+    Ok(Summary {
+        groups,
+        comparisons,
+        last_evals: opts.last_evals,
+        bootstrap_reps: opts.bootstrap.reps,
+        confidence: opts.bootstrap.confidence,
+        bootstrap_seed: opts.bootstrap.seed,
+    })
 }
 
 fn steps_label(steps: (u64, u64)) -> String {
@@ -387,35 +760,146 @@ fn steps_label(steps: (u64, u64)) -> String {
     }
 }
 
-/// `results.md`: the Table-I-style table, then a per-task breakdown per experiment.
-pub fn markdown(summaries: &[GroupSummary]) -> String {
+fn ci_cell(c: Option<&Ci>, digits: usize) -> String {
+    c.map_or_else(|| "—".to_string(), |c| c.label(digits))
+}
+
+fn seeds_cell(stats: &FinalStats, g: &GroupSummary) -> String {
+    if stats.seeds.len() == g.seeds.len() {
+        stats.seeds.len().to_string()
+    } else {
+        format!("{} of {}", stats.seeds.len(), g.seeds.len())
+    }
+}
+
+/// `results.md`: Table I with the field's statistics under both definitions of final success,
+/// the probabilities of improvement, then a per-task breakdown per experiment.
+#[allow(clippy::too_many_lines)] // one table after another, in reading order
+pub fn markdown(summary: &Summary) -> String {
+    let summaries = &summary.groups;
+    let pct = 100.0 * summary.confidence;
     let mut s = String::new();
     let _ = writeln!(s, "# Evaluation results\n");
     let _ = writeln!(
         s,
-        "Final deterministic evaluation (mean action) of each run; success = success at any step \
-         of an episode, averaged over tasks. Mean ± std over seeds. The paper's Table I reports 5 \
-         seeds and 500 trials at its own budget; Meta-World v3 tasks here use v2-style rewards.\n"
+        "Deterministic evaluations (mean action); success = success at any step of an episode. \
+         The statistics follow Agarwal et al. 2021 (rliable): IQM = interquartile mean of the \
+         seeds × tasks score matrix, mean = mean over tasks of the mean over seeds, each with a \
+         {pct:.0} % stratified percentile-bootstrap interval (strata = tasks, seeds resampled \
+         within each task; {} resamples, seed {:#x}); ± = sample std over seeds of each seed's \
+         mean over tasks. The paper's Table I reports 5 seeds and 500 trials at its own budget; \
+         Meta-World v3 tasks here use v2-style rewards.\n",
+        summary.bootstrap_reps, summary.bootstrap_seed
     );
     let _ = writeln!(
         s,
-        "| experiment | algorithm | success % (ours) | paper % | seeds | eval episodes / task | env steps / run |"
+        "## Final success: the final evaluation (`eval-final.json`, all goal variations)\n"
     );
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|");
+    let _ = writeln!(
+        s,
+        "| experiment | algorithm | IQM % [{pct:.0} % CI] | mean % [{pct:.0} % CI] | mean ± std | paper % | seeds | eval episodes / task | env steps / run | networks |"
+    );
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|");
     for g in summaries {
+        let st = g.final_eval.as_ref();
         let _ = writeln!(
             s,
-            "| {} | {} | {:.1} ± {:.1} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {:.1} ± {:.1} | {} | {} | {} | {} | {} |",
             g.experiment,
             g.algorithm,
+            ci_cell(st.map(|f| &f.iqm), 1),
+            ci_cell(st.map(|f| &f.mean), 1),
             g.success_mean,
             g.success_std,
             g.paper_success
                 .map_or_else(|| "—".to_string(), |p| format!("{p:.1}")),
-            g.seeds.len(),
+            st.map_or_else(|| g.seeds.len().to_string(), |f| seeds_cell(f, g)),
             g.episodes_per_task,
-            steps_label(g.env_steps)
+            steps_label(g.env_steps),
+            g.networks
         );
+    }
+    for g in summaries
+        .iter()
+        .filter(|g| !g.without_final_eval.is_empty())
+    {
+        let _ = writeln!(
+            s,
+            "\n**Note:** {} / {}: {} run(s) without `eval-final.json`; their last in-run evaluation is their final one.",
+            g.experiment,
+            g.algorithm,
+            g.without_final_eval.len()
+        );
+    }
+    let last_k = summary.last_evals;
+    let _ = writeln!(
+        s,
+        "\n## Final success: the mean of the last {last_k} in-run evaluations\n\n\
+         Per run and task, the mean success of its last {last_k} in-run evaluations (`eval.mcap` or \
+         `progress.jsonl`; fewer when the run has fewer), then the same statistics.\n"
+    );
+    let _ = writeln!(
+        s,
+        "| experiment | algorithm | IQM % [{pct:.0} % CI] | mean % [{pct:.0} % CI] | mean ± std | seeds | evaluations / run | eval episodes / task | at env steps |"
+    );
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
+    let mut none = Vec::new();
+    for g in summaries {
+        let Some(st) = &g.last_in_run else {
+            none.push(format!("{} / {}", g.experiment, g.algorithm));
+            continue;
+        };
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {:.1} ± {:.1} | {} | {} | {} | {} |",
+            g.experiment,
+            g.algorithm,
+            st.iqm.label(1),
+            st.mean.label(1),
+            st.mean.point,
+            st.std,
+            seeds_cell(st, g),
+            if st.evals_used.0 == st.evals_used.1 {
+                st.evals_used.0.to_string()
+            } else {
+                format!("{}–{}", st.evals_used.0, st.evals_used.1)
+            },
+            st.episodes_per_task,
+            steps_label(st.env_steps)
+        );
+    }
+    if !none.is_empty() {
+        let _ = writeln!(
+            s,
+            "\nNo in-run evaluations (evaluation-only folders): {}.",
+            none.join(", ")
+        );
+    }
+    if !summary.comparisons.is_empty() {
+        let _ = writeln!(
+            s,
+            "\n## Probability of improvement\n\n\
+             P(X > Y): the probability that a seed of X scores higher than a seed of Y on a task \
+             (ties count ½), averaged over tasks (rliable `probability_of_improvement`), with its \
+             {pct:.0} % stratified bootstrap interval (X and Y resampled independently). 0.5 is no \
+             difference.\n"
+        );
+        let _ = writeln!(
+            s,
+            "| experiment | X | Y | P(X > Y), final evaluation | P(X > Y), last {last_k} in-run evaluations |"
+        );
+        let _ = writeln!(s, "|---|---|---|---|---|");
+        for c in &summary.comparisons {
+            let _ = writeln!(
+                s,
+                "| {} | {} | {} | {} | {} |",
+                c.experiment,
+                c.x,
+                c.y,
+                ci_cell(c.final_eval.as_ref(), 2),
+                ci_cell(c.last_in_run.as_ref(), 2)
+            );
+        }
     }
     let mut experiments: Vec<&str> = summaries.iter().map(|g| g.experiment.as_str()).collect();
     experiments.dedup();
@@ -423,7 +907,7 @@ pub fn markdown(summaries: &[GroupSummary]) -> String {
         let groups: Vec<&GroupSummary> = summaries.iter().filter(|g| g.experiment == exp).collect();
         let _ = writeln!(
             s,
-            "\n## {exp}: per task (final success %, mean ± std over seeds)\n"
+            "\n## {exp}: per task (final evaluation success %, mean ± std over seeds)\n"
         );
         let header: Vec<String> = groups
             .iter()
@@ -446,18 +930,25 @@ pub fn markdown(summaries: &[GroupSummary]) -> String {
             for (seed, task) in &g.missing {
                 let _ = writeln!(
                     s,
-                    "\n**Note:** {} seed {seed} has no evaluation of {task}; that seed's mean is over its other tasks.",
+                    "\n**Note:** {} seed {seed} has no evaluation of {task}; that seed's mean is over its other tasks, and the IQM and mean leave the seed out.",
                     g.algorithm
                 );
             }
         }
         let _ = writeln!(
             s,
-            "\nCurves: `{0}-eval-success.png` / `.svg`, `{0}-eval-return.png` / `.svg`.",
+            "\nCurves (IQM with its {pct:.0} % stratified bootstrap interval shaded): `{0}-eval-success.png` / `.svg`, `{0}-eval-return.png` / `.svg`.",
             file_stem(exp)
         );
     }
     s
+}
+
+fn distinct_seeds(runs: &[&RunEval]) -> usize {
+    let mut seeds: Vec<u64> = runs.iter().map(|r| r.seed).collect();
+    seeds.sort_unstable();
+    seeds.dedup();
+    seeds.len()
 }
 
 fn seeds_label(n: usize) -> String {
@@ -494,15 +985,27 @@ pub fn file_stem(experiment: &str) -> String {
 
 /// Everything `terl report` writes for a set of runs: `results.md`, `results.json` and the
 /// two charts per experiment. Returns the markdown and the files written.
-pub fn write_results(runs: &[RunEval], out_dir: &Path) -> Result<(String, Vec<PathBuf>)> {
-    let summaries = summarize(runs)?;
-    let md = markdown(&summaries);
+pub fn write_results(
+    runs: &[RunEval],
+    out_dir: &Path,
+    opts: &StatsOptions,
+) -> Result<(String, Vec<PathBuf>)> {
+    let summary = summary(runs, opts)?;
+    let md = markdown(&summary);
     let mut files = Vec::new();
     let md_path = out_dir.join("results.md");
     std::fs::write(&md_path, &md).with_context(|| format!("writing {}", md_path.display()))?;
     files.push(md_path);
     let json_path = out_dir.join("results.json");
-    let json = serde_json::json!({ "groups": summaries, "runs": runs });
+    let json = serde_json::json!({
+        "groups": summary.groups,
+        "comparisons": summary.comparisons,
+        "last_evals": summary.last_evals,
+        "bootstrap_reps": summary.bootstrap_reps,
+        "confidence": summary.confidence,
+        "bootstrap_seed": summary.bootstrap_seed,
+        "runs": runs,
+    });
     std::fs::write(&json_path, serde_json::to_string_pretty(&json)?)
         .with_context(|| format!("writing {}", json_path.display()))?;
     files.push(json_path);
@@ -516,12 +1019,14 @@ pub fn write_results(runs: &[RunEval], out_dir: &Path) -> Result<(String, Vec<Pa
                 .filter(|((e, _), _)| e == exp)
                 .filter_map(|((_, alg), members)| {
                     band(
-                        &format!("{alg}, {}", seeds_label(members.len())),
+                        &format!("{alg}, {}", seeds_label(distinct_seeds(members))),
                         members,
                         metric,
+                        &opts.bootstrap,
                     )
+                    .transpose()
                 })
-                .collect();
+                .collect::<Result<_>>()?;
             let (stem, what) = match metric {
                 CurveMetric::Success => ("eval-success", "success"),
                 CurveMetric::Return => ("eval-return", "return"),
@@ -529,7 +1034,10 @@ pub fn write_results(runs: &[RunEval], out_dir: &Path) -> Result<(String, Vec<Pa
             files.extend(write_chart(
                 out_dir,
                 &format!("{}-{stem}", file_stem(exp)),
-                &format!("{exp}: deterministic evaluation {what} (mean ± std over seeds)"),
+                &format!(
+                    "{exp}: deterministic evaluation {what} (IQM, {:.0} % stratified bootstrap CI)",
+                    100.0 * opts.bootstrap.confidence
+                ),
                 metric,
                 &bands,
             )?);
@@ -542,8 +1050,15 @@ pub fn write_results(runs: &[RunEval], out_dir: &Path) -> Result<(String, Vec<Pa
 mod tests {
     use super::*;
 
+    fn opts() -> StatsOptions {
+        StatsOptions {
+            last_evals: 3,
+            bootstrap: Bootstrap::with_reps(2000),
+        }
+    }
+
     fn run(alg: &str, seed: u64, curve: &[(u64, f64)]) -> RunEval {
-        RunEval {
+        let mut r = RunEval {
             dir: PathBuf::from(format!("runs/{alg}-{seed}")),
             experiment: "mt10".into(),
             algorithm: alg.into(),
@@ -559,7 +1074,12 @@ mod tests {
                     episodes_per_task: 50,
                 })
                 .collect(),
-        }
+            has_final_eval: false,
+            in_run: Vec::new(),
+            networks: "3×256".into(),
+        };
+        r.in_run = r.points.clone();
+        r
     }
 
     #[test]
@@ -569,7 +1089,7 @@ mod tests {
             run("terl", 1, &[(1000, 0.2), (2000, 0.5)]),
             run("mtsac", 2, &[(1000, 0.3), (2000, 0.6)]),
         ];
-        let s = summarize(&runs).unwrap();
+        let s = summarize(&runs, &opts()).unwrap();
         assert_eq!(s.len(), 2);
         let m = &s[0];
         assert_eq!(
@@ -583,11 +1103,37 @@ mod tests {
         assert_eq!(m.paper_success, Some(68.4));
         assert_eq!(s[1].success_std, 0.0);
         assert_eq!(s[1].paper_success, Some(82.8));
-        let md = markdown(&s);
+        // Scores [[50, 30], [70, 50]]: IQM (50 + 50) / 2 = 50 and mean 50. Resampling each
+        // task's two seeds, the smallest resample ({50, 50}, {30, 30}: IQM 40, mean 40) and the
+        // largest (60) each have probability 1/16 > 2.5 %: both intervals are [40, 60].
+        let f = m.final_eval.as_ref().unwrap();
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-9;
+        let flat: Vec<f64> = f.scores.concat();
         assert!(
-            md.contains("| mt10 | mtsac | 50.0 ± 14.1 | 68.4 | 2 | 50 | 2k |"),
+            flat.iter()
+                .zip([50.0, 30.0, 70.0, 50.0])
+                .all(|(&a, b)| close(a, b)),
+            "{flat:?}"
+        );
+        for c in [f.iqm, f.mean] {
+            assert!(
+                close(c.point, 50.0) && close(c.lower, 40.0) && close(c.upper, 60.0),
+                "{c:?}"
+            );
+        }
+        let summary = summary(&runs, &opts()).unwrap();
+        // terl seed 1 (60, 40) against mtsac ({50, 70}, {30, 50}): ½ on each task.
+        let c = &summary.comparisons[0];
+        assert_eq!((c.x.as_str(), c.y.as_str()), ("terl", "mtsac"));
+        assert!((c.final_eval.unwrap().point - 0.5).abs() < 1e-12);
+        let md = markdown(&summary);
+        assert!(
+            md.contains(
+                "| mt10 | mtsac | 50.0 [40.0, 60.0] | 50.0 [40.0, 60.0] | 50.0 ± 14.1 | 68.4 | 2 | 50 | 2k | 3×256 |"
+            ),
             "{md}"
         );
+        assert!(md.contains("| mt10 | terl | mtsac | 0.50 ["), "{md}");
         assert!(
             md.contains("| push-v3 | 40.0 ± 14.1 | 40.0 ± 0.0 |"),
             "{md}"
@@ -598,14 +1144,26 @@ mod tests {
     fn bands_interpolate_seeds_onto_their_common_steps() {
         let a = run("mtsac", 1, &[(0, 0.0), (100, 1.0)]);
         let b = run("mtsac", 2, &[(0, 0.0), (50, 0.0), (150, 1.0)]);
-        let band = band("mtsac", &[&a, &b], CurveMetric::Success).unwrap();
+        let band = band(
+            "mtsac",
+            &[&a, &b],
+            CurveMetric::Success,
+            &Bootstrap::with_reps(200),
+        )
+        .unwrap()
+        .unwrap();
         // Common range 0..100; grid = union of steps inside it: 0, 50, 100.
         let xs: Vec<f64> = band.points.iter().map(|p| p.0).collect();
         assert_eq!(xs, vec![0.0, 50.0, 100.0]);
-        // At 50: seed 1 interpolates to 50 %, seed 2 is 0 % → mean 25.
+        // Per task the run's success ± 10 points. At 50: seed 1 interpolates to 50 % (tasks 60,
+        // 40), seed 2 is 0 % (10, −10) → IQM of −10, 10, 40, 60 = 25.
         assert!((band.points[1].1 - 25.0).abs() < 1e-9);
-        // At 100: seed 1 100 %, seed 2 halfway from 0 (at 50) to 100 (at 150) → 50; mean 75.
+        // At 100: seed 1 100 % (110, 90), seed 2 halfway from 0 (at 50) to 100 (at 150) → 50
+        // (60, 40) → IQM (60 + 90) / 2 = 75.
         assert!((band.points[2].1 - 75.0).abs() < 1e-9);
+        for &(_, m, lo, hi) in &band.points {
+            assert!(lo <= m && m <= hi);
+        }
     }
 
     #[test]
@@ -616,7 +1174,7 @@ mod tests {
             run("mtsac", 2, &[(0, 0.0), (1000, 0.2), (2000, 0.7)]),
             run("terl", 1, &[(0, 0.0), (1000, 0.5), (2000, 0.8)]),
         ];
-        let (_, files) = write_results(&runs, dir.path()).unwrap();
+        let (md, files) = write_results(&runs, dir.path(), &opts()).unwrap();
         let png = dir.path().join("mt10-eval-success.png");
         let bytes = std::fs::read(&png).unwrap();
         assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n");
@@ -632,6 +1190,22 @@ mod tests {
         )
         .unwrap();
         assert_eq!(json["groups"].as_array().unwrap().len(), 2);
+        assert_eq!(json["comparisons"].as_array().unwrap().len(), 1);
+        // Regenerated byte for byte: the bootstrap has a fixed seed.
+        let again = tempfile::tempdir().unwrap();
+        let (md2, _) = write_results(&runs, again.path(), &opts()).unwrap();
+        assert_eq!(md, md2);
+        for f in [
+            "results.json",
+            "mt10-eval-success.png",
+            "mt10-eval-success.svg",
+        ] {
+            assert_eq!(
+                std::fs::read(dir.path().join(f)).unwrap(),
+                std::fs::read(again.path().join(f)).unwrap(),
+                "{f}"
+            );
+        }
     }
 
     #[test]
@@ -713,6 +1287,9 @@ mod tests {
                 mean_return: 0.0,
                 episodes_per_task: 50,
             }],
+            has_final_eval: true,
+            in_run: Vec::new(),
+            networks: "3×256".into(),
         };
         let runs = vec![
             one("door-open-v3", 1, 1.0),
@@ -720,19 +1297,34 @@ mod tests {
             one("door-open-v3", 2, 0.5),
             one("window-open-v3", 2, 0.0),
         ];
-        let s = summarize(&runs).unwrap();
+        let s = summarize(&runs, &opts()).unwrap();
         // Seed 1: (100 + 50) / 2 = 75; seed 2: 25 → mean 50, std sqrt(1250).
         assert_eq!(s[0].seeds, vec![1, 2]);
         assert!((s[0].success_mean - 50.0).abs() < 1e-9);
         assert!((s[0].success_std - 1250f64.sqrt()).abs() < 1e-9);
         assert_eq!(s[0].tasks, vec!["door-open-v3", "window-open-v3"]);
         assert!((s[0].per_task[0].1 - 75.0).abs() < 1e-9);
-        let b = band("x", &runs.iter().collect::<Vec<_>>(), CurveMetric::Success).unwrap();
+        // Seeds × tasks [[100, 50], [50, 0]]: IQM (50 + 50) / 2.
+        assert_eq!(
+            s[0].final_eval.as_ref().unwrap().scores,
+            vec![vec![100.0, 50.0], vec![50.0, 0.0]]
+        );
+        assert!((s[0].final_eval.as_ref().unwrap().iqm.point - 50.0).abs() < 1e-9);
+        // Only final evaluations: no second definition.
+        assert_eq!(s[0].last_in_run, None);
+        let b = band(
+            "x",
+            &runs.iter().collect::<Vec<_>>(),
+            CurveMetric::Success,
+            &Bootstrap::with_reps(200),
+        )
+        .unwrap()
+        .unwrap();
         assert_eq!(b.points.len(), 1);
         assert!((b.points[0].1 - 50.0).abs() < 1e-9);
         // The same task twice for one seed is refused.
         let twice = vec![one("door-open-v3", 1, 1.0), one("door-open-v3", 1, 0.0)];
-        assert!(summarize(&twice).is_err());
+        assert!(summarize(&twice, &opts()).is_err());
     }
 
     #[test]
@@ -803,8 +1395,43 @@ mod tests {
         a.tasks = vec!["reach-v3".into(), "push-v3".into()];
         b.tasks = vec!["reach-v3".into()];
         b.points[0].per_task_success = vec![1.0];
-        let s = summarize(&[a, b]).unwrap();
+        let runs = [a, b];
+        let s = summarize(&runs, &opts()).unwrap();
         assert_eq!(s[0].missing, vec![(2, "push-v3".to_string())]);
-        assert!(markdown(&s).contains("seed 2 has no evaluation of push-v3"));
+        // The score matrix keeps only the seed with every task.
+        assert_eq!(s[0].final_eval.as_ref().unwrap().seeds, vec![1]);
+        let md = markdown(&summary(&runs, &opts()).unwrap());
+        assert!(md.contains("seed 2 has no evaluation of push-v3"), "{md}");
+        assert!(md.contains("| 1 of 2 |"), "{md}");
+    }
+
+    #[test]
+    fn final_as_the_last_in_run_evaluations_beside_the_final_evaluation() {
+        // In-run evaluations 20, 40, 60, 80 % (tasks ± 10), then a final evaluation of 10 %.
+        let mut r = run(
+            "mtsac",
+            1,
+            &[(1, 0.2), (2, 0.4), (3, 0.6), (4, 0.8), (5, 0.1)],
+        );
+        r.in_run.pop();
+        r.has_final_eval = true;
+        let s = summarize(&[r], &opts()).unwrap();
+        let f = s[0].final_eval.as_ref().unwrap();
+        assert!((f.scores[0][0] - 20.0).abs() < 1e-9 && f.scores[0][1].abs() < 1e-9);
+        // The last 3 in-run: task 0 (50 + 70 + 90) / 3 = 70, task 1 50.
+        let l = s[0].last_in_run.as_ref().unwrap();
+        assert!((l.scores[0][0] - 70.0).abs() < 1e-9 && (l.scores[0][1] - 50.0).abs() < 1e-9);
+        assert_eq!((l.evals_used, l.env_steps), ((3, 3), (2, 4)));
+        assert_eq!(l.kind, FinalKind::LastInRun);
+        let md = markdown(&summary(&[run("terl", 1, &[(1, 0.5)])], &opts()).unwrap());
+        assert!(
+            md.contains("the final evaluation (`eval-final.json`"),
+            "{md}"
+        );
+        assert!(
+            md.contains("the mean of the last 3 in-run evaluations"),
+            "{md}"
+        );
+        assert!(md.contains("1 run(s) without `eval-final.json`"), "{md}");
     }
 }
