@@ -131,8 +131,8 @@ pub fn guidance_probability(sigma: f64, episodes: u64) -> f64 {
 #[serde(rename_all = "snake_case")]
 pub enum GoalSource {
     /// The final state (at success) of the selected successful trajectory of the same task whose
-    /// goal position is nearest this episode's, with its goal position and its object (reach:
-    /// hand) position set to this episode's goal ([`GoalLibrary::goal_into`]); chosen at the
+    /// goal position is nearest this episode's, moved onto this episode's goal
+    /// ([`GoalLibrary::goal_into`]); chosen at the
     /// episode's first step and fixed for the episode. A state the planner was trained to reach.
     #[default]
     FinalState,
@@ -213,6 +213,9 @@ impl GuidanceConfig {
     }
 }
 
+/// Goal states per task the learner sends with the planner (the most recent ones).
+pub const GOAL_LIBRARY_PER_TASK: usize = 32;
+
 /// Final states of selected successful trajectories, per task: the goal states of
 /// [`GoalSource::FinalState`]. Row `i` is task `tasks[i]`'s state `states[i·obs_dim..]`.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -251,10 +254,12 @@ impl GoalLibrary {
     }
 
     /// The goal state for an episode of `task` that starts at `obs`: the library's state of that
-    /// task whose goal position (`[36..39]`) is nearest `obs`'s, with its goal position and the
-    /// `target` position (both frames) set to `obs`'s goal, written into `out`. `false` (and
-    /// `out` untouched) when the task has none.
-    pub fn goal_into(&self, task: u32, obs: &[f32], target: GoalTarget, out: &mut [f32]) -> bool {
+    /// task whose goal position (`[36..39]`) is nearest `obs`'s, moved by the difference of the two
+    /// goal positions (hand and object 1 in both frames, so the final configuration keeps its
+    /// shape: an object set onto the new goal with the hand left at the old one is a state no
+    /// trajectory reaches) and with `obs`'s goal, written into `out` (the same for hand and object tasks).
+    /// `false` (and `out` untouched) when the task has none.
+    pub fn goal_into(&self, task: u32, obs: &[f32], out: &mut [f32]) -> bool {
         let od = self.obs_dim;
         let goal = &obs[GOAL_POS];
         let dist = |i: usize| -> f32 {
@@ -270,10 +275,17 @@ impl GoalLibrary {
         let Some(i) = best else {
             return false;
         };
-        out.copy_from_slice(&self.states[i * od..(i + 1) * od]);
+        let state = &self.states[i * od..(i + 1) * od];
+        out.copy_from_slice(state);
+        // The whole final configuration moved with the goal: hand and object 1, both frames.
+        for k in 0..3 {
+            let delta = goal[k] - state[GOAL_POS.start + k];
+            for r in [HAND_POS, OBJECT_POS] {
+                out[r.start + k] += delta;
+                out[r.start + FRAME_LEN + k] += delta;
+            }
+        }
         out[GOAL_POS].copy_from_slice(goal);
-        out[target.range()].copy_from_slice(goal);
-        out[target.previous_range()].copy_from_slice(goal);
         true
     }
 }
@@ -614,7 +626,6 @@ impl BatchGuidance {
                     || self.library.goal_into(
                         self.env_tasks[i],
                         o,
-                        self.targets[i],
                         &mut self.episode_goals[i * od..(i + 1) * od],
                     ));
             if fixed {

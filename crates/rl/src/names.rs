@@ -13,6 +13,12 @@ pub const TEP_AN: &str = "tep_an";
 /// Target copies of F and AN (learner checkpoints only).
 pub const TEP_F_TARGET: &str = "tep_f_target";
 pub const TEP_AN_TARGET: &str = "tep_an_target";
+/// The guidance gate in the planner weights message: one 0/1 per task (validated).
+pub const TEP_GATE: &str = "tep_gate.validated";
+/// Task index of each goal state of the goal library (planner weights message).
+pub const TEP_GOAL_TASKS: &str = "tep_goals.tasks";
+/// The goal library's states, `[n, obs_dim]` (planner weights message).
+pub const TEP_GOAL_STATES: &str = "tep_goals.states";
 
 /// Whether `tensor` is one of network `net`'s tensors (`net.<layer>.…`); `tep_f_target.0.bias`
 /// is not one of `tep_f`'s.

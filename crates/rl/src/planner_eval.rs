@@ -214,27 +214,45 @@ impl PairSet {
         max_pairs: usize,
         rng: &mut impl Rng,
     ) {
+        let n = actions.len() / self.act_dim;
+        let steps: Vec<u32> = (0..n as u32).collect();
+        self.add_segment(task, &steps, obs, actions, next_obs, max_pairs, rng);
+    }
+
+    /// [`PairSet::add_trajectory`] for transitions at step indices `steps` (strictly increasing,
+    /// holes allowed, as in selected data): the pair of transitions `t ≤ j` has goal
+    /// `next_obs[j]` and gap `steps[j] + 1 − steps[t]` (the TEP buffer's hindsight gap).
+    #[allow(clippy::too_many_arguments)] // one trajectory's arrays, as TepBuffer::push_segment
+    pub fn add_segment(
+        &mut self,
+        task: usize,
+        steps: &[u32],
+        obs: &[f32],
+        actions: &[f32],
+        next_obs: &[f32],
+        max_pairs: usize,
+        rng: &mut impl Rng,
+    ) {
         let (o, a) = (self.obs_dim, self.act_dim);
-        let n = actions.len() / a;
+        let n = steps.len();
         assert!(
-            obs.len() == n * o && next_obs.len() == n * o,
+            obs.len() == n * o && next_obs.len() == n * o && actions.len() == n * a,
             "trajectory shapes"
         );
         let total = n * (n + 1) / 2;
-        let mut push = |t: usize, k: usize| {
+        let mut push = |t: usize, j: usize| {
             self.tasks.push(task);
             self.obs.extend_from_slice(&obs[t * o..(t + 1) * o]);
-            let j = t + k - 1;
             self.goals.extend_from_slice(&next_obs[j * o..(j + 1) * o]);
             self.actions.extend_from_slice(&actions[t * a..(t + 1) * a]);
-            self.gaps.push(k as u32);
+            self.gaps.push(steps[j] + 1 - steps[t]);
         };
-        // Pair number p ↦ (t, k): pairs listed by t, then k = 1..=n − t.
+        // Pair number p ↦ (t, j): pairs listed by t, then j = t..n.
         let pair = |mut p: usize| {
             for t in 0..n {
                 let m = n - t;
                 if p < m {
-                    return (t, p + 1);
+                    return (t, t + p);
                 }
                 p -= m;
             }
@@ -242,17 +260,33 @@ impl PairSet {
         };
         if total <= max_pairs {
             for t in 0..n {
-                for k in 1..=n - t {
-                    push(t, k);
+                for j in t..n {
+                    push(t, j);
                 }
             }
         } else {
             for p in rand::seq::index::sample(rng, total, max_pairs) {
-                let (t, k) = pair(p);
-                push(t, k);
+                let (t, j) = pair(p);
+                push(t, j);
             }
         }
     }
+}
+
+/// Spearman ρ of F per task on `pairs` (`NaN` for a task without pairs), `num_tasks` entries.
+pub fn spearman_per_task(pred: &[f64], pairs: &PairSet, num_tasks: usize) -> Vec<f64> {
+    (0..num_tasks)
+        .map(|k| {
+            let (p, g): (Vec<f64>, Vec<f64>) = pred
+                .iter()
+                .zip(&pairs.gaps)
+                .zip(&pairs.tasks)
+                .filter(|(_, &t)| t == k)
+                .map(|((&p, &g), _)| (p, f64::from(g)))
+                .unzip();
+            spearman(&p, &g)
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -314,5 +348,29 @@ mod tests {
         seen.dedup();
         assert_eq!(seen.len(), 7, "no pair twice");
         assert!(some.tasks.iter().all(|&t| t == 3));
+    }
+
+    #[test]
+    fn segments_with_holes_use_the_step_gap_and_per_task_rho_splits_by_task() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2);
+        let mut p = PairSet::new(1, 1);
+        // Steps 0, 1, 5: the pair (0, 5) is 6 steps apart (goal = state after step 5).
+        p.add_segment(
+            1,
+            &[0, 1, 5],
+            &[0.0, 1.0, 5.0],
+            &[0.0; 3],
+            &[1.0, 2.0, 6.0],
+            100,
+            &mut rng,
+        );
+        assert_eq!(p.len(), 6);
+        for i in 0..p.len() {
+            assert_eq!(p.goals[i] - p.obs[i], p.gaps[i] as f32, "pair {i}");
+        }
+        let pred: Vec<f64> = p.gaps.iter().map(|&g| f64::from(g)).collect();
+        let rho = spearman_per_task(&pred, &p, 3);
+        assert!(rho[0].is_nan() && rho[2].is_nan());
+        assert!((rho[1] - 1.0).abs() < 1e-12);
     }
 }

@@ -290,3 +290,68 @@ fn guidance_config_keys() {
         .to_string();
     assert!(e.contains("unknown variant"), "{e}");
 }
+
+/// The gate: an environment of a task that has not passed the planner check is never guided
+/// and its episodes do not count; a task validated later starts at σ^0 = 1. The goal library
+/// gives the nearest final state moved onto the episode's goal.
+#[test]
+fn gate_enables_validated_tasks_and_library_goals_follow_the_episode_goal() {
+    use terl_rl::guidance::{BatchGuidance, GoalLibrary, GoalSource};
+    use terl_rl::{Tep, TepConfig};
+    let (od, ad) = (39usize, 4usize);
+    let cfg = TepConfig {
+        f_hidden: vec![16],
+        an_hidden: vec![16],
+        ..TepConfig::default()
+    };
+    let tep: Tep<f32> = Tep::new(cfg.clone()).unwrap();
+    let (f, an) = tep.planner_params_f32();
+    let mut g = BatchGuidance::new(&cfg, 0.5, vec![GoalTarget::Object; 2])
+        .with_tasks(vec![0, 1])
+        .with_goal_source(GoalSource::FinalState);
+    g.planner_mut().set_params(&f, &an, 1).unwrap();
+    g.set_validated(&[true, false]);
+    assert!(g.enabled(0) && !g.enabled(1));
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let obs = vec![0.1f32; 2 * od];
+    for _ in 0..200 {
+        let mut actions = vec![0.0f32; 2 * ad];
+        g.apply(&obs, &mut actions, &mut rng);
+        assert!(!g.guided()[1], "an unvalidated task is never guided");
+        assert!(actions[ad..].iter().all(|&a| a == 0.0));
+    }
+    g.end_episode(0);
+    g.end_episode(1);
+    assert_eq!(g.probability(0), 0.5);
+    assert_eq!(g.probability(1), 1.0, "N does not count before validation");
+    g.set_validated(&[true, true]);
+    assert!(g.enabled(1));
+    assert_eq!(g.probability(0), 0.5, "validation latches, N goes on");
+    assert_eq!(g.probability(1), 1.0);
+
+    let mut lib = GoalLibrary::new(od);
+    let mut near = vec![0.0f32; od];
+    near[36..39].copy_from_slice(&[0.1, 0.6, 0.2]);
+    near[0..3].copy_from_slice(&[0.1, 0.55, 0.2]);
+    near[4..7].copy_from_slice(&[0.1, 0.6, 0.21]);
+    let mut far = near.clone();
+    far[36..39].copy_from_slice(&[-0.3, 0.9, 0.3]);
+    lib.push(0, &far);
+    lib.push(0, &near);
+    lib.push(1, &far);
+    let mut start = vec![0.0f32; od];
+    start[36..39].copy_from_slice(&[0.12, 0.62, 0.2]);
+    let mut out = vec![0.0f32; od];
+    assert!(lib.goal_into(0, &start, &mut out));
+    // The nearer state, moved by (0.02, 0.02, 0): hand and object in both frames, goal replaced.
+    for (k, d) in [0.02f32, 0.02, 0.0].iter().enumerate() {
+        assert!((out[k] - (near[k] + d)).abs() < 1e-6);
+        assert!((out[4 + k] - (near[4 + k] + d)).abs() < 1e-6);
+        assert!((out[22 + k] - (near[22 + k] + d)).abs() < 1e-6);
+        assert_eq!(out[36 + k], start[36 + k]);
+    }
+    assert!(
+        !lib.goal_into(2, &start, &mut out),
+        "a task without goal states"
+    );
+}

@@ -467,8 +467,18 @@ impl RunConfig {
             out.push(("critic", vec![critic.clone(), critic]));
             out.push(("planner", vec![f, an]));
         }
+        // The planner message also carries the guidance gate and the goal library.
+        let gate_bytes = (num_tasks as u64)
+            .saturating_mul(terl_rl::guidance::GOAL_LIBRARY_PER_TASK as u64)
+            .saturating_mul(4 * (obs as u64 + 1))
+            .saturating_add(4 * num_tasks as u64)
+            .saturating_add(3 * TENSOR_OVERHEAD_BYTES);
         out.into_iter()
-            .map(|(kind, nets)| (kind, mlp_message_bytes(&nets).unwrap_or(u64::MAX)))
+            .map(|(kind, nets)| {
+                let bytes = mlp_message_bytes(&nets).unwrap_or(u64::MAX);
+                let extra = if kind == "planner" { gate_bytes } else { 0 };
+                (kind, bytes.saturating_add(extra))
+            })
             .collect()
     }
 

@@ -46,7 +46,8 @@ pub use server::{
     SelectorService, ServeError, ServeOptions,
 };
 pub use status::{
-    ActorStats, EvalResult, LearnerStatus, PriorityStats, SelectorStatus, TaskEval, TaskSuccess,
+    ActorStats, EvalResult, LearnerStatus, PlannerStatus, PlannerTask, PriorityStats,
+    SelectorStatus, TaskEval, TaskSuccess,
 };
 pub use weights::{weights_crc32, Tensor, Weights, WeightsError, WeightsKind};
 

@@ -43,6 +43,77 @@ pub struct ActorStats {
     pub address: String,
 }
 
+/// One task's planner check (the guidance gate); see `PlannerTask` in `status.proto`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize)]
+pub struct PlannerTask {
+    pub task: String,
+    /// Spearman ρ of F on the task's held-out selected trajectories; `None` before a check.
+    pub spearman: Option<f64>,
+    pub validated: bool,
+    pub validated_at_tep_update: u64,
+    pub tep_transitions: u64,
+    pub held_out_trajectories: u64,
+}
+
+/// The planner side of the learner status, last window (`algorithm = "terl"`).
+#[derive(Debug, Clone, PartialEq, Default, Serialize)]
+pub struct PlannerStatus {
+    pub step_loss: f64,
+    pub goal_loss: f64,
+    pub symmetry_loss: f64,
+    pub an_bc_loss: f64,
+    pub gap_mean: f64,
+    pub tasks: Vec<PlannerTask>,
+}
+
+fn planner_from_pb(m: pb::PlannerStatus) -> Result<PlannerStatus, Status> {
+    let tasks = m
+        .tasks
+        .into_iter()
+        .map(|t| {
+            let rho = finite(&format!("planner.tasks[{}].spearman", t.task), t.spearman)?;
+            Ok(PlannerTask {
+                spearman: (-1.0..=1.0).contains(&rho).then_some(rho),
+                validated: t.validated,
+                validated_at_tep_update: t.validated_at_tep_update,
+                tep_transitions: t.tep_transitions,
+                held_out_trajectories: t.held_out_trajectories,
+                task: t.task,
+            })
+        })
+        .collect::<Result<_, Status>>()?;
+    Ok(PlannerStatus {
+        step_loss: non_negative("planner.step_loss", m.step_loss)?,
+        goal_loss: non_negative("planner.goal_loss", m.goal_loss)?,
+        symmetry_loss: non_negative("planner.symmetry_loss", m.symmetry_loss)?,
+        an_bc_loss: non_negative("planner.an_bc_loss", m.an_bc_loss)?,
+        gap_mean: non_negative("planner.gap_mean", m.gap_mean)?,
+        tasks,
+    })
+}
+
+fn planner_to_pb(d: PlannerStatus) -> pb::PlannerStatus {
+    pb::PlannerStatus {
+        step_loss: d.step_loss,
+        goal_loss: d.goal_loss,
+        symmetry_loss: d.symmetry_loss,
+        an_bc_loss: d.an_bc_loss,
+        gap_mean: d.gap_mean,
+        tasks: d
+            .tasks
+            .into_iter()
+            .map(|t| pb::PlannerTask {
+                task: t.task,
+                spearman: t.spearman.unwrap_or(-2.0),
+                validated: t.validated,
+                validated_at_tep_update: t.validated_at_tep_update,
+                tep_transitions: t.tep_transitions,
+                held_out_trajectories: t.held_out_trajectories,
+            })
+            .collect(),
+    }
+}
+
 /// Training progress of the learner (`Learner.GetStatus`).
 #[derive(Debug, Clone, PartialEq, Default, Serialize)]
 pub struct LearnerStatus {
@@ -103,6 +174,8 @@ pub struct LearnerStatus {
     pub update_speed_ratio: f64,
     /// Longest staging round of the last rate window, ms.
     pub staging_max_ms: f64,
+    /// `algorithm = "terl"`: planner losses and the guidance gate per task.
+    pub planner: PlannerStatus,
 }
 
 /// Statistics of PTR priorities.
@@ -440,6 +513,7 @@ impl TryFrom<pb::LearnerStatus> for LearnerStatus {
             busy_updates_per_second: m.busy_updates_per_second,
             update_speed_ratio: m.update_speed_ratio,
             staging_max_ms: m.staging_max_ms,
+            planner: planner_from_pb(m.planner.unwrap_or_default())?,
         })
     }
 }
@@ -484,6 +558,7 @@ impl From<LearnerStatus> for pb::LearnerStatus {
             busy_updates_per_second: d.busy_updates_per_second,
             update_speed_ratio: d.update_speed_ratio,
             staging_max_ms: d.staging_max_ms,
+            planner: Some(planner_to_pb(d.planner)),
         }
     }
 }

@@ -64,6 +64,28 @@ fn learner_status() -> LearnerStatus {
         guided_steps: 99,
         tep_target_mean: 14.5,
         tep_goal_distance_mean: 13.25,
+        planner: terl_wire::PlannerStatus {
+            step_loss: 0.25,
+            goal_loss: 1.5,
+            symmetry_loss: 0.125,
+            an_bc_loss: 0.375,
+            gap_mean: 16.5,
+            tasks: vec![
+                terl_wire::PlannerTask {
+                    task: "reach".into(),
+                    spearman: Some(0.875),
+                    validated: true,
+                    validated_at_tep_update: 400,
+                    tep_transitions: 1024,
+                    held_out_trajectories: 4,
+                },
+                terl_wire::PlannerTask {
+                    task: "push".into(),
+                    spearman: None,
+                    ..Default::default()
+                },
+            ],
+        },
         transition_batches_dropped: 3,
         transitions_dropped: 192,
         episodes_dropped: 2,

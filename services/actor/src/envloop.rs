@@ -205,9 +205,18 @@ impl PolicySource for ActorPolicy<'_> {
         }
         if let Some(g) = self.guide.as_mut() {
             let fresh = self.mailbox.planner.lock().ok().and_then(|mut s| s.take());
-            if let Some((version, f, an)) = fresh {
-                match g.planner_mut().set_params(&f, &an, version) {
-                    Ok(()) => tracing::debug!(version, "loaded planner weights"),
+            if let Some(p) = fresh {
+                let version = p.version;
+                match g.planner_mut().set_params(&p.f, &p.an, version) {
+                    Ok(()) => {
+                        tracing::debug!(version, "loaded planner weights");
+                        if let Some(gate) = &p.gate {
+                            g.set_validated(gate);
+                        }
+                        if let Some(lib) = p.goals {
+                            g.set_library(lib);
+                        }
+                    }
                     Err(e) => tracing::warn!(version, "ignoring planner weights: {e}"),
                 }
             }
@@ -494,8 +503,16 @@ pub(crate) fn run<T: ServiceTransport>(
             .iter()
             .map(|&k| GoalTarget::for_task(v.tasks()[k]))
             .collect();
+        // The gate and the goal library index the run's task list.
+        let env_tasks = v
+            .env_tasks()
+            .iter()
+            .map(|&k| tasks.iter().position(|t| *t == v.tasks()[k]).unwrap_or(0) as u32)
+            .collect();
         BatchGuidance::new(&cfg, run.guidance.sigma, targets)
             .with_counter(run.guidance.episode_counter)
+            .with_tasks(env_tasks)
+            .with_goal_source(run.guidance.goal_source)
     });
     let mut policy = ActorPolicy {
         policy: Policy::new(spec, num_envs),

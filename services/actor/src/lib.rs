@@ -69,8 +69,18 @@ impl ActorConfig {
     }
 }
 
-/// Planner weights received and not yet loaded: version, F's and AN's flat parameters.
-pub(crate) type PlannerParams = (u64, Vec<f32>, Vec<f32>);
+/// Planner weights received and not yet loaded.
+#[derive(Debug)]
+pub(crate) struct PlannerParams {
+    pub(crate) version: u64,
+    /// F's and AN's flat parameters.
+    pub(crate) f: Vec<f32>,
+    pub(crate) an: Vec<f32>,
+    /// The guidance gate, one flag per task of the run (`None`: a learner without a gate).
+    pub(crate) gate: Option<Vec<bool>>,
+    /// The goal library of the final-state goal source.
+    pub(crate) goals: Option<terl_rl::guidance::GoalLibrary>,
+}
 
 /// The newest weights received and not yet loaded.
 #[derive(Debug, Default)]
@@ -92,16 +102,50 @@ fn post(mailbox: &Mailbox, weights: Weights) {
     match kind {
         WeightsKind::Planner => {
             let (mut f, mut an) = (Vec::new(), Vec::new());
+            let (mut gate, mut goal_tasks, mut goal_states) = (None, None, None);
             for t in weights.into_tensors() {
                 let (name, _, values) = t.into_parts();
-                if names::belongs_to(&name, names::TEP_F) {
+                if name == names::TEP_GATE {
+                    gate = Some(values.iter().map(|&v| v > 0.5).collect());
+                } else if name == names::TEP_GOAL_TASKS {
+                    goal_tasks = Some(values);
+                } else if name == names::TEP_GOAL_STATES {
+                    goal_states = Some(values);
+                } else if names::belongs_to(&name, names::TEP_F) {
                     f.extend(values);
                 } else if names::belongs_to(&name, names::TEP_AN) {
                     an.extend(values);
                 }
             }
+            let goals = match (goal_tasks, goal_states) {
+                (Some(tasks), Some(states))
+                    if states.len() == tasks.len() * terl_transport::OBS_DIM
+                        && tasks.iter().all(|t| t.is_finite() && *t >= 0.0)
+                        && states.iter().all(|v| v.is_finite()) =>
+                {
+                    let mut lib = terl_rl::guidance::GoalLibrary::new(terl_transport::OBS_DIM);
+                    for (k, s) in tasks
+                        .iter()
+                        .zip(states.chunks_exact(terl_transport::OBS_DIM))
+                    {
+                        lib.push(*k as u32, s);
+                    }
+                    Some(lib)
+                }
+                (None, None) => None,
+                _ => {
+                    tracing::warn!(version, "ignoring a malformed goal library");
+                    None
+                }
+            };
             if let Ok(mut slot) = mailbox.planner.lock() {
-                *slot = Some((version, f, an));
+                *slot = Some(PlannerParams {
+                    version,
+                    f,
+                    an,
+                    gate,
+                    goals,
+                });
             }
         }
         _ => {

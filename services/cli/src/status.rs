@@ -246,6 +246,30 @@ fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyho
             l.selected_samples, l.guided_steps
         );
         println!("guidance  {}", guidance.join("  "));
+        let p = &l.planner;
+        println!(
+            "planner   F terms step {:.3} goal {:.3} symmetry {:.3}  AN bc {:.3}  mean gap {:.1}",
+            p.step_loss, p.goal_loss, p.symmetry_loss, p.an_bc_loss, p.gap_mean
+        );
+        let gate: Vec<String> = p
+            .tasks
+            .iter()
+            .map(|t| {
+                let rho = t
+                    .spearman
+                    .map_or_else(|| "ρ –".to_string(), |r| format!("ρ {r:.2}"));
+                let mark = if t.validated {
+                    format!("guided since TEP update {}", t.validated_at_tep_update)
+                } else {
+                    "not guided".to_string()
+                };
+                format!(
+                    "{} {rho} ({} held out, {} in buffer) {mark}",
+                    t.task, t.held_out_trajectories, t.tep_transitions
+                )
+            })
+            .collect();
+        println!("gate      {}", gate.join("  |  "));
     }
     match selector {
         Ok(s) => {

@@ -147,16 +147,21 @@ mod tests {
         write_dataset(&a, "door-open-v3", 7, 30);
         write_dataset(&b, "window-open-v3", 7, 20);
         let tasks = ["door-open-v3", "window-open-v3"];
-        let mut planner = PlannerTrainer::new(TepConfig::default(), tasks.len(), 1).unwrap();
+        let mut planner =
+            PlannerTrainer::new(TepConfig::default(), Default::default(), tasks.len(), 1).unwrap();
         load_all(&[a.clone(), b], &tasks, &mut planner).unwrap();
-        // Kept apart, nothing is merged away as a duplicate step of one trajectory.
-        assert_eq!(planner.buffer_len(), 50);
+        // Kept apart, nothing is merged away as a duplicate step of one trajectory (each is
+        // held out for the planner check: the first trajectories of a task are).
+        assert_eq!(planner.selected, 50);
+        assert_eq!(planner.buffer_len() + planner.held_out_transitions(), 50);
         // The same file twice is refused.
-        let mut planner = PlannerTrainer::new(TepConfig::default(), tasks.len(), 1).unwrap();
+        let mut planner =
+            PlannerTrainer::new(TepConfig::default(), Default::default(), tasks.len(), 1).unwrap();
         let e = load_all(&[a.clone(), a.clone()], &tasks, &mut planner).unwrap_err();
         assert!(format!("{e:#}").contains("twice"), "{e:#}");
         // A file without any sample of the run's tasks is an error naming it.
-        let mut planner = PlannerTrainer::new(TepConfig::default(), 1, 1).unwrap();
+        let mut planner =
+            PlannerTrainer::new(TepConfig::default(), Default::default(), 1, 1).unwrap();
         let e = load_all(&[a], &["reach-v3"], &mut planner).unwrap_err();
         assert!(format!("{e:#}").contains("a.mcap"), "{e:#}");
     }
@@ -202,9 +207,10 @@ mod tests {
         std::fs::write(&path, &bytes).unwrap();
 
         let tasks = ["door-open-v3"];
-        let mut planner = PlannerTrainer::new(TepConfig::default(), tasks.len(), 1).unwrap();
+        let mut planner =
+            PlannerTrainer::new(TepConfig::default(), Default::default(), tasks.len(), 1).unwrap();
         load_all(&[path], &tasks, &mut planner).unwrap();
-        assert_eq!(planner.buffer_len(), 25);
+        assert_eq!(planner.buffer_len() + planner.held_out_transitions(), 25);
     }
 
     #[test]

@@ -7,7 +7,11 @@
 //! `transport/selected_samples_dropped`, and per actor
 //! `transport/transitions_dropped/actor-<id>` and `transport/episodes_dropped/actor-<id>`.
 //! TERL runs add `tep/target_mean` (mean
-//! bootstrapped target `1 + F̃`, ≥ 1) and `tep/goal_distance_mean` (mean `F(s_t, s', a_t)`).
+//! target of the hindsight term), `tep/goal_distance_mean` (mean `F(s_t, s', a_t)`), F's three
+//! loss terms (`tep/step_loss`, `tep/goal_loss`, `tep/symmetry_loss`), `tep/an_bc_loss`,
+//! `tep/gap_mean` (mean hindsight gap), and per task `tep/transitions/<task>` (TEP buffer),
+//! `tep/held_out_spearman/<task>` (the planner check's ρ) and `guidance/validated/<task>` (0/1:
+//! the gate; its step is the gate-open event).
 
 use std::path::Path;
 
@@ -135,6 +139,27 @@ impl MetricsLog {
             ]);
             for t in &status.task_success {
                 out.push((format!("guidance/rate/{}", t.task), t.guidance_rate));
+            }
+            let p = &status.planner;
+            out.extend([
+                ("tep/step_loss".into(), p.step_loss),
+                ("tep/goal_loss".into(), p.goal_loss),
+                ("tep/symmetry_loss".into(), p.symmetry_loss),
+                ("tep/an_bc_loss".into(), p.an_bc_loss),
+                ("tep/gap_mean".into(), p.gap_mean),
+            ]);
+            for t in &p.tasks {
+                out.push((
+                    format!("tep/transitions/{}", t.task),
+                    t.tep_transitions as f64,
+                ));
+                out.push((
+                    format!("guidance/validated/{}", t.task),
+                    f64::from(u8::from(t.validated)),
+                ));
+                if let Some(r) = t.spearman {
+                    out.push((format!("tep/held_out_spearman/{}", t.task), r));
+                }
             }
         }
         for (name, value) in out {

@@ -1,6 +1,17 @@
 //! The learner's TEP side (`algorithm = "terl"`): the TEP buffer fed by the selector's selected
 //! samples (and optionally a dataset from an earlier run), TEP updates interleaved with SAC
 //! updates, planner weights for the weight stream, planner checkpoints.
+//!
+//! **The guidance gate.** The first `[guidance] validation_trajectories` selected trajectories
+//! of each task (at least [`MIN_VALIDATION_STEPS`] transitions) are held out of the TEP buffer.
+//! Every `validate_every_updates` TEP updates F is scored on them ([`terl_rl::planner_eval`]:
+//! Spearman ρ between F and the step gap); a task whose ρ reaches `min_spearman` is validated
+//! (latched) and from then on the actors guide it. The gate goes out with the planner weights
+//! (`tep_gate.validated`, one 0/1 per task), with the goal library of the final-state goal source
+//! (`tep_goals.tasks`, `tep_goals.states`: the last state of the [`GOALS_PER_TASK`] most recent
+//! selected trajectories per task). A planner given with `[tep] init_planner` (trained offline,
+//! `terl planner train`) is checked on the held-out trajectories of the datasets loaded at start,
+//! so its tasks are guided from the first step.
 
 use std::collections::BTreeMap;
 #[cfg(test)]
@@ -22,6 +33,24 @@ use crate::checkpoint::{PlannerState, RngState};
 /// CPU; transitions and status must not wait for a long catch-up).
 const MAX_TEP_UPDATES_PER_ROUND: u64 = 2;
 
+/// Goal states kept per task for the actors' final-state goals.
+pub(crate) const GOALS_PER_TASK: usize = terl_rl::guidance::GOAL_LIBRARY_PER_TASK;
+
+/// Shortest selected trajectory (transitions) held out for the planner check.
+pub(crate) const MIN_VALIDATION_STEPS: usize = 10;
+
+/// Pairs per held-out trajectory in the planner check.
+const VALIDATION_PAIRS: usize = 200;
+
+/// One held-out trajectory segment.
+#[derive(Debug, Clone)]
+struct HeldOut {
+    steps: Vec<u32>,
+    obs: Vec<f32>,
+    actions: Vec<f32>,
+    next_obs: Vec<f32>,
+}
+
 /// Running sums of the losses over the current reporting window.
 #[derive(Debug, Default, Clone, Copy)]
 struct LossWindow {
@@ -29,6 +58,11 @@ struct LossWindow {
     an: f64,
     target: f64,
     distance: f64,
+    step: f64,
+    goal: f64,
+    symmetry: f64,
+    bc: f64,
+    gap: f64,
     n: u64,
 }
 
@@ -55,6 +89,30 @@ pub(crate) struct PlannerTrainer {
     pub(crate) shown_goal_distance_mean: f64,
     pub(crate) failed_updates: u64,
     published_version: u64,
+    /// The gate's settings (`[guidance]`).
+    guidance: terl_rl::guidance::GuidanceConfig,
+    held_out: Vec<Vec<HeldOut>>,
+    held_out_ids: std::collections::HashSet<u64>,
+    /// Per task, the last states of recent selected trajectories (oldest first).
+    goals: Vec<std::collections::VecDeque<[f32; OBS_DIM]>>,
+    /// Per task, ρ of the last check (NaN before one).
+    pub(crate) spearman: Vec<f64>,
+    /// Per task, TEP update count at which it was validated.
+    pub(crate) validated_at: Vec<Option<u64>>,
+    /// Per task, transitions in the TEP buffer (pushed, before overwriting).
+    pub(crate) task_transitions: Vec<u64>,
+    last_check: Option<u64>,
+    /// Added to the update count to version the weights: 1 for a pretrained planner, so its
+    /// weights go out before the first update.
+    version_offset: u64,
+    /// The gate changed since the last publication (publish even without an update).
+    gate_changed: bool,
+    /// Last window's means of F's three loss terms, AN's behaviour-cloning term, the gap.
+    pub(crate) shown_step_loss: f64,
+    pub(crate) shown_goal_loss: f64,
+    pub(crate) shown_symmetry_loss: f64,
+    pub(crate) shown_an_bc_loss: f64,
+    pub(crate) shown_gap_mean: f64,
 }
 
 fn sample_ok(s: &SelectedSample, num_tasks: usize) -> bool {
@@ -64,11 +122,21 @@ fn sample_ok(s: &SelectedSample, num_tasks: usize) -> bool {
 }
 
 impl PlannerTrainer {
-    pub(crate) fn new(mut config: TepConfig, num_tasks: usize, seed: u64) -> anyhow::Result<Self> {
+    pub(crate) fn new(
+        mut config: TepConfig,
+        guidance: terl_rl::guidance::GuidanceConfig,
+        num_tasks: usize,
+        seed: u64,
+    ) -> anyhow::Result<Self> {
         config.obs_dim = OBS_DIM;
         config.act_dim = ACTION_DIM;
         config.seed = seed;
-        let tep = Tep::new(config.clone())?;
+        let mut tep = Tep::new(config.clone())?;
+        let mut version_offset = 0;
+        if let Some(path) = &config.init_planner {
+            load_pretrained(&mut tep, std::path::Path::new(path))?;
+            version_offset = 1;
+        }
         Ok(Self {
             buffer: TepBuffer::new(config.buffer_capacity, OBS_DIM, ACTION_DIM),
             batch: TepBatch::with_capacity(config.batch_size, OBS_DIM, ACTION_DIM),
@@ -85,7 +153,123 @@ impl PlannerTrainer {
             shown_goal_distance_mean: 0.0,
             failed_updates: 0,
             published_version: 0,
+            guidance,
+            held_out: vec![Vec::new(); num_tasks],
+            held_out_ids: Default::default(),
+            goals: vec![Default::default(); num_tasks],
+            spearman: vec![f64::NAN; num_tasks],
+            validated_at: vec![None; num_tasks],
+            task_transitions: vec![0; num_tasks],
+            last_check: None,
+            version_offset,
+            gate_changed: false,
+            shown_step_loss: 0.0,
+            shown_goal_loss: 0.0,
+            shown_symmetry_loss: 0.0,
+            shown_an_bc_loss: 0.0,
+            shown_gap_mean: 0.0,
         })
+    }
+
+    /// Transitions held out of the buffer for the planner check.
+    #[cfg(test)]
+    pub(crate) fn held_out_transitions(&self) -> usize {
+        self.held_out.iter().flatten().map(|h| h.steps.len()).sum()
+    }
+
+    /// The planner part of the status (`tasks`: the run's task names, in order).
+    pub(crate) fn status(&self, tasks: &[&str]) -> terl_wire::PlannerStatus {
+        terl_wire::PlannerStatus {
+            step_loss: self.shown_step_loss,
+            goal_loss: self.shown_goal_loss,
+            symmetry_loss: self.shown_symmetry_loss,
+            an_bc_loss: self.shown_an_bc_loss,
+            gap_mean: self.shown_gap_mean,
+            tasks: tasks
+                .iter()
+                .enumerate()
+                .map(|(k, name)| terl_wire::PlannerTask {
+                    task: name.to_string(),
+                    spearman: self.spearman[k].is_finite().then_some(self.spearman[k]),
+                    validated: self.validated_at[k].is_some(),
+                    validated_at_tep_update: self.validated_at[k].unwrap_or(0),
+                    tep_transitions: self.task_transitions[k],
+                    held_out_trajectories: self.held_out[k].len() as u64,
+                })
+                .collect(),
+        }
+    }
+
+    /// Scores F on each task's held-out trajectories and validates the tasks that pass (see
+    /// the module docs). Runs at most once per `validate_every_updates` TEP updates unless
+    /// `force`.
+    pub(crate) fn check(&mut self, force: bool) {
+        let updates = self.tep.updates();
+        if !force
+            && self
+                .last_check
+                .is_some_and(|u| updates.saturating_sub(u) < self.guidance.validate_every_updates)
+        {
+            return;
+        }
+        if self.held_out.iter().all(Vec::is_empty) {
+            return;
+        }
+        self.last_check = Some(updates);
+        let mut rng = ChaCha8Rng::seed_from_u64(0x5eed_ca11);
+        let mut pairs = terl_rl::planner_eval::PairSet::new(OBS_DIM, ACTION_DIM);
+        for (task, trajectories) in self.held_out.iter().enumerate() {
+            for h in trajectories {
+                pairs.add_segment(
+                    task,
+                    &h.steps,
+                    &h.obs,
+                    &h.actions,
+                    &h.next_obs,
+                    VALIDATION_PAIRS,
+                    &mut rng,
+                );
+            }
+        }
+        let pred =
+            terl_rl::planner_eval::predict_gaps(&self.tep, &pairs, terl_nn::par_for_threads(1));
+        let rho = terl_rl::planner_eval::spearman_per_task(&pred, &pairs, self.num_tasks);
+        for (task, &r) in rho.iter().enumerate() {
+            self.spearman[task] = r;
+            if self.validated_at[task].is_none() && r >= self.guidance.min_spearman {
+                self.validated_at[task] = Some(updates);
+                self.gate_changed = true;
+                tracing::info!(
+                    task,
+                    spearman = format!("{r:.3}"),
+                    tep_updates = updates,
+                    "planner validated for the task: guidance starts"
+                );
+            }
+        }
+    }
+
+    /// The gate and goal library as tensors of the planner weights message.
+    fn gate_tensors(&self) -> Vec<Tensor> {
+        let validated: Vec<f32> = self
+            .validated_at
+            .iter()
+            .map(|v| if v.is_some() { 1.0 } else { 0.0 })
+            .collect();
+        let mut tasks = Vec::new();
+        let mut states = Vec::new();
+        for (task, g) in self.goals.iter().enumerate() {
+            for s in g {
+                tasks.push(task as f32);
+                states.extend_from_slice(s);
+            }
+        }
+        let n = tasks.len();
+        vec![
+            Tensor::from_values(names::TEP_GATE, vec![self.num_tasks], &validated),
+            Tensor::from_values(names::TEP_GOAL_TASKS, vec![n], &tasks),
+            Tensor::from_values(names::TEP_GOAL_STATES, vec![n, OBS_DIM], &states),
+        ]
     }
 
     pub(crate) fn updates(&self) -> u64 {
@@ -120,6 +304,30 @@ impl PlannerTrainer {
             let obs: Vec<f32> = seg.iter().flat_map(|s| s.obs).collect();
             let next_obs: Vec<f32> = seg.iter().flat_map(|s| s.next_obs).collect();
             let actions: Vec<f32> = seg.iter().flat_map(|s| s.action).collect();
+            let task = usize::from(seg[0].task);
+            let id = seg[0].trajectory_id;
+            if seg.len() >= MIN_VALIDATION_STEPS {
+                let g = &mut self.goals[task];
+                if g.len() == GOALS_PER_TASK {
+                    g.pop_front();
+                }
+                g.push_back(seg[seg.len() - 1].next_obs);
+            }
+            let hold = self.held_out_ids.contains(&id)
+                || (self.held_out[task].len() < self.guidance.validation_trajectories
+                    && seg.len() >= MIN_VALIDATION_STEPS);
+            if hold {
+                self.held_out_ids.insert(id);
+                self.held_out[task].push(HeldOut {
+                    steps,
+                    obs,
+                    actions,
+                    next_obs,
+                });
+                accepted += seg.len() as u64;
+                continue;
+            }
+            self.task_transitions[task] += seg.len() as u64;
             match self.buffer.push_segment(
                 u32::from(seg[0].task),
                 seg[0].trajectory_id,
@@ -175,6 +383,11 @@ impl PlannerTrainer {
                     self.window.an += stats.an_loss;
                     self.window.target += stats.target_mean;
                     self.window.distance += stats.goal_distance_mean;
+                    self.window.step += stats.step_loss;
+                    self.window.goal += stats.goal_loss;
+                    self.window.symmetry += stats.symmetry_loss;
+                    self.window.bc += stats.an_bc_loss;
+                    self.window.gap += stats.gap_mean;
                     self.window.n += 1;
                     ran += 1;
                 }
@@ -189,6 +402,9 @@ impl PlannerTrainer {
                 Err(e) => return Err(e.into()),
             }
         }
+        if ran > 0 {
+            self.check(false);
+        }
         Ok(ran)
     }
 
@@ -199,23 +415,29 @@ impl PlannerTrainer {
             self.shown_an_loss = self.window.an / self.window.n as f64;
             self.shown_target_mean = self.window.target / self.window.n as f64;
             self.shown_goal_distance_mean = self.window.distance / self.window.n as f64;
+            let n = self.window.n as f64;
+            self.shown_step_loss = self.window.step / n;
+            self.shown_goal_loss = self.window.goal / n;
+            self.shown_symmetry_loss = self.window.symmetry / n;
+            self.shown_an_bc_loss = self.window.bc / n;
+            self.shown_gap_mean = self.window.gap / n;
         }
         self.window = LossWindow::default();
     }
 
     /// Planner weights to publish, if TEP trained since the last publication.
     pub(crate) fn weights_to_publish(&mut self) -> anyhow::Result<Option<Weights>> {
-        let version = self.tep.updates();
-        if version == 0 || version == self.published_version {
+        let mut version = self.tep.updates() + self.version_offset;
+        if version == 0 || (version <= self.published_version && !self.gate_changed) {
             return Ok(None);
         }
-        let weights = crate::to_weights(
-            WeightsKind::Planner,
-            version,
-            version,
-            self.tep.planner_tensors(),
-        )?;
+        // A gate change without an update still goes out, under a new version.
+        version = version.max(self.published_version + 1);
+        let mut tensors = self.tep.planner_tensors();
+        tensors.extend(self.gate_tensors());
+        let weights = crate::to_weights(WeightsKind::Planner, version, version, tensors)?;
         self.published_version = version;
+        self.gate_changed = false;
         Ok(Some(weights))
     }
 
@@ -298,6 +520,43 @@ impl PlannerTrainer {
     }
 }
 
+/// Loads a planner file (`terl planner train --out`) into `tep`: its recorded networks must be
+/// this run's `[tep]` networks with the same output scale (what F's numbers mean).
+fn load_pretrained(tep: &mut Tep<f32>, path: &std::path::Path) -> anyhow::Result<()> {
+    let file = TensorFile::load(path).with_context(|| {
+        format!(
+            "cannot read the planner file {} ([tep] init_planner)",
+            path.display()
+        )
+    })?;
+    if let Some(text) = file.metadata.get("terl.tep_config") {
+        let saved = TepConfig::from_saved_toml(text)
+            .with_context(|| format!("the config recorded in {}", path.display()))?;
+        let c = tep.config();
+        anyhow::ensure!(
+            saved.f_hidden == c.f_hidden
+                && saved.an_hidden == c.an_hidden
+                && saved.f_output_scale == c.f_output_scale,
+            "the planner {} has F {:?}, AN {:?}, output scale {}; this run's [tep] has {:?},              {:?}, {}: set them to the planner's",
+            path.display(),
+            saved.f_hidden,
+            saved.an_hidden,
+            saved.f_output_scale,
+            c.f_hidden,
+            c.an_hidden,
+            c.f_output_scale
+        );
+    }
+    tep.import_planner(&file).with_context(|| {
+        format!(
+            "the weights of {} do not fit this run's [tep]",
+            path.display()
+        )
+    })?;
+    tracing::info!(path = %path.display(), "planner started from a planner file");
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -325,7 +584,7 @@ mod tests {
 
     #[test]
     fn bad_samples_are_counted_and_segments_are_grouped() {
-        let mut p = PlannerTrainer::new(small(), 2, 1).unwrap();
+        let mut p = PlannerTrainer::new(small(), Default::default(), 2, 1).unwrap();
         let mut bad_task = sample(1, 0, 5);
         bad_task.obs[3] = 0.0;
         let mut nan = sample(1, 1, 0);
@@ -352,7 +611,7 @@ mod tests {
 
     #[test]
     fn trains_once_a_minibatch_is_there_and_publishes_new_versions_only() {
-        let mut p = PlannerTrainer::new(small(), 1, 1).unwrap();
+        let mut p = PlannerTrainer::new(small(), Default::default(), 1, 1).unwrap();
         assert_eq!(p.train(10).unwrap(), 0, "empty buffer: nothing to do");
         let traj: Vec<SelectedSample> = (0..8).map(|k| sample(1, k, 0)).collect();
         p.ingest(&traj);
@@ -375,5 +634,53 @@ mod tests {
         let f0 = file.get("tep_f.0.weight", &[16, 82]).unwrap();
         assert_eq!(f0.values::<f32>().unwrap().len(), 16 * 82);
         std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    /// The first trajectories of each task are held out and scored; a task passes at its
+    /// threshold, and the gate and the goal library go out with the weights.
+    #[test]
+    fn held_out_trajectories_gate_tasks_and_go_out_with_the_weights() {
+        let traj = |id: u64, task: u16| -> Vec<SelectedSample> {
+            (0..12).map(|k| sample(id, k, task)).collect()
+        };
+        for (threshold, want) in [(-1.0, true), (1.0, false)] {
+            let guidance = terl_rl::guidance::GuidanceConfig {
+                min_spearman: threshold,
+                validation_trajectories: 1,
+                ..Default::default()
+            };
+            let mut p = PlannerTrainer::new(small(), guidance, 2, 1).unwrap();
+            p.ingest(&traj(1, 0));
+            p.ingest(&traj(2, 0));
+            assert_eq!(
+                p.held_out_transitions(),
+                12,
+                "one trajectory of task 0 held out"
+            );
+            assert_eq!(p.buffer_len(), 12);
+            p.check(true);
+            let st = p.status(&["a", "b"]);
+            assert!(st.tasks[0].spearman.is_some() && st.tasks[1].spearman.is_none());
+            assert_eq!(st.tasks[0].validated, want, "threshold {threshold}");
+            assert!(!st.tasks[1].validated, "no held-out data: never validated");
+            assert_eq!(p.train(10).unwrap(), 0);
+            p.train(12).unwrap();
+            let w = p.weights_to_publish().unwrap().expect("a version");
+            let tensors: std::collections::BTreeMap<String, Vec<f32>> = w
+                .into_tensors()
+                .into_iter()
+                .map(|t| {
+                    let (name, _, v) = t.into_parts();
+                    (name, v)
+                })
+                .collect();
+            assert_eq!(
+                tensors[names::TEP_GATE],
+                vec![f32::from(u8::from(want)), 0.0]
+            );
+            // Both trajectories of task 0 left a goal state.
+            assert_eq!(tensors[names::TEP_GOAL_TASKS], vec![0.0, 0.0]);
+            assert_eq!(tensors[names::TEP_GOAL_STATES].len(), 2 * OBS_DIM);
+        }
     }
 }

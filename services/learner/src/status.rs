@@ -307,6 +307,7 @@ impl StatusBoard {
             status.tep_an_loss = p.shown_an_loss;
             status.tep_target_mean = p.shown_target_mean;
             status.tep_goal_distance_mean = p.shown_goal_distance_mean;
+            status.planner = p.status(src.tasks);
         }
         if now - self.last_log >= LOG_EVERY {
             self.last_log = now;

@@ -70,7 +70,12 @@ fn open_planner(
     resuming: bool,
 ) -> anyhow::Result<PlannerTrainer> {
     let run = &config.run;
-    let mut p = PlannerTrainer::new(run.tep.clone(), tasks.len(), run.train.seed)?;
+    let mut p = PlannerTrainer::new(
+        run.tep.clone(),
+        run.guidance.clone(),
+        tasks.len(),
+        run.train.seed,
+    )?;
     let mut datasets = config.tep_datasets.clone();
     if resuming {
         datasets.extend(terl_telemetry::existing_paths(
@@ -79,6 +84,9 @@ fn open_planner(
         ));
     }
     crate::dataset::load_all(&datasets, tasks, &mut p)?;
+    // A planner trained offline is checked on the held-out trajectories of the datasets at once,
+    // so the tasks it passes are guided from the first step.
+    p.check(true);
     Ok(p)
 }
 

@@ -99,6 +99,9 @@ pub fn parse_variations(spec: &str) -> Result<Vec<usize>> {
     Ok(out)
 }
 
+/// One task's summary and samples.
+type TaskOutcome = Result<(TaskSummary, Vec<TepSample>)>;
+
 /// What one task contributed.
 #[derive(Debug, Serialize)]
 struct TaskSummary {
@@ -115,14 +118,13 @@ struct TaskSummary {
 fn episode(
     env: &mut Env,
     policy: policies::Policy,
-    variation_seed: u64,
+    args: &DatasetArgs,
     variation: usize,
-    noise: f64,
-    after_success: u32,
     rng: &mut ChaCha8Rng,
     trajectory_id: u64,
 ) -> Result<(Vec<TepSample>, Option<u32>)> {
-    let mut obs = env.reset_variation(variation_seed, variation)?;
+    let (noise, after_success) = (args.noise, args.after_success);
+    let mut obs = env.reset_variation(args.variation_seed, variation)?;
     let mut z = [0.0f64; ACTION_DIM];
     let mut samples = Vec::new();
     let mut first_success = None;
@@ -182,7 +184,7 @@ pub fn run(args: DatasetArgs) -> Result<ExitCode> {
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     // Tasks run on the available cores; samples are written in task order (deterministic).
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let results: Vec<Result<(TaskSummary, Vec<TepSample>)>> = std::thread::scope(|scope| {
+    let results: Vec<TaskOutcome> = std::thread::scope(|scope| {
         let chunks: Vec<Vec<usize>> = (0..threads)
             .map(|w| (w..tasks.len()).step_by(threads).collect())
             .collect();
@@ -201,7 +203,7 @@ pub fn run(args: DatasetArgs) -> Result<ExitCode> {
                 })
             })
             .collect();
-        let mut all: Vec<(usize, Result<(TaskSummary, Vec<TepSample>)>)> = Vec::new();
+        let mut all: Vec<(usize, TaskOutcome)> = Vec::new();
         for h in handles {
             for r in h.join().expect("dataset worker panicked") {
                 match r {
@@ -262,10 +264,8 @@ fn task_samples(
         let (samples, first) = episode(
             &mut env,
             policy,
-            args.variation_seed,
+            args,
             variations[e % variations.len()],
-            args.noise,
-            args.after_success,
             &mut rng,
             id,
         )?;

@@ -66,6 +66,9 @@ pub struct EvalArgs {
     /// Print one JSON object instead of the tables.
     #[arg(long)]
     pub json: bool,
+    /// Also write the JSON object to this file (the tables still go to standard output).
+    #[arg(long)]
+    pub json_out: Option<PathBuf>,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -136,12 +139,7 @@ fn candidates(trajectories: &[Trajectory], task: &str) -> GoalCandidates {
 /// The goal of [`terl_rl::guidance::GoalSource::FinalState`] for an episode of variation `variation` starting at
 /// `start`: [`GoalLibrary::goal_into`] (the actor's own selection) over the candidates of other
 /// variations.
-fn final_state_goal(
-    cands: &GoalCandidates,
-    start: &[f32],
-    variation: u32,
-    target: GoalTarget,
-) -> Option<Vec<f32>> {
+fn final_state_goal(cands: &GoalCandidates, start: &[f32], variation: u32) -> Option<Vec<f32>> {
     let mut lib = GoalLibrary::new(OBS_DIM);
     for (v, s) in cands {
         if *v != Some(variation) {
@@ -149,7 +147,7 @@ fn final_state_goal(
         }
     }
     let mut g = vec![0.0; OBS_DIM];
-    lib.goal_into(0, start, target, &mut g).then_some(g)
+    lib.goal_into(0, start, &mut g).then_some(g)
 }
 
 enum Actor<'a> {
@@ -228,13 +226,9 @@ fn task_rollouts(
         let start = env.reset_variation(args.variation_seed, v as usize)?;
         let start: Vec<f32> = start.iter().map(|&x| x as f32).collect();
         if want_final {
-            let g = final_state_goal(lib, &start, v, GoalTarget::for_task(task)).with_context(
-                || {
-                    format!(
-                        "{task}: no successful trajectory of another variation in the goal library"
-                    )
-                },
-            )?;
+            let g = final_state_goal(lib, &start, v).with_context(|| {
+                format!("{task}: no successful trajectory of another variation in the goal library")
+            })?;
             let (s, d) = rollout(
                 &mut env,
                 &mut planner,
@@ -365,6 +359,10 @@ pub fn run(args: EvalArgs) -> Result<ExitCode> {
         f: overall,
         tasks: reports,
     };
+    if let Some(path) = &args.json_out {
+        std::fs::write(path, serde_json::to_string_pretty(&report)? + "\n")
+            .with_context(|| format!("cannot write {}", path.display()))?;
+    }
     if args.json {
         println!("{}", serde_json::to_string(&report)?);
     } else {
