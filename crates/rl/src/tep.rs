@@ -44,6 +44,11 @@ use terl_nn::{
     MlpCache, MlpSpec,
 };
 
+/// Widest hidden layer a planner config accepts (a 16384² layer is 1 GiB of f32 weights).
+pub const MAX_WIDTH: usize = 16_384;
+/// Largest planner minibatch a config accepts.
+pub const MAX_BATCH: usize = 65_536;
+
 /// Hyper-parameters of the planner. Network sizes, minibatch, buffer, τ and learning rates follow
 /// the paper (3 × 512 ReLU, minibatch 1024, buffer 6M, τ = 0.005, lr 3e-4); the F target, its
 /// loss weighting, the output scale, AN's behaviour-cloning weight and the hindsight sampling are
@@ -241,10 +246,33 @@ impl TepConfig {
         if self.buffer_capacity == 0 || self.threads == 0 {
             return bad("tep buffer_capacity and threads must be positive".into());
         }
-        if !(self.f_output_scale.is_finite() && self.f_output_scale > 0.0) {
+        if !(1e-3..=1e4).contains(&self.f_output_scale) {
             return bad(format!(
-                "tep f_output_scale {} must be finite and > 0",
+                "tep f_output_scale {} must be in [0.001, 10000] (steps per unit of the network's \
+                 softplus output)",
                 self.f_output_scale
+            ));
+        }
+        for (name, lr) in [("f_lr", self.f_lr), ("an_lr", self.an_lr)] {
+            if !(lr.is_finite() && lr > 0.0 && lr <= 1.0) {
+                return bad(format!("tep {name} {lr} must be in (0, 1]"));
+            }
+        }
+        if let Some(w) = self
+            .f_hidden
+            .iter()
+            .chain(&self.an_hidden)
+            .find(|&&w| w > MAX_WIDTH)
+        {
+            return bad(format!("tep hidden width {w} is above {MAX_WIDTH}"));
+        }
+        if self.f_hidden.len() > 16 || self.an_hidden.len() > 16 {
+            return bad("tep networks have at most 16 hidden layers".into());
+        }
+        if self.batch_size > MAX_BATCH {
+            return bad(format!(
+                "tep batch_size {} is above {MAX_BATCH}",
+                self.batch_size
             ));
         }
         if !(self.an_bc_weight.is_finite() && self.an_bc_weight >= 0.0) {

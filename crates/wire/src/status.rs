@@ -53,6 +53,7 @@ pub struct PlannerTask {
     pub validated_at_tep_update: u64,
     pub tep_transitions: u64,
     pub held_out_trajectories: u64,
+    pub held_out_transitions: u64,
 }
 
 /// The planner side of the learner status, last window (`algorithm = "terl"`).
@@ -78,6 +79,7 @@ fn planner_from_pb(m: pb::PlannerStatus) -> Result<PlannerStatus, Status> {
                 validated_at_tep_update: t.validated_at_tep_update,
                 tep_transitions: t.tep_transitions,
                 held_out_trajectories: t.held_out_trajectories,
+                held_out_transitions: t.held_out_transitions,
                 task: t.task,
             })
         })
@@ -109,6 +111,7 @@ fn planner_to_pb(d: PlannerStatus) -> pb::PlannerStatus {
                 validated_at_tep_update: t.validated_at_tep_update,
                 tep_transitions: t.tep_transitions,
                 held_out_trajectories: t.held_out_trajectories,
+                held_out_transitions: t.held_out_transitions,
             })
             .collect(),
     }

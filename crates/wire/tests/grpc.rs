@@ -78,6 +78,7 @@ fn learner_status() -> LearnerStatus {
                     validated_at_tep_update: 400,
                     tep_transitions: 1024,
                     held_out_trajectories: 4,
+                    held_out_transitions: 48,
                 },
                 terl_wire::PlannerTask {
                     task: "push".into(),

@@ -452,11 +452,12 @@ fn terl_cluster_selects_trains_the_planner_and_guides() {
     let mut run = start("deploy/configs/smoke-terl.toml", &[]);
     let start_time = Instant::now();
     let timeout = Duration::from_secs(150);
-    // F learns: its mean predicted distance to the hindsight goals grows beyond the first
-    // window's (F starts near one step; the bootstrapped targets carry longer distances in).
-    // The F loss is no measure of that: it grows with the targets it fits.
-    let mut first_distance: Option<f64> = None;
-    let mut max_late_distance = 0.0f64;
+    // The planner check ran on both tasks' held-out selected trajectories and opened the gate
+    // (the smoke config's min_spearman = -1): guidance then acts. That F learns to count steps
+    // is checked offline (crates/rl tests/tep_distance.rs, tests/planner_cli.rs,
+    // docs/results/planner/): on two minutes of a near-random policy's selected data the held-out
+    // ρ is not a stable signal (measured 0.06..0.47 on reach, −0.46..0.47 on push).
+    let mut rho_seen = false;
     let mut last = Value::Null;
     loop {
         assert!(
@@ -473,17 +474,21 @@ fn terl_cluster_selects_trains_the_planner_and_guides() {
         assert!(u(l, &["tep_buffer_size"]) <= u(l, &["tep_buffer_capacity"]));
         let loss = l["tep_f_loss"].as_f64().unwrap_or(0.0);
         if loss > 0.0 {
-            // F ≥ 0 by construction: its bootstrapped targets are ≥ 1 step.
+            // F ≥ 0 by construction; its targets (the hindsight gaps) are ≥ 2 steps.
             let target = l["tep_target_mean"].as_f64().unwrap_or(0.0);
             assert!(target >= 1.0, "mean TEP target {target} below 1: {s}");
             assert!(l["tep_goal_distance_mean"].as_f64().unwrap_or(-1.0) >= 0.0);
-            let distance = l["tep_goal_distance_mean"].as_f64().unwrap_or(0.0);
-            if first_distance.is_none() {
-                first_distance = Some(distance);
-            } else {
-                max_late_distance = max_late_distance.max(distance);
-            }
         }
+        rho_seen |= l["planner"]["tasks"].as_array().is_some_and(|ts| {
+            ts.len() == 2
+                && ts.iter().all(|t| {
+                    t["spearman"]
+                        .as_f64()
+                        .is_some_and(|r| (-1.0..=1.0).contains(&r))
+                        && t["validated"] == true
+                        && t["held_out_trajectories"].as_u64().unwrap_or(0) > 0
+                })
+        });
         let guided_rate_seen = l["task_success"].as_array().is_some_and(|ts| {
             ts.iter()
                 .any(|t| t["guidance_rate"].as_f64().unwrap_or(0.0) > 0.0)
@@ -496,14 +501,13 @@ fn terl_cluster_selects_trains_the_planner_and_guides() {
             && u(l, &["planner_version"]) > 0
             && u(l, &["guided_steps"]) > 0
             && guided_rate_seen
-            && first_distance.is_some_and(|d| max_late_distance > 1.5 * d);
+            && rho_seen;
         last = s;
         if done {
             break;
         }
     }
     eprintln!("status after {:?}: {last}", start_time.elapsed());
-    eprintln!("F's mean goal distance first {first_distance:?}, largest later {max_late_distance}");
     let sel_selected = u(&last["selector"], &["selected_samples"]);
     stop_all(&mut run.cluster, &run.run_dir);
 
@@ -576,7 +580,13 @@ fn terl_cluster_selects_trains_the_planner_and_guides() {
             std::thread::sleep(Duration::from_millis(100));
             let s = status(&learner, "127.0.0.1:1")?;
             let n = u(&s["learner"], &["tep_buffer_size"]);
-            (n > 0).then_some(n)
+            // The first trajectories of each task are held out for the planner check.
+            let held: u64 = s["learner"]["planner"]["tasks"]
+                .as_array()?
+                .iter()
+                .map(|t| t["held_out_transitions"].as_u64().unwrap_or(0))
+                .sum();
+            (n > 0).then_some(n + held)
         })
         .expect("the reloaded learner reports its TEP buffer");
     assert_eq!(loaded, data.samples.len() as u64);

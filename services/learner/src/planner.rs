@@ -195,6 +195,10 @@ impl PlannerTrainer {
                     validated_at_tep_update: self.validated_at[k].unwrap_or(0),
                     tep_transitions: self.task_transitions[k],
                     held_out_trajectories: self.held_out[k].len() as u64,
+                    held_out_transitions: self.held_out[k]
+                        .iter()
+                        .map(|h| h.steps.len() as u64)
+                        .sum(),
                 })
                 .collect(),
         }

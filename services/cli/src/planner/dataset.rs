@@ -20,7 +20,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 use terl_sim::metaworld::{policies, NUM_VARIATIONS};
-use terl_sim::{Env, ACTION_DIM, OBS_DIM};
+use terl_sim::{Env, ACTION_DIM};
 use terl_telemetry::TepDatasetWriter;
 use terl_wire::TepSample;
 
@@ -98,9 +98,6 @@ pub fn parse_variations(spec: &str) -> Result<Vec<usize>> {
     );
     Ok(out)
 }
-
-/// One task's summary and samples.
-type TaskOutcome = Result<(TaskSummary, Vec<TepSample>)>;
 
 /// What one task contributed.
 #[derive(Debug, Serialize)]
@@ -182,49 +179,28 @@ pub fn run(args: DatasetArgs) -> Result<ExitCode> {
     }
     let mut writer = TepDatasetWriter::create(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
-    // Tasks run on the available cores; samples are written in task order (deterministic).
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let results: Vec<TaskOutcome> = std::thread::scope(|scope| {
-        let chunks: Vec<Vec<usize>> = (0..threads)
-            .map(|w| (w..tasks.len()).step_by(threads).collect())
-            .collect();
-        let handles: Vec<_> = chunks
-            .into_iter()
-            .map(|ids| {
-                let (tasks, policies_of, variations, args) =
-                    (&tasks, &policies_of, &variations, &args);
-                scope.spawn(move || {
-                    ids.into_iter()
-                        .map(|k| {
-                            task_samples(k, tasks[k], policies_of[k], variations, args)
-                                .map(|r| (k, r))
-                        })
-                        .collect::<Vec<_>>()
-                })
-            })
-            .collect();
-        let mut all: Vec<(usize, TaskOutcome)> = Vec::new();
-        for h in handles {
-            for r in h.join().expect("dataset worker panicked") {
-                match r {
-                    Ok((k, v)) => all.push((k, Ok(v))),
-                    Err(e) => all.push((usize::MAX, Err(e))),
-                }
-            }
-        }
-        all.sort_by_key(|(k, _)| *k);
-        all.into_iter().map(|(_, r)| r).collect()
-    });
+    // Episodes are written as they finish and flushed every FLUSH_EVERY episodes, so a killed
+    // run keeps what it completed (the reader stops at the damage and keeps the chunks before).
     let log_time = terl_telemetry::unix_nanos();
     let mut summaries = Vec::new();
-    for r in results {
-        let (summary, samples) = r?;
-        for s in &samples {
-            writer.write(s, log_time)?;
-        }
-        writer.flush()?;
-        summaries.push(summary);
+    for (k, (task, policy)) in tasks.iter().zip(&policies_of).enumerate() {
+        summaries.push(task_samples(
+            k,
+            task,
+            *policy,
+            &variations,
+            &args,
+            &mut writer,
+            log_time,
+        )?);
     }
+    anyhow::ensure!(
+        summaries.iter().any(|s| s.kept > 0),
+        "no episode succeeded, so {} holds no trajectory (--keep-failures keeps them; is \
+         --noise {} too large?)",
+        args.out.display(),
+        args.noise
+    );
     let total = writer.finish()?;
     if args.json {
         println!(
@@ -247,18 +223,22 @@ pub fn run(args: DatasetArgs) -> Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// All episodes of task number `k`.
+/// Episodes written between two flushes.
+const FLUSH_EVERY: usize = 16;
+
+/// All episodes of task number `k`, written to `writer` as they finish.
 fn task_samples(
     k: usize,
     task: &'static str,
     policy: policies::Policy,
     variations: &[usize],
     args: &DatasetArgs,
-) -> Result<(TaskSummary, Vec<TepSample>)> {
+    writer: &mut TepDatasetWriter,
+    log_time: u64,
+) -> Result<TaskSummary> {
     let mut env = Env::new(task)?;
     let mut rng = ChaCha8Rng::seed_from_u64(args.seed ^ ((k as u64 + 1) << 32));
-    let mut out = Vec::new();
-    let (mut successes, mut kept, mut to_goal) = (0, 0, 0u64);
+    let (mut successes, mut kept, mut to_goal, mut transitions) = (0, 0, 0u64, 0);
     for e in 0..args.episodes_per_task {
         let id = ((k as u64) << 32) | e as u64;
         let (samples, first) = episode(
@@ -275,25 +255,26 @@ fn task_samples(
         }
         if first.is_some() || args.keep_failures {
             kept += 1;
-            out.extend(samples);
+            transitions += samples.len();
+            for s in &samples {
+                writer.write(s, log_time)?;
+            }
+        }
+        if (e + 1) % FLUSH_EVERY == 0 {
+            writer.flush()?;
         }
     }
-    debug_assert!(out
-        .iter()
-        .all(|s| s.obs.len() == OBS_DIM && s.action.len() == ACTION_DIM));
-    Ok((
-        TaskSummary {
-            task: task.to_string(),
-            episodes: args.episodes_per_task,
-            successes,
-            kept,
-            transitions: out.len(),
-            mean_steps_to_success: if successes > 0 {
-                to_goal as f64 / successes as f64
-            } else {
-                f64::NAN
-            },
+    writer.flush()?;
+    Ok(TaskSummary {
+        task: task.to_string(),
+        episodes: args.episodes_per_task,
+        successes,
+        kept,
+        transitions,
+        mean_steps_to_success: if successes > 0 {
+            to_goal as f64 / successes as f64
+        } else {
+            f64::NAN
         },
-        out,
-    ))
+    })
 }

@@ -76,6 +76,12 @@ pub fn planner_config(path: Option<&Path>, set: &[String]) -> Result<TepConfig> 
         let (k, v) = kv
             .split_once('=')
             .with_context(|| format!("--set {kv:?}: expected KEY=VALUE"))?;
+        anyhow::ensure!(
+            !["obs_dim", "act_dim", "seed", "threads"].contains(&k.trim()),
+            "--set {kv:?}: {} comes from the datasets or the command line (--seed, --threads), \
+             not from --set",
+            k.trim()
+        );
         let parsed: toml::Table = toml::from_str(&format!("v = {}", v.trim()))
             .with_context(|| format!("--set {kv:?}: the value is not TOML"))?;
         table.insert(k.trim().to_string(), parsed["v"].clone());
@@ -142,6 +148,11 @@ pub fn run(args: TrainArgs) -> Result<ExitCode> {
         cfg.threads = t;
     }
     anyhow::ensure!(args.updates > 0, "--updates must be ≥ 1");
+    anyhow::ensure!(
+        !args.out.is_dir(),
+        "--out {} is a directory; give the planner file's path",
+        args.out.display()
+    );
     anyhow::ensure!(args.eval_every > 0, "--eval-every must be ≥ 1");
     let trajectories = read_trajectories(&args.datasets)?;
     let mut tasks: Vec<String> = Vec::new();
@@ -165,6 +176,20 @@ pub fn run(args: TrainArgs) -> Result<ExitCode> {
         "planner training data"
     );
     let mut tep: Tep<f32> = Tep::new(cfg.clone())?;
+    if let Some(init) = &cfg.init_planner {
+        // Continue from a planner file of the same networks (fine-tuning, more updates).
+        let start = super::files::load_planner(std::path::Path::new(init))?;
+        anyhow::ensure!(
+            start.config().f_output_scale == cfg.f_output_scale,
+            "init_planner {init} has f_output_scale {}, these settings {}",
+            start.config().f_output_scale,
+            cfg.f_output_scale
+        );
+        let file = terl_nn::tensors::TensorFile::from_tensors(start.planner_file_tensors());
+        tep.import_planner(&file)
+            .with_context(|| format!("init_planner {init} does not fit these networks"))?;
+        eprintln!("[planner train] starting from {init}");
+    }
     let mut rng = ChaCha8Rng::seed_from_u64(args.seed ^ 0x7e9_5a3d);
     let mut batch = TepBatch::with_capacity(cfg.batch_size, OBS_DIM, ACTION_DIM);
     let log_path = log_path(&args.out);
