@@ -15,6 +15,17 @@
 #   deploy/experiments/run.sh mt-test [options]   zero-shot: every finished MT10 run's final
 #                                                 checkpoint on the MT-Test tasks (no training)
 #   deploy/experiments/run.sh mt20 [options]      MTSAC and TERL on MT20
+#   deploy/experiments/run.sh terl-pipeline [options]
+#                                                 the paper's two stages: (1) each MT1-Ind task
+#                                                 alone (TERL) until its planner gate opens and it
+#                                                 has selected --stage1-samples transitions (the
+#                                                 budget is the cap); (2) the planner trained
+#                                                 offline on the five PTR-selected datasets
+#                                                 (terl planner train) and checked on trajectories
+#                                                 held out of them (terl planner eval); (3) MT10
+#                                                 TERL from that planner (variant "pipeline"),
+#                                                 guiding each task the planner passes from the
+#                                                 first step
 #
 # Options:
 #   --scale workstation|paper|smoke  networks, batch and budget (default workstation; the configs
@@ -29,6 +40,12 @@
 #   --tag TAG                        appended to every run id (run ids are machine-wide: two
 #                                    experiments at once on one machine need different tags)
 #   --no-build                       use the binaries already built
+#   --stage1-samples N               terl-pipeline: selected transitions per MT1-Ind task before
+#                                    stage 1 stops (default: smoke 200, workstation 20000,
+#                                    paper 100000)
+#   --planner-updates N              terl-pipeline: offline planner updates (default: smoke 300,
+#                                    workstation 20000, paper 50000)
+#   --last-stage 1|2|3               terl-pipeline: stop after this stage (default 3)
 # A run whose eval-final.json exists is skipped, so an interrupted experiment resumes where it
 # stopped (a run stopped mid-way starts again from scratch). A run whose id is held by running
 # processes is not touched. A failed run does not stop the others; the script then exits 1.
@@ -50,6 +67,9 @@ actors=$(( cores > 1 ? cores - 1 : 1 ))
 build=1
 runs=runs
 tag=""
+stage1_samples=""
+planner_updates=""
+last_stage=3
 while [ $# -gt 0 ]; do
     case "$1" in
         --scale) scale=$2; shift 2 ;;
@@ -61,6 +81,9 @@ while [ $# -gt 0 ]; do
         --no-build) build=0; shift ;;
         --runs-root) runs=$2; shift 2 ;;
         --tag) tag=-$2; shift 2 ;;
+        --stage1-samples) stage1_samples=$2; shift 2 ;;
+        --planner-updates) planner_updates=$2; shift 2 ;;
+        --last-stage) last_stage=$2; shift 2 ;;
         -h|--help) usage; exit 0 ;;
         *) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
     esac
@@ -79,6 +102,11 @@ done
 [ -z "$tasks_override" ] || [ "$experiment" = mt1-ind ] \
     || { echo "--tasks applies to mt1-ind only" >&2; exit 2; }
 [ -z "$steps" ] || [[ "$steps" =~ ^[1-9][0-9]*$ ]] || { echo "--steps must be a positive integer" >&2; exit 2; }
+[[ "$last_stage" =~ ^[123]$ ]] || { echo "--last-stage takes 1, 2 or 3" >&2; exit 2; }
+for v in "$stage1_samples" "$planner_updates"; do
+    [ -z "$v" ] || [[ "$v" =~ ^[1-9][0-9]*$ ]] \
+        || { echo "--stage1-samples and --planner-updates take positive integers" >&2; exit 2; }
+done
 
 bin=${CARGO_TARGET_DIR:-target}/release
 if [ "$build" = 1 ]; then
@@ -98,6 +126,9 @@ base_config() {
         paper/mt10) echo deploy/configs/mt10.toml ;;
         workstation/mt20) echo deploy/configs/experiments/mt20-workstation.toml ;;
         paper/mt20) echo deploy/configs/experiments/mt20-paper.toml ;;
+        smoke/pipeline-stage1) echo deploy/configs/experiments/pipeline-stage1-smoke.toml ;;
+        workstation/pipeline-stage1) echo deploy/configs/experiments/pipeline-stage1-workstation.toml ;;
+        paper/pipeline-stage1) echo deploy/configs/experiments/mt1-ind-paper.toml ;;
     esac
 }
 
@@ -220,7 +251,101 @@ case "$experiment" in
         done
         [ "$found" = 1 ] || { say "no finished MT10 run in $runs/mt10-* (run mt10 first)"; exit 1; }
         ;;
-    *) echo "unknown experiment $experiment (mt1-ind, mt10, mt-test, mt20)" >&2; exit 2 ;;
+    terl-pipeline)
+        case "$scale" in
+            smoke) s1_default=200; updates_default=300; stage3_tasks="reach-v3,push-v3"
+                   s1_tasks="reach-v3 push-v3"; hold_out=1; rollouts=2 ;;
+            workstation) s1_default=20000; updates_default=20000; stage3_tasks=mt10
+                   s1_tasks=$mt1_tasks; hold_out=4; rollouts=20 ;;
+            paper) s1_default=100000; updates_default=50000; stage3_tasks=mt10
+                   s1_tasks=$mt1_tasks; hold_out=4; rollouts=50 ;;
+        esac
+        s1_samples=${stage1_samples:-$s1_default}
+        p_updates=${planner_updates:-$updates_default}
+        base1=$(base_config pipeline-stage1)
+        base3=$(base_config mt10)
+        [ "$scale" = smoke ] && base3=deploy/configs/experiments/smoke.toml
+        # The stage-3 task names (a set name like mt10 expands through `terl env list`).
+        stage3_names=$("$bin/terl" env list --json | python3 -c '
+import json, sys
+spec, info = sys.argv[1], json.load(sys.stdin)
+names = info["task_sets"].get(spec) or spec.split(",")
+print(" ".join(names))' "$stage3_tasks")
+        for seed in $seeds; do
+            # Stage 1: each task alone until its planner data is usable.
+            datasets=()
+            stage3_datasets=()
+            for task in $s1_tasks; do
+                id="pipeline-stage1-${task%-v3}-s$seed$tag"
+                if run_config "$base1" pipeline-stage1 "$task" terl "" "$seed" \
+                    | sed -E -e '/^stop_at_planner_samples_per_task *=/d' \
+                        -e "s/^\[cluster\]\$/[cluster]\nstop_at_planner_samples_per_task = $s1_samples/" \
+                    | train_run "$id" "$base1"; then
+                    f="$runs/$id/tep-dataset.mcap"
+                    if [ -s "$f" ]; then
+                        datasets+=(--dataset "$f")
+                        case " $stage3_names " in *" $task "*) stage3_datasets+=(--tep-dataset "$f") ;; esac
+                        grep -h "planner ready\|training budget reached" "$runs/$id/learner.log" 2>/dev/null \
+                            | tail -1 | sed "s/^/[experiment] $id: /" >&2 || true
+                    else
+                        say "$id: no TEP dataset (no trajectory was selected within the budget)"
+                        failed+=("$id")
+                    fi
+                else
+                    failed+=("$id")
+                fi
+            done
+            if [ ${#datasets[@]} -eq 0 ]; then
+                say "seed $seed: stage 1 gave no dataset; stages 2 and 3 skipped"
+                continue
+            fi
+            [ "$last_stage" -ge 2 ] || continue
+            # Stage 3's run file first: stage 2 trains with its [tep] networks.
+            planner_dir="$runs/pipeline-planner-s$seed$tag"
+            mkdir -p "$planner_dir"
+            planner="$(cd "$planner_dir" && pwd)/planner.safetensors"
+            stage3_cfg="$planner_dir/stage3.toml"
+            run_config "$base3" mt10 "$stage3_tasks" terl pipeline "$seed" \
+                | sed -E -e '/^init_planner *=/d' \
+                    -e "s|^\[tep\]\$|[tep]\ninit_planner = \"$planner\"|" > "$stage3_cfg"
+            grep -q '^init_planner' "$stage3_cfg" \
+                || printf '\n[tep]\ninit_planner = "%s"\n' "$planner" >> "$stage3_cfg"
+            # Smoke scale: a planner of a few hundred updates on tiny networks does not reach
+            # ρ ≥ 0.8, so the check passes at once there (as in smoke-terl.toml) and the path runs.
+            [ "$scale" != smoke ] || grep -q '^\[guidance\]' "$stage3_cfg" \
+                || printf '\n[guidance]\nmin_spearman = -1.0\nvalidation_trajectories = 1\n' >> "$stage3_cfg"
+            # Stage 2: the planner offline, checked on held-out selected trajectories (stage 3's
+            # [tep] without its init_planner, which names the file stage 2 writes).
+            grep -v '^init_planner' "$stage3_cfg" > "$planner_dir/planner.toml"
+            if [ -f "$planner_dir/eval.json" ]; then
+                say "pipeline-planner-s$seed$tag: done already"
+            else
+                say "pipeline-planner-s$seed$tag: training the planner on ${#datasets[@]} stage-1 datasets ($p_updates updates)"
+                printf '%s\n' "$bin/terl planner train ${datasets[*]} --hold-out-trajectories $hold_out --config $planner_dir/planner.toml --updates $p_updates --seed $seed --out $planner" \
+                    "$bin/terl planner eval --planner $planner ${datasets[*]} --hold-out-trajectories $hold_out --rollouts $rollouts" \
+                    > "$planner_dir/commands.txt"
+                if "$bin/terl" planner train "${datasets[@]}" --hold-out-trajectories "$hold_out" \
+                        --config "$planner_dir/planner.toml" --updates "$p_updates" --seed "$seed" --out "$planner" \
+                        > "$planner_dir/train.log" 2>&1 \
+                    && "$bin/terl" planner eval --planner "$planner" "${datasets[@]}" \
+                        --hold-out-trajectories "$hold_out" --rollouts "$rollouts" \
+                        --json-out "$planner_dir/eval.json.tmp" > "$planner_dir/eval.txt" 2>"$planner_dir/eval.log"; then
+                    mv "$planner_dir/eval.json.tmp" "$planner_dir/eval.json"
+                    say "pipeline-planner-s$seed$tag: $(grep -m1 -i 'overall\|all' "$planner_dir/eval.txt" || true)"
+                else
+                    say "pipeline-planner-s$seed$tag: the planner stage failed; see $planner_dir"
+                    failed+=("pipeline-planner-s$seed$tag")
+                    continue
+                fi
+            fi
+            [ "$last_stage" -ge 3 ] || continue
+            # Stage 3: MT10 TERL from the planner; the stage-1 datasets of MT10's tasks give the
+            # learner held-out trajectories to validate the planner on at start.
+            train_run "mt10-terl-pipeline-s$seed$tag" "$base3" "${stage3_datasets[@]}" < "$stage3_cfg" \
+                || failed+=("mt10-terl-pipeline-s$seed$tag")
+        done
+        ;;
+    *) echo "unknown experiment $experiment (mt1-ind, mt10, mt-test, mt20, terl-pipeline)" >&2; exit 2 ;;
 esac
 if [ ${#failed[@]} -gt 0 ]; then
     say "failed runs (the others finished): ${failed[*]}"

@@ -57,4 +57,10 @@ pub trait VecEnvironment {
     /// Steps every environment with `actions` (rows × act_dim) and resets those whose episode
     /// ended (see [`StepBuffers`]).
     fn step(&mut self, actions: &[f32], out: &mut StepBuffers) -> Result<(), Self::Error>;
+    /// The goal variation environment `env`'s current episode runs on, where the environment
+    /// has numbered variations (Meta-World: an index into the task's 50); `None` by default.
+    fn variation(&self, env: usize) -> Option<u32> {
+        let _ = env;
+        None
+    }
 }

@@ -78,6 +78,8 @@ pub struct EpisodeRecord<'a> {
     /// Policy version when the previous episode of this environment ended (0 for the first),
     /// i.e. the version the episode began with.
     pub policy_version: u64,
+    /// The goal variation the episode ran on ([`VecEnvironment::variation`] at its start).
+    pub variation: Option<u32>,
 }
 
 /// Counts since the loop started, passed to [`PolicySource::refresh`] and
@@ -191,6 +193,7 @@ where
     let policy_error = |e: P::Error| RolloutError::Policy(e.into());
     let sink_error = |e: S::Error| RolloutError::Sink(e.into());
     env.reset_all(seed, &mut obs).map_err(env_error)?;
+    let mut ep_variation: Vec<Option<u32>> = (0..n).map(|i| env.variation(i)).collect();
     loop {
         let flow = policy.refresh(&progress).map_err(policy_error)?;
         let version = policy.version();
@@ -250,8 +253,11 @@ where
                 unstable: ep_unstable[i],
                 final_obs: &out.final_obs[i * od..(i + 1) * od],
                 policy_version: ep_version[i],
+                variation: ep_variation[i],
             })
             .map_err(sink_error)?;
+            // The environment reset itself in `step`: the next episode's variation.
+            ep_variation[i] = env.variation(i);
             progress.episodes += 1;
             progress.successes += u64::from(ep_success[i]);
             (ep_return[i], ep_length[i]) = (0.0, 0);

@@ -184,6 +184,12 @@ pub struct ClusterConfig {
     /// `"client"`, `listen` and `connect` endpoints such as `tcp/10.0.0.1:7447`). Each
     /// service's `--zenoh-listen`/`--zenoh-connect` replace the lists for that process.
     pub zenoh: terl_transport::ZenohConfig,
+    /// `algorithm = "terl"`: the learner stops (final checkpoint, exit 0, as at the budget) once
+    /// the planner gate is open for every task of the run and the TEP buffer holds at least this
+    /// many selected transitions of each task: stage 1 of the paper's two-stage pipeline, where
+    /// each MT1-Ind task trains until its planner data is usable (`deploy/experiments/run.sh
+    /// terl-pipeline`). `train.total_env_steps` stays the cap. 0 (default): off.
+    pub stop_at_planner_samples_per_task: u64,
 }
 
 /// Largest `cluster.learner_calibrate_secs`.
@@ -218,6 +224,7 @@ impl Default for ClusterConfig {
             max_message_mib: 64,
             transport: terl_transport::TransportKind::Shm,
             zenoh: terl_transport::ZenohConfig::default(),
+            stop_at_planner_samples_per_task: 0,
         }
     }
 }
@@ -416,6 +423,11 @@ impl RunConfig {
         anyhow::ensure!(
             (1..=MAX_MESSAGE_MIB_LIMIT).contains(&c.max_message_mib),
             "cluster.max_message_mib must be in 1..={MAX_MESSAGE_MIB_LIMIT}"
+        );
+        anyhow::ensure!(
+            c.stop_at_planner_samples_per_task == 0 || cfg.algorithm == Algorithm::Terl,
+            "cluster.stop_at_planner_samples_per_task needs algorithm = \"terl\" (an MTSAC run \
+             has no planner)"
         );
         c.zenoh
             .validate()

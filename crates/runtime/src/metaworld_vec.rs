@@ -88,6 +88,10 @@ impl VecEnvironment for MetaWorldVec {
         obs.copy_from_slice(self.inner.obs());
         Ok(())
     }
+    fn variation(&self, env: usize) -> Option<u32> {
+        Some(self.inner.variation(env))
+    }
+
     fn step(&mut self, actions: &[f32], out: &mut StepBuffers) -> Result<(), Self::Error> {
         self.inner.step(actions)?;
         let v = &self.inner;

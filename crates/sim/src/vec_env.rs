@@ -44,6 +44,8 @@ pub struct VecEnv {
     unstable: Vec<bool>,
     returns: Vec<f64>,
     ever_success: Vec<bool>,
+    /// Per environment, the index of its current episode's goal variation.
+    variation: Vec<u32>,
     finished: Vec<EpisodeEnd>,
     instability_events: u64,
 }
@@ -94,6 +96,7 @@ impl VecEnv {
             unstable: vec![false; n],
             returns: vec![0.0; n],
             ever_success: vec![false; n],
+            variation: vec![0; n],
             finished: Vec::with_capacity(n),
             instability_events: 0,
         };
@@ -119,6 +122,7 @@ impl VecEnv {
     fn reset_env(&mut self, i: usize) -> Result<()> {
         let vars = &self.variations[self.env_task[i]];
         let k = self.rng.gen_range(0..vars.len());
+        self.variation[i] = k as u32;
         let obs = self.envs[i].reset(&vars[k])?;
         for (dst, src) in self.obs[i * OBS_DIM..(i + 1) * OBS_DIM].iter_mut().zip(obs) {
             *dst = src as f32;
@@ -126,6 +130,15 @@ impl VecEnv {
         self.returns[i] = 0.0;
         self.ever_success[i] = false;
         Ok(())
+    }
+
+    /// The index (into its task's [`goal_variations`]) of the goal variation environment `i`'s
+    /// current episode runs on.
+    ///
+    /// # Panics
+    /// If `i` is not below [`VecEnv::num_envs`].
+    pub fn variation(&self, i: usize) -> u32 {
+        self.variation[i]
     }
 
     /// Re-seeds the episode-to-variation draws, then resets every environment.

@@ -55,13 +55,20 @@ pub struct EpisodeSummary {
     pub reserved0: u8,
     /// Steps that executed the Action Network's action (TERL guidance).
     pub guided_steps: u16,
-    pub reserved: [u8; 2],
+    /// 1 + the index of the first step after which the task reported success; 0: none (or
+    /// not recorded). See [`EpisodeSummary::first_success_index`].
+    pub first_success: u16,
     /// Observation after the last step (s_T), so GAE can bootstrap on truncation.
     pub final_obs: [f32; OBS_DIM],
     pub trajectory: [TrajectoryStep; MAX_EPISODE_STEPS],
-    /// Explicit tail padding to the 8-byte alignment (zero), so every byte is data.
-    pub reserved_tail: [u8; 4],
+    /// The goal variation the episode ran on (index into the task's 50 variations of the run's
+    /// `variation_seed`, `terl_sim::metaworld::goal_variations`); [`NO_VARIATION`]: unknown.
+    /// Also the tail padding to the 8-byte alignment, so every byte is data.
+    pub variation: u32,
 }
+
+/// [`EpisodeSummary::variation`] of an episode whose goal variation is not known.
+pub const NO_VARIATION: u32 = u32::MAX;
 
 const _: () = assert!(
     core::mem::size_of::<EpisodeSummary>()
@@ -82,10 +89,10 @@ impl EpisodeSummary {
         success: 0,
         reserved0: 0,
         guided_steps: 0,
-        reserved: [0; 2],
+        first_success: 0,
         final_obs: [0.0; OBS_DIM],
         trajectory: [TrajectoryStep::ZERO; MAX_EPISODE_STEPS],
-        reserved_tail: [0; 4],
+        variation: NO_VARIATION,
     };
 
     /// The valid trajectory steps.
@@ -95,6 +102,24 @@ impl EpisodeSummary {
 
     pub fn succeeded(&self) -> bool {
         self.success != 0
+    }
+
+    /// Index of the first step after which the task reported success, when recorded.
+    pub fn first_success_index(&self) -> Option<usize> {
+        (self.first_success > 0).then(|| usize::from(self.first_success) - 1)
+    }
+
+    /// The goal variation, when recorded.
+    pub fn variation(&self) -> Option<u32> {
+        (self.variation != NO_VARIATION).then_some(self.variation)
+    }
+
+    /// Records that the task reports success after the step about to be pushed (the first
+    /// such step is kept).
+    pub fn mark_success_at_next_step(&mut self) {
+        if self.first_success == 0 && (self.trajectory_len as usize) < MAX_EPISODE_STEPS {
+            self.first_success = (self.trajectory_len + 1) as u16;
+        }
     }
 
     /// Appends a step; `false` (and nothing changes) when the trajectory is full.
@@ -122,7 +147,31 @@ impl PartialEq for EpisodeSummary {
             && self.env_index == other.env_index
             && self.task == other.task
             && self.success == other.success
+            && self.first_success == other.first_success
+            && self.variation == other.variation
             && self.final_obs == other.final_obs
             && self.steps() == other.steps()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Message;
+
+    #[test]
+    fn the_first_success_is_kept_and_unset_records_read_as_none() {
+        let mut e = EpisodeSummary::empty();
+        assert_eq!(e.first_success_index(), None);
+        assert_eq!(e.variation(), None);
+        for t in 0..6 {
+            if t >= 3 {
+                e.mark_success_at_next_step();
+            }
+            assert!(e.push_step(TrajectoryStep::ZERO));
+        }
+        assert_eq!(e.first_success_index(), Some(3));
+        e.variation = 49;
+        assert_eq!(e.variation(), Some(49));
     }
 }

@@ -26,7 +26,7 @@ pub mod zenoh_net;
 pub use terl_sim::{ACTION_DIM, OBS_DIM};
 
 pub use actor_to_learner::{flags, Transition, TransitionBatch, TRANSITIONS_PER_BATCH};
-pub use actor_to_selector::{EpisodeSummary, TrajectoryStep, MAX_EPISODE_STEPS};
+pub use actor_to_selector::{EpisodeSummary, TrajectoryStep, MAX_EPISODE_STEPS, NO_VARIATION};
 pub use any::{ActorClaim, RunTransport};
 pub use channel::{
     EpisodeSink, EpisodeSource, Message, MessageSink, MessageSource, SelectedSink, SelectedSource,

@@ -25,7 +25,12 @@ pub struct SelectedSample {
     /// Step index inside the trajectory (0-based).
     pub step_index: u16,
     pub task: u16,
-    pub reserved: [u8; 4],
+    /// The goal variation of the sample's episode ([`crate::NO_VARIATION`] as `u16::MAX`:
+    /// unknown).
+    pub variation: u16,
+    /// 1 if the task reports success after this step, else 0.
+    pub success: u8,
+    pub reserved: u8,
 }
 
 const _: () = assert!(core::mem::size_of::<SelectedSample>() == 352);
@@ -40,8 +45,20 @@ impl SelectedSample {
         priority: 0.0,
         step_index: 0,
         task: 0,
-        reserved: [0; 4],
+        variation: u16::MAX,
+        success: 0,
+        reserved: 0,
     };
+
+    /// The goal variation of the sample's episode, when recorded.
+    pub fn variation(&self) -> Option<u32> {
+        (self.variation != u16::MAX).then_some(u32::from(self.variation))
+    }
+
+    /// Whether the task reports success after this step.
+    pub fn succeeded(&self) -> bool {
+        self.success != 0
+    }
 }
 
 /// Up to [`SELECTED_PER_BATCH`] selected samples; only the first `len` are meaningful.

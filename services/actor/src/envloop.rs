@@ -339,6 +339,9 @@ impl<T: ServiceTransport> TransitionSink for ActorSink<'_, T> {
             return Ok(());
         }
         let transition = transition_of(step, self.actor_id, task_u16(step.task));
+        if step.success {
+            trajectory.mark_success_at_next_step();
+        }
         let _ = trajectory.push_step(TrajectoryStep {
             obs: transition.obs,
             action: transition.action,
@@ -379,6 +382,7 @@ impl<T: ServiceTransport> TransitionSink for ActorSink<'_, T> {
         episode.env_index = end.env as u16;
         episode.task = task_u16(end.task);
         episode.success = u8::from(end.success);
+        episode.variation = end.variation.unwrap_or(terl_transport::NO_VARIATION);
         episode.final_obs = row(end.final_obs, 0);
         if !send(self.episodes.as_mut(), &**episode, self.mailbox)? {
             self.closed = true;

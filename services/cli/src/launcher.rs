@@ -821,7 +821,7 @@ impl Launcher {
         let code = shell_code(status);
         self.worst = self.worst.max(code);
         if role == "learner" && code == 0 {
-            let reason = "the learner finished (train.total_env_steps reached)".to_string();
+            let reason = "the learner finished (its budget or stop condition reached)".to_string();
             eprintln!("[cluster] {reason}; stopping the cluster");
             return Some(Ending { reason, code: 0 });
         }

@@ -128,3 +128,62 @@ fn experiment_scripts_train_evaluate_and_report() {
         assert!(report_dir.join(chart).is_file(), "{chart}");
     }
 }
+
+/// The paper's two stages as one command at smoke scale: each task alone until its planner
+/// gate is open and it has selected its samples (not the budget cap), the planner trained
+/// offline on the PTR-selected datasets and scored on trajectories held out of them (F against
+/// the true step gaps; AN in the environment, on the goal variations the actors recorded), and
+/// the multi-task run starting from that planner, whose tasks are validated at start.
+#[test]
+fn terl_pipeline_runs_stage_one_the_offline_planner_and_stage_three() {
+    service_binaries();
+    let release = Path::new(env!("CARGO_BIN_EXE_terl"))
+        .parent()
+        .and_then(Path::file_name)
+        .is_some_and(|n| n == "release");
+    if !release {
+        eprintln!(
+            "the experiment scripts run target/release binaries; run this test with --release"
+        );
+        return;
+    }
+    let root = workspace();
+    let dir = tempfile::tempdir().unwrap();
+    let runs = dir.path();
+    let log = run_experiment(&root, runs, "terl-pipeline");
+    for task in ["reach", "push"] {
+        let run = runs.join(format!("pipeline-stage1-{task}-s1{}", tag()));
+        let learner = std::fs::read_to_string(run.join("learner.log")).unwrap();
+        assert!(
+            learner.contains("planner ready"),
+            "{task}: stage 1 did not stop on its planner condition\n{learner}"
+        );
+        assert!(run.join("tep-dataset.mcap").metadata().unwrap().len() > 0);
+    }
+    let planner_dir = runs.join(format!("pipeline-planner-s1{}", tag()));
+    assert!(planner_dir.join("planner.safetensors").is_file(), "{log}");
+    let eval: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(planner_dir.join("eval.json")).unwrap())
+            .unwrap();
+    let tasks = eval["tasks"].as_array().unwrap();
+    assert_eq!(tasks.len(), 2, "{eval}");
+    for t in tasks {
+        assert!(t["f"]["pairs"].as_u64().unwrap() > 0, "{t}");
+        assert!(t["f"]["spearman"].as_f64().is_some(), "{t}");
+        // The variations the actors recorded let AN run from the held-out starts.
+        assert!(t["random"]["episodes"].as_u64().unwrap() > 0, "{t}");
+    }
+    let stage3 = runs.join(format!("mt10-terl-pipeline-s1{}", tag()));
+    assert!(stage3.join("eval-final.json").is_file(), "{log}");
+    let config = std::fs::read_to_string(stage3.join("config.toml")).unwrap();
+    assert!(config.contains("init_planner"), "{config}");
+    let learner = std::fs::read_to_string(stage3.join("learner.log")).unwrap();
+    assert_eq!(
+        learner.matches("planner validated for the task").count(),
+        2,
+        "both tasks validated from the stage-1 data at start\n{learner}"
+    );
+    // Finished stages are not run again.
+    let again = run_experiment(&root, runs, "terl-pipeline");
+    assert_eq!(again.matches("done already").count(), 4, "{again}");
+}

@@ -120,16 +120,40 @@ fn u(v: &Value, key: &str) -> u64 {
     v[key].as_u64().unwrap_or(0)
 }
 
-/// Polls status until `cond` holds (up to 90 s), returning that status.
-fn until(ns: &str, l: &str, s: &str, what: &str, cond: impl Fn(&Value) -> bool) -> Value {
+/// Polls status until `cond` holds (up to `limit`), returning that status; on time-out the
+/// last status and the run's logs are in the panic message.
+fn until(
+    ns: &str,
+    l: &str,
+    s: &str,
+    what: &str,
+    limit: Duration,
+    logs: &Path,
+    cond: impl Fn(&Value) -> bool,
+) -> Value {
     let start = Instant::now();
+    let mut last = None;
     loop {
         if let Some(v) = status(ns, l, s) {
             if cond(&v) {
+                eprintln!("after {:.1} s: {what}", start.elapsed().as_secs_f64());
                 return v;
             }
+            last = Some(v);
         }
-        assert!(start.elapsed() < Duration::from_secs(90), "never: {what}");
+        if start.elapsed() > limit {
+            let mut text = String::new();
+            for name in ["learner.log", "selector.log", "actor0.log"] {
+                let log = std::fs::read_to_string(logs.join(name)).unwrap_or_default();
+                let tail: Vec<&str> = log.lines().rev().take(40).collect();
+                text += &format!("--- {name} (last 40 lines)\n");
+                for line in tail.iter().rev() {
+                    text += line;
+                    text += "\n";
+                }
+            }
+            panic!("never within {limit:?}: {what}\nlast status: {last:?}\n{text}");
+        }
         std::thread::sleep(Duration::from_millis(500));
     }
 }
@@ -259,6 +283,8 @@ fn actor_in_another_namespace_trains_over_zenoh_and_survives_a_link_outage() {
         &learner,
         &selector,
         "the remote actor's transitions, made with published weights",
+        Duration::from_secs(120),
+        &run_dir,
         |v| {
             let l = &v["learner"];
             let a = l["actors"].as_array().and_then(|a| a.first().cloned());
@@ -288,6 +314,8 @@ fn actor_in_another_namespace_trains_over_zenoh_and_survives_a_link_outage() {
         &learner,
         &selector,
         "transitions flowing again after the outage, with its losses reported",
+        Duration::from_secs(180),
+        &run_dir,
         |v| {
             let l = &v["learner"];
             u(l, "env_steps_total") > steps_before + 2_000 && u(l, "transition_batches_dropped") > 0

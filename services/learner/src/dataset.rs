@@ -35,7 +35,12 @@ fn to_selected(s: &TepSample, tasks: &[&str], trajectory_id: u64) -> Option<Sele
         priority: s.priority as f32,
         step_index: u16::try_from(s.step).ok()?,
         task: u16::try_from(task).ok()?,
-        reserved: [0; 4],
+        variation: s
+            .variation
+            .and_then(|v| u16::try_from(v).ok())
+            .unwrap_or(u16::MAX),
+        success: u8::from(s.success),
+        reserved: 0,
     })
 }
 

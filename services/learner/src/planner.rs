@@ -8,7 +8,7 @@
 //! Spearman ρ between F and the step gap); a task whose ρ reaches `min_spearman` is validated
 //! (latched) and from then on the actors guide it. The gate goes out with the planner weights
 //! (`tep_gate.validated`, one 0/1 per task), with the goal library of the final-state goal source
-//! (`tep_goals.tasks`, `tep_goals.states`: the last state of the [`GOALS_PER_TASK`] most recent
+//! (`tep_goals.tasks`, `tep_goals.states`: the state after the first success of the [`GOALS_PER_TASK`] most recent
 //! selected trajectories per task). A planner given with `[tep] init_planner` (trained offline,
 //! `terl planner train`) is checked on the held-out trajectories of the datasets loaded at start,
 //! so its tasks are guided from the first step.
@@ -253,6 +253,13 @@ impl PlannerTrainer {
         }
     }
 
+    /// Whether every task is validated and has at least `samples_per_task` transitions in the
+    /// TEP buffer (`cluster.stop_at_planner_samples_per_task`).
+    pub(crate) fn ready(&self, samples_per_task: u64) -> bool {
+        self.validated_at.iter().all(Option::is_some)
+            && self.task_transitions.iter().all(|&n| n >= samples_per_task)
+    }
+
     /// The gate and goal library as tensors of the planner weights message.
     fn gate_tensors(&self) -> Vec<Tensor> {
         let validated: Vec<f32> = self
@@ -310,12 +317,16 @@ impl PlannerTrainer {
             let actions: Vec<f32> = seg.iter().flat_map(|s| s.action).collect();
             let task = usize::from(seg[0].task);
             let id = seg[0].trajectory_id;
+            // The goal library holds real success states: the state after a selected
+            // trajectory's first success-flagged sample. A trajectory without one adds nothing.
             if seg.len() >= MIN_VALIDATION_STEPS {
-                let g = &mut self.goals[task];
-                if g.len() == GOALS_PER_TASK {
-                    g.pop_front();
+                if let Some(s) = seg.iter().find(|s| s.succeeded()) {
+                    let g = &mut self.goals[task];
+                    if g.len() == GOALS_PER_TASK {
+                        g.pop_front();
+                    }
+                    g.push_back(s.next_obs);
                 }
-                g.push_back(seg[seg.len() - 1].next_obs);
             }
             let hold = self.held_out_ids.contains(&id)
                 || (self.held_out[task].len() < self.guidance.validation_trajectories
@@ -644,8 +655,15 @@ mod tests {
     /// threshold, and the gate and the goal library go out with the weights.
     #[test]
     fn held_out_trajectories_gate_tasks_and_go_out_with_the_weights() {
+        // Trajectory 1 succeeds from step 5 on; the others never do.
         let traj = |id: u64, task: u16| -> Vec<SelectedSample> {
-            (0..12).map(|k| sample(id, k, task)).collect()
+            (0..12)
+                .map(|k| {
+                    let mut s = sample(id, k, task);
+                    s.success = u8::from(id == 1 && k >= 5);
+                    s
+                })
+                .collect()
         };
         for (threshold, want) in [(-1.0, true), (1.0, false)] {
             let guidance = terl_rl::guidance::GuidanceConfig {
@@ -682,9 +700,11 @@ mod tests {
                 tensors[names::TEP_GATE],
                 vec![f32::from(u8::from(want)), 0.0]
             );
-            // Both trajectories of task 0 left a goal state.
-            assert_eq!(tensors[names::TEP_GOAL_TASKS], vec![0.0, 0.0]);
-            assert_eq!(tensors[names::TEP_GOAL_STATES].len(), 2 * OBS_DIM);
+            // Only the successful trajectory left a goal: the state after its first success.
+            assert_eq!(tensors[names::TEP_GOAL_TASKS], vec![0.0]);
+            let goal = &tensors[names::TEP_GOAL_STATES];
+            assert_eq!(goal.len(), OBS_DIM);
+            assert_eq!(goal[0], 6.0, "next_obs of step 5");
         }
     }
 }

@@ -256,6 +256,17 @@ pub(crate) fn run<T: Transport>(
             );
             break;
         }
+        let wanted = run.cluster.stop_at_planner_samples_per_task;
+        if wanted > 0 && planner.as_ref().is_some_and(|p| p.ready(wanted)) {
+            tracing::info!(
+                env_steps = c.env_steps,
+                updates = sac.updates(),
+                samples_per_task = wanted,
+                "planner ready: every task validated with its selected samples \
+                 (cluster.stop_at_planner_samples_per_task); stopping"
+            );
+            break;
+        }
         let began = Instant::now();
         let mut busy = staging.round(
             transitions.as_mut(),

@@ -249,8 +249,8 @@ impl Selecting {
                 next_obs: s.next_obs,
                 goal_obs: None,
                 action: s.action,
-                success: false,
-                variation: None,
+                success: s.succeeded(),
+                variation: s.variation(),
             };
             self.dataset.write(&sample, log_time)?;
         }

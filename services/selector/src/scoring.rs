@@ -170,7 +170,12 @@ impl Scorer {
                 priority: p as f32,
                 step_index: t as u16,
                 task: e.task,
-                reserved: [0; 4],
+                variation: e
+                    .variation()
+                    .and_then(|v| u16::try_from(v).ok())
+                    .unwrap_or(u16::MAX),
+                success: u8::from(e.first_success_index().is_some_and(|f| t >= f)),
+                reserved: 0,
             };
             (p, sample)
         });
@@ -326,6 +331,35 @@ mod tests {
         assert_eq!(stats.scored, 20);
         assert!(stats.min <= stats.mean && stats.mean <= stats.max);
         assert_eq!(stats.selection_threshold, sel.last().unwrap().0);
+    }
+
+    /// A selected sample carries its episode's goal variation and whether the task reported
+    /// success after its step (from the episode's first success on), as the actor recorded them.
+    #[test]
+    fn selections_carry_the_variation_and_the_success_from_the_first_success_on() {
+        let cfg = PtrConfig {
+            success_threshold: 0.0,
+            min_episodes: Some(1),
+            batch_size: 16,
+            pool_trajectories: 1,
+            top_fraction: 1.0,
+            ..PtrConfig::default()
+        };
+        let mut s = loaded(cfg);
+        let mut e = episode(0, 1, true, 10);
+        e.variation = 7;
+        e.first_success = 4 + 1;
+        let sel = s.on_episode(&e);
+        assert_eq!(sel.len(), 10);
+        for (_, x) in &sel {
+            assert_eq!(x.variation(), Some(7));
+            assert_eq!(x.succeeded(), x.step_index >= 4, "step {}", x.step_index);
+        }
+        // An episode without the records: unknown variation, no success flag.
+        let sel = s.on_episode(&episode(0, 2, true, 10));
+        assert!(sel
+            .iter()
+            .all(|(_, x)| x.variation().is_none() && !x.succeeded()));
     }
 
     /// Trajectories are ranked against each other: of two episodes over the same states, the

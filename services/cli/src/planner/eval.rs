@@ -33,7 +33,7 @@ use terl_rl::planner_eval::{predict_gaps, score, ReachScore};
 use terl_rl::{Planner, Tep};
 use terl_sim::{Env, ACTION_DIM, OBS_DIM};
 
-use super::files::{load_planner, read_trajectories, Trajectory};
+use super::files::{load_planner, read_trajectories, split_held_out, Trajectory};
 use super::train::held_out_pairs;
 
 #[derive(Debug, Args)]
@@ -44,6 +44,10 @@ pub struct EvalArgs {
     /// Held-out TEP datasets (repeatable).
     #[arg(long = "dataset", required = true)]
     pub datasets: Vec<PathBuf>,
+    /// Score only the first K trajectories of each task of `--dataset` (the ones `terl planner
+    /// train --hold-out-trajectories K` left out); 0: every trajectory.
+    #[arg(long, default_value_t = 0, value_name = "K")]
+    pub hold_out_trajectories: usize,
     /// AN episodes per task in the real environment (0: only the F check).
     #[arg(long, default_value_t = 10)]
     pub rollouts: usize,
@@ -212,23 +216,33 @@ fn task_rollouts(
     let mut env = Env::new(task)?;
     let mut planner = tep.planner(1);
     let mut rng = ChaCha8Rng::seed_from_u64(args.seed ^ 0xa11ce);
-    let want_final = args.goal_source != GoalSourceArg::Replace;
+    let mut want_final = args.goal_source != GoalSourceArg::Replace;
+    if want_final && lib.is_empty() {
+        // Selected data of a task the policy rarely solves may hold no success yet.
+        eprintln!(
+            "[planner eval] {task}: no successful trajectory to take final-state goals from; \
+             that arm is left out"
+        );
+        want_final = false;
+    }
     let want_replace = args.goal_source != GoalSourceArg::FinalState;
     let (mut fin, mut rep, mut rnd) = (Arm::default(), Arm::default(), Arm::default());
     let with_variation: Vec<u32> = held_out.iter().filter_map(|t| t.variation).collect();
     anyhow::ensure!(
         !with_variation.is_empty(),
-        "{task}: no held-out trajectory records its goal variation (datasets of live runs do \
-         not); use --rollouts 0 for the F check only"
+        "{task}: no held-out trajectory records its goal variation (datasets of runs made \
+         before episodes carried it do not); use --rollouts 0 for the F check only"
     );
     for e in 0..args.rollouts {
         let v = with_variation[e % with_variation.len()];
         let start = env.reset_variation(args.variation_seed, v as usize)?;
         let start: Vec<f32> = start.iter().map(|&x| x as f32).collect();
-        if want_final {
-            let g = final_state_goal(lib, &start, v).with_context(|| {
-                format!("{task}: no successful trajectory of another variation in the goal library")
-            })?;
+        // An episode whose variation is the only one with a success has no goal of another
+        // variation: left out of that arm.
+        if let Some(g) = want_final
+            .then(|| final_state_goal(lib, &start, v))
+            .flatten()
+        {
             let (s, d) = rollout(
                 &mut env,
                 &mut planner,
@@ -273,7 +287,10 @@ fn task_rollouts(
 
 pub fn run(args: EvalArgs) -> Result<ExitCode> {
     let tep = load_planner(&args.planner)?;
-    let held_out = read_trajectories(&args.datasets)?;
+    let mut held_out = read_trajectories(&args.datasets)?;
+    if args.hold_out_trajectories > 0 {
+        held_out = split_held_out(held_out, args.hold_out_trajectories).1;
+    }
     let goals = if args.goals.is_empty() {
         held_out.clone()
     } else {
@@ -283,7 +300,7 @@ pub fn run(args: EvalArgs) -> Result<ExitCode> {
     let pairs = held_out_pairs(&held_out, &mut tasks, args.pairs_per_trajectory, args.seed);
     anyhow::ensure!(
         !pairs.is_empty(),
-        "the held-out datasets have no trajectory with contiguous steps to take pairs from"
+        "the held-out datasets have no trajectory to take pairs from"
     );
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
     let pred = predict_gaps(&tep, &pairs, par_for_threads(threads));

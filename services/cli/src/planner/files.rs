@@ -52,6 +52,42 @@ impl Trajectory {
     }
 }
 
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn traj(task: &str, id: u64) -> Trajectory {
+        Trajectory {
+            task: task.into(),
+            id,
+            variation: None,
+            steps: vec![0],
+            obs: vec![0.0; OBS_DIM],
+            actions: vec![0.0; ACTION_DIM],
+            next_obs: vec![0.0; OBS_DIM],
+            success: vec![false],
+        }
+    }
+
+    #[test]
+    fn the_first_trajectories_of_each_task_are_held_out_and_the_rest_train() {
+        let all = vec![
+            traj("a", 1),
+            traj("b", 2),
+            traj("a", 3),
+            traj("a", 4),
+            traj("b", 5),
+        ];
+        let (train, held) = split_held_out(all.clone(), 2);
+        let ids = |v: &[Trajectory]| v.iter().map(|t| t.id).collect::<Vec<_>>();
+        assert_eq!(ids(&held), [1, 2, 3, 5]);
+        assert_eq!(ids(&train), [4]);
+        let (train, held) = split_held_out(all, 0);
+        assert!(held.is_empty());
+        assert_eq!(train.len(), 5);
+    }
+}
+
 /// Reads TEP datasets into trajectories (grouped by trajectory id, sorted by step, duplicates
 /// dropped), in file order then id order. Trajectory ids are only unique within one file, so
 /// file `f`'s ids get `f << 48` added. A truncated file is used up to its damage, with a warning.
@@ -106,6 +142,30 @@ pub fn read_trajectories(paths: &[std::path::PathBuf]) -> Result<Vec<Trajectory>
         }
     }
     Ok(out)
+}
+
+/// Splits trajectories into (training, held out): the first `per_task` trajectories of each task
+/// in read order ([`read_trajectories`]: file order, then id order) are held out, the rest train.
+/// `terl planner train --hold-out-trajectories K` trains on the first part and `terl planner eval
+/// --hold-out-trajectories K` scores the second, so one PTR-selected dataset of a run serves
+/// both without overlap (the learner's gate holds out a task's first selected trajectories the
+/// same way).
+pub fn split_held_out(
+    trajectories: Vec<Trajectory>,
+    per_task: usize,
+) -> (Vec<Trajectory>, Vec<Trajectory>) {
+    let mut seen: BTreeMap<String, usize> = BTreeMap::new();
+    let (mut train, mut held) = (Vec::new(), Vec::new());
+    for t in trajectories {
+        let n = seen.entry(t.task.clone()).or_default();
+        if *n < per_task {
+            *n += 1;
+            held.push(t);
+        } else {
+            train.push(t);
+        }
+    }
+    (train, held)
 }
 
 /// Loads a planner file (`terl planner train --out`, or a learner's

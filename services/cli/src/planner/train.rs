@@ -21,7 +21,7 @@ use terl_rl::planner_eval::{predict_gaps, score, PairSet};
 use terl_rl::{Tep, TepBatch, TepBuffer, TepConfig};
 use terl_wire::{ACTION_DIM, OBS_DIM};
 
-use super::files::{read_trajectories, Trajectory};
+use super::files::{read_trajectories, split_held_out, Trajectory};
 
 #[derive(Debug, Args)]
 pub struct TrainArgs {
@@ -41,6 +41,12 @@ pub struct TrainArgs {
     /// Held-out datasets: Spearman ρ of F on them is logged every `--eval-every` updates.
     #[arg(long = "eval-dataset")]
     pub eval_datasets: Vec<PathBuf>,
+    /// Leave out the first K trajectories of each task of `--dataset` (the ones `terl planner
+    /// eval --hold-out-trajectories K` scores), so one dataset of a run serves training and
+    /// evaluation; they are used as the held-out check of the log lines when no
+    /// `--eval-dataset` is given.
+    #[arg(long, default_value_t = 0, value_name = "K")]
+    pub hold_out_trajectories: usize,
     /// Updates between log lines (and held-out checks).
     #[arg(long, default_value_t = 500)]
     pub eval_every: u64,
@@ -113,12 +119,14 @@ pub fn held_out_pairs(
             }
         };
         let n = t.until_success();
-        if n == 0 || !t.contiguous() {
-            // Pairs need the true step gap: only trajectories without holes give it.
+        if n == 0 {
             continue;
         }
-        pairs.add_trajectory(
+        // The true step gap comes from the recorded step numbers, so selected data (which may
+        // skip steps) gives pairs as scripted data does.
+        pairs.add_segment(
             k,
+            &t.steps[..n],
             &t.obs[..n * OBS_DIM],
             &t.actions[..n * ACTION_DIM],
             &t.next_obs[..n * OBS_DIM],
@@ -154,7 +162,13 @@ pub fn run(args: TrainArgs) -> Result<ExitCode> {
         args.out.display()
     );
     anyhow::ensure!(args.eval_every > 0, "--eval-every must be ≥ 1");
-    let trajectories = read_trajectories(&args.datasets)?;
+    let (trajectories, split_off) =
+        split_held_out(read_trajectories(&args.datasets)?, args.hold_out_trajectories);
+    anyhow::ensure!(
+        !trajectories.is_empty(),
+        "no trajectory left to train on after holding out the first {} of each task",
+        args.hold_out_trajectories
+    );
     let mut tasks: Vec<String> = Vec::new();
     for t in &trajectories {
         if !tasks.contains(&t.task) {
@@ -162,12 +176,15 @@ pub fn run(args: TrainArgs) -> Result<ExitCode> {
         }
     }
     let buffer = fill_buffer(&trajectories, &tasks)?;
-    let held_out = if args.eval_datasets.is_empty() {
-        None
-    } else {
+    let held_out = if !args.eval_datasets.is_empty() {
         let mut eval_tasks = tasks.clone();
         let t = read_trajectories(&args.eval_datasets)?;
         Some(held_out_pairs(&t, &mut eval_tasks, 64, 1))
+    } else if !split_off.is_empty() {
+        let mut eval_tasks = tasks.clone();
+        Some(held_out_pairs(&split_off, &mut eval_tasks, 64, 1))
+    } else {
+        None
     };
     tracing::info!(
         transitions = buffer.len(),
