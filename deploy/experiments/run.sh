@@ -119,6 +119,7 @@ say() { printf '[experiment] %s\n' "$*" >&2; }
 base_config() {
     local exp=$1
     case "$scale/$exp" in
+        smoke/pipeline-stage1) echo deploy/configs/experiments/pipeline-stage1-smoke.toml ;;
         smoke/*) echo deploy/configs/experiments/smoke.toml ;;
         workstation/mt1-ind) echo deploy/configs/experiments/mt1-ind-workstation.toml ;;
         paper/mt1-ind) echo deploy/configs/experiments/mt1-ind-paper.toml ;;
@@ -126,7 +127,6 @@ base_config() {
         paper/mt10) echo deploy/configs/mt10.toml ;;
         workstation/mt20) echo deploy/configs/experiments/mt20-workstation.toml ;;
         paper/mt20) echo deploy/configs/experiments/mt20-paper.toml ;;
-        smoke/pipeline-stage1) echo deploy/configs/experiments/pipeline-stage1-smoke.toml ;;
         workstation/pipeline-stage1) echo deploy/configs/experiments/pipeline-stage1-workstation.toml ;;
         paper/pipeline-stage1) echo deploy/configs/experiments/mt1-ind-paper.toml ;;
     esac
