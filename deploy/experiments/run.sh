@@ -320,7 +320,7 @@ print(" ".join(names))' "$stage3_tasks")
             if [ -f "$planner_dir/eval.json" ]; then
                 say "pipeline-planner-s$seed$tag: done already"
             else
-                say "pipeline-planner-s$seed$tag: training the planner on ${#datasets[@]} stage-1 datasets ($p_updates updates)"
+                say "pipeline-planner-s$seed$tag: training the planner on $(( ${#datasets[@]} / 2 )) stage-1 datasets ($p_updates updates)"
                 printf '%s\n' "$bin/terl planner train ${datasets[*]} --hold-out-trajectories $hold_out --config $planner_dir/planner.toml --updates $p_updates --seed $seed --out $planner" \
                     "$bin/terl planner eval --planner $planner ${datasets[*]} --hold-out-trajectories $hold_out --rollouts $rollouts" \
                     > "$planner_dir/commands.txt"

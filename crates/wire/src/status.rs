@@ -189,6 +189,11 @@ pub struct PriorityStats {
     pub min: f64,
     pub max: f64,
     pub selection_threshold: f64,
+    /// Mean over the scored transitions of the GAE part `α · mean(GAE)` of the priority.
+    pub gae_part_mean: f64,
+    /// Mean over the scored transitions of the entropy part `(1 − α) · H` (with the GAE part,
+    /// the mean priority).
+    pub entropy_part_mean: f64,
 }
 
 /// Episode and selection statistics of the selector (`Selector.GetStatus`).
@@ -575,6 +580,8 @@ impl TryFrom<pb::PriorityStats> for PriorityStats {
             min: finite("priority.min", m.min)?,
             max: finite("priority.max", m.max)?,
             selection_threshold: finite("priority.selection_threshold", m.selection_threshold)?,
+            gae_part_mean: finite("priority.gae_part_mean", m.gae_part_mean)?,
+            entropy_part_mean: finite("priority.entropy_part_mean", m.entropy_part_mean)?,
         };
         if s.scored > 0 && !(s.min <= s.mean && s.mean <= s.max) {
             return Err(Status::invalid_argument(format!(
@@ -594,6 +601,8 @@ impl From<PriorityStats> for pb::PriorityStats {
             min: d.min,
             max: d.max,
             selection_threshold: d.selection_threshold,
+            gae_part_mean: d.gae_part_mean,
+            entropy_part_mean: d.entropy_part_mean,
         }
     }
 }

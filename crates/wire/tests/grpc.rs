@@ -147,6 +147,8 @@ impl SelectorBackend for TestSelector {
                 min: -0.5,
                 max: 1.5,
                 selection_threshold: 0.7,
+                gae_part_mean: 0.05,
+                entropy_part_mean: 0.15,
             },
             critic_version: 3,
             episodes_dropped: 2,

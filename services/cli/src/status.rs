@@ -289,8 +289,15 @@ fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyho
             if s.priority.scored > 0 {
                 let p = &s.priority;
                 println!(
-                    "priority  scored {}  mean {:.3}  min {:.3}  max {:.3}  selection threshold {:.3}  critic v{}",
-                    p.scored, p.mean, p.min, p.max, p.selection_threshold, s.critic_version
+                    "priority  scored {}  mean {:.3} (GAE part {:.3}, entropy part {:.3})  min {:.3}  max {:.3}  selection threshold {:.3}  critic v{}",
+                    p.scored,
+                    p.mean,
+                    p.gae_part_mean,
+                    p.entropy_part_mean,
+                    p.min,
+                    p.max,
+                    p.selection_threshold,
+                    s.critic_version
                 );
             }
         }

@@ -30,6 +30,9 @@ pub fn trajectory_id(actor_id: u16, episode_index: u64) -> u64 {
 struct Priorities {
     scored: u64,
     sum: f64,
+    /// Sums of the GAE and entropy parts ([`PtrConfig::priority`]'s two terms).
+    gae_part_sum: f64,
+    entropy_part_sum: f64,
     min: f64,
     max: f64,
     threshold: f64,
@@ -140,7 +143,7 @@ impl Scorer {
         let end = TrajectoryEnd::Truncated {
             last_value: self.values[n],
         };
-        let (prios, _mean_gae) = trajectory_priorities(
+        let (prios, mean_gae) = trajectory_priorities(
             &self.cfg,
             &self.rewards,
             &self.values[..n],
@@ -155,6 +158,12 @@ impl Scorer {
         for &p in &prios {
             self.priorities.record(p);
         }
+        let gae_part = self.cfg.gae_weight * mean_gae;
+        self.priorities.gae_part_sum += gae_part * n as f64;
+        self.priorities.entropy_part_sum += self.entropies[..n]
+            .iter()
+            .map(|&h| (1.0 - self.cfg.gae_weight) * h)
+            .sum::<f64>();
         let samples = prios.iter().enumerate().map(|(t, &p)| {
             let next_obs: [f32; OBS_DIM] = if t + 1 < n {
                 steps[t + 1].obs
@@ -194,6 +203,13 @@ impl Scorer {
     /// Priority statistics for status.
     pub fn priority_stats(&self) -> PriorityStats {
         let p = &self.priorities;
+        let mean_of = |sum: f64| {
+            if p.scored > 0 {
+                sum / p.scored as f64
+            } else {
+                0.0
+            }
+        };
         PriorityStats {
             scored: p.scored,
             mean: if p.scored > 0 {
@@ -204,6 +220,8 @@ impl Scorer {
             min: p.min,
             max: p.max,
             selection_threshold: p.threshold,
+            gae_part_mean: mean_of(p.gae_part_sum),
+            entropy_part_mean: mean_of(p.entropy_part_sum),
         }
     }
 }
@@ -331,6 +349,13 @@ mod tests {
         assert_eq!(stats.scored, 20);
         assert!(stats.min <= stats.mean && stats.mean <= stats.max);
         assert_eq!(stats.selection_threshold, sel.last().unwrap().0);
+        // The two parts add up to the mean priority (a second path: the recorded priorities).
+        assert!(
+            (stats.gae_part_mean + stats.entropy_part_mean - stats.mean).abs()
+                <= 1e-9 * stats.mean.abs().max(1.0),
+            "{stats:?}"
+        );
+        assert!(stats.entropy_part_mean != 0.0);
     }
 
     /// A selected sample carries its episode's goal variation and whether the task reported

@@ -91,8 +91,11 @@ mod tests {
 /// Reads TEP datasets into trajectories (grouped by trajectory id, sorted by step, duplicates
 /// dropped), in file order then id order. Trajectory ids are only unique within one file, so
 /// file `f`'s ids get `f << 48` added. A truncated file is used up to its damage, with a warning.
+/// A file without any sample (a run whose selection never started) is skipped with a warning;
+/// it is an error when no file has one.
 pub fn read_trajectories(paths: &[std::path::PathBuf]) -> Result<Vec<Trajectory>> {
     let mut out = Vec::new();
+    let mut empty = Vec::new();
     for (f, path) in paths.iter().enumerate() {
         let data = terl_telemetry::read_tep_dataset(path)
             .with_context(|| format!("cannot read the TEP dataset {}", path.display()))?;
@@ -106,11 +109,10 @@ pub fn read_trajectories(paths: &[std::path::PathBuf]) -> Result<Vec<Trajectory>
         for s in data.samples {
             by_id.entry(s.trajectory_id).or_default().push(s);
         }
-        anyhow::ensure!(
-            !by_id.is_empty(),
-            "the TEP dataset {} holds no sample",
-            path.display()
-        );
+        if by_id.is_empty() {
+            empty.push(path.display().to_string());
+            continue;
+        }
         for (id, mut samples) in by_id {
             samples.sort_by_key(|s| s.step);
             samples.dedup_by_key(|s| s.step);
@@ -139,6 +141,15 @@ pub fn read_trajectories(paths: &[std::path::PathBuf]) -> Result<Vec<Trajectory>
                 t.success.push(s.success);
             }
             out.push(t);
+        }
+    }
+    match (out.is_empty(), empty.as_slice()) {
+        (true, [one]) => anyhow::bail!("the TEP dataset {one} holds no sample"),
+        (true, _) => anyhow::bail!("the TEP datasets {} hold no sample", empty.join(", ")),
+        (false, _) => {
+            for path in &empty {
+                eprintln!("[planner] skipping the TEP dataset {path}: it holds no sample");
+            }
         }
     }
     Ok(out)

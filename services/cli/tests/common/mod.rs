@@ -23,7 +23,12 @@ pub fn service_binaries() -> PathBuf {
     let status = Command::new(cargo)
         .current_dir(workspace())
         .args(["build", "-q", "--profile", &profile])
+        // terl-cli too: its dependencies (plotters, image) turn on features of shared crates
+        // (bytemuck, num-traits), and without it this build would differ from the workspace's
+        // test build and rebuild half the dependency tree each time the two alternate.
         .args([
+            "-p",
+            "terl-cli",
             "-p",
             "terl-learner",
             "-p",
