@@ -162,8 +162,10 @@ pub fn run(args: TrainArgs) -> Result<ExitCode> {
         args.out.display()
     );
     anyhow::ensure!(args.eval_every > 0, "--eval-every must be ≥ 1");
-    let (trajectories, split_off) =
-        split_held_out(read_trajectories(&args.datasets)?, args.hold_out_trajectories);
+    let (trajectories, split_off) = split_held_out(
+        read_trajectories(&args.datasets)?,
+        args.hold_out_trajectories,
+    );
     anyhow::ensure!(
         !trajectories.is_empty(),
         "no trajectory left to train on after holding out the first {} of each task",
