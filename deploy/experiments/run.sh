@@ -46,6 +46,8 @@
 #   --planner-updates N              terl-pipeline: offline planner updates (default: smoke 300,
 #                                    workstation 20000, paper 50000)
 #   --last-stage 1|2|3               terl-pipeline: stop after this stage (default 3)
+#   --stage1-steps N                 terl-pipeline: the env-step cap of each stage-1 run only
+#                                    (--steps sets every run's budget, stage 3's included)
 # A run whose eval-final.json exists is skipped, so an interrupted experiment resumes where it
 # stopped (a run stopped mid-way starts again from scratch). A run whose id is held by running
 # processes is not touched. A failed run does not stop the others; the script then exits 1.
@@ -70,6 +72,7 @@ tag=""
 stage1_samples=""
 planner_updates=""
 last_stage=3
+stage1_steps=""
 while [ $# -gt 0 ]; do
     case "$1" in
         --scale) scale=$2; shift 2 ;;
@@ -84,6 +87,7 @@ while [ $# -gt 0 ]; do
         --stage1-samples) stage1_samples=$2; shift 2 ;;
         --planner-updates) planner_updates=$2; shift 2 ;;
         --last-stage) last_stage=$2; shift 2 ;;
+        --stage1-steps) stage1_steps=$2; shift 2 ;;
         -h|--help) usage; exit 0 ;;
         *) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
     esac
@@ -103,9 +107,9 @@ done
     || { echo "--tasks applies to mt1-ind only" >&2; exit 2; }
 [ -z "$steps" ] || [[ "$steps" =~ ^[1-9][0-9]*$ ]] || { echo "--steps must be a positive integer" >&2; exit 2; }
 [[ "$last_stage" =~ ^[123]$ ]] || { echo "--last-stage takes 1, 2 or 3" >&2; exit 2; }
-for v in "$stage1_samples" "$planner_updates"; do
+for v in "$stage1_samples" "$planner_updates" "$stage1_steps"; do
     [ -z "$v" ] || [[ "$v" =~ ^[1-9][0-9]*$ ]] \
-        || { echo "--stage1-samples and --planner-updates take positive integers" >&2; exit 2; }
+        || { echo "--stage1-samples, --stage1-steps and --planner-updates take positive integers" >&2; exit 2; }
 done
 
 bin=${CARGO_TARGET_DIR:-target}/release
@@ -277,8 +281,10 @@ print(" ".join(names))' "$stage3_tasks")
             stage3_datasets=()
             for task in $s1_tasks; do
                 id="pipeline-stage1-${task%-v3}-s$seed$tag"
+                s1_cap=(-e '')
+                [ -z "$stage1_steps" ] || s1_cap=(-e "s/^total_env_steps *=.*/total_env_steps = $stage1_steps/")
                 if run_config "$base1" pipeline-stage1 "$task" terl "" "$seed" \
-                    | sed -E -e '/^stop_at_planner_samples_per_task *=/d' \
+                    | sed -E -e '/^stop_at_planner_samples_per_task *=/d' "${s1_cap[@]}" \
                         -e "s/^\[cluster\]\$/[cluster]\nstop_at_planner_samples_per_task = $s1_samples/" \
                     | train_run "$id" "$base1"; then
                     f="$runs/$id/tep-dataset.mcap"

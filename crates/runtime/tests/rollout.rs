@@ -91,6 +91,7 @@ struct Episode {
     unstable: bool,
     final_obs: Vec<f32>,
     version: u64,
+    variation: Option<u32>,
 }
 
 /// Keeps everything in memory; stops after `vec_steps` vector steps.
@@ -134,6 +135,7 @@ impl TransitionSink for MemorySink {
             unstable: e.unstable,
             final_obs: e.final_obs.to_vec(),
             version: e.policy_version,
+            variation: e.variation,
         });
         Ok(())
     }
@@ -230,6 +232,15 @@ fn rollout_on_meta_world_ends_episodes_at_the_time_limit_and_stamps_versions() {
         assert!((e.episode_return - sum).abs() < 1e-6 * sum.abs().max(1.0));
         assert_eq!(e.success, own.iter().any(|s| s.success));
         assert_eq!(e.final_obs, own.last().unwrap().next_obs);
+        // The goal variation the episode ran on: a fresh environment reset to that variation
+        // (of the vector's variation seed, 3) starts where the episode started.
+        let v = e.variation.expect("Meta-World records the variation") as usize;
+        let start = Env::new(TASKS[e.env])
+            .unwrap()
+            .reset_variation(3, v)
+            .unwrap()
+            .map(|x| x as f32);
+        assert_eq!(own[0].obs[..], start[..], "episode {k}, variation {v}");
         // The version the episode began with: the one that acted when the previous ended.
         let want = if round == 0 {
             0
