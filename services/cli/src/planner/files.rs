@@ -52,42 +52,6 @@ impl Trajectory {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn traj(task: &str, id: u64) -> Trajectory {
-        Trajectory {
-            task: task.into(),
-            id,
-            variation: None,
-            steps: vec![0],
-            obs: vec![0.0; OBS_DIM],
-            actions: vec![0.0; ACTION_DIM],
-            next_obs: vec![0.0; OBS_DIM],
-            success: vec![false],
-        }
-    }
-
-    #[test]
-    fn the_first_trajectories_of_each_task_are_held_out_and_the_rest_train() {
-        let all = vec![
-            traj("a", 1),
-            traj("b", 2),
-            traj("a", 3),
-            traj("a", 4),
-            traj("b", 5),
-        ];
-        let (train, held) = split_held_out(all.clone(), 2);
-        let ids = |v: &[Trajectory]| v.iter().map(|t| t.id).collect::<Vec<_>>();
-        assert_eq!(ids(&held), [1, 2, 3, 5]);
-        assert_eq!(ids(&train), [4]);
-        let (train, held) = split_held_out(all, 0);
-        assert!(held.is_empty());
-        assert_eq!(train.len(), 5);
-    }
-}
-
 /// Reads TEP datasets into trajectories (grouped by trajectory id, sorted by step, duplicates
 /// dropped), in file order then id order. Trajectory ids are only unique within one file, so
 /// file `f`'s ids get `f << 48` added. A truncated file is used up to its damage, with a warning.
@@ -197,4 +161,40 @@ pub fn load_planner(path: &Path) -> Result<Tep<f32>> {
     tep.import_planner(&file)
         .with_context(|| format!("the weights of {}", path.display()))?;
     Ok(tep)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn traj(task: &str, id: u64) -> Trajectory {
+        Trajectory {
+            task: task.into(),
+            id,
+            variation: None,
+            steps: vec![0],
+            obs: vec![0.0; OBS_DIM],
+            actions: vec![0.0; ACTION_DIM],
+            next_obs: vec![0.0; OBS_DIM],
+            success: vec![false],
+        }
+    }
+
+    #[test]
+    fn the_first_trajectories_of_each_task_are_held_out_and_the_rest_train() {
+        let all = vec![
+            traj("a", 1),
+            traj("b", 2),
+            traj("a", 3),
+            traj("a", 4),
+            traj("b", 5),
+        ];
+        let (train, held) = split_held_out(all.clone(), 2);
+        let ids = |v: &[Trajectory]| v.iter().map(|t| t.id).collect::<Vec<_>>();
+        assert_eq!(ids(&held), [1, 2, 3, 5]);
+        assert_eq!(ids(&train), [4]);
+        let (train, held) = split_held_out(all, 0);
+        assert!(held.is_empty());
+        assert_eq!(train.len(), 5);
+    }
 }
