@@ -75,6 +75,10 @@ last_stage=3
 stage1_steps=""
 while [ $# -gt 0 ]; do
     case "$1" in
+        --no-build|-h|--help) ;;
+        --*) [ $# -ge 2 ] || { echo "$1 needs a value (see --help)" >&2; exit 2; } ;;
+    esac
+    case "$1" in
         --scale) scale=$2; shift 2 ;;
         --seeds) seeds=$2; shift 2 ;;
         --algorithms) algorithms=$2; shift 2 ;;
@@ -105,12 +109,17 @@ done
 [[ "$tag" =~ ^(-[A-Za-z0-9_]+)?$ ]] || { echo "--tag takes letters, digits and _" >&2; exit 2; }
 [ -z "$tasks_override" ] || [ "$experiment" = mt1-ind ] \
     || { echo "--tasks applies to mt1-ind only" >&2; exit 2; }
-[ -z "$steps" ] || [[ "$steps" =~ ^[1-9][0-9]*$ ]] || { echo "--steps must be a positive integer" >&2; exit 2; }
+[ -z "$steps" ] || [[ "$steps" =~ ^[1-9][0-9]{0,14}$ ]] || { echo "--steps must be a positive integer (at most 15 digits)" >&2; exit 2; }
 [[ "$last_stage" =~ ^[123]$ ]] || { echo "--last-stage takes 1, 2 or 3" >&2; exit 2; }
 for v in "$stage1_samples" "$planner_updates" "$stage1_steps"; do
-    [ -z "$v" ] || [[ "$v" =~ ^[1-9][0-9]*$ ]] \
-        || { echo "--stage1-samples, --stage1-steps and --planner-updates take positive integers" >&2; exit 2; }
+    [ -z "$v" ] || [[ "$v" =~ ^[1-9][0-9]{0,14}$ ]] \
+        || { echo "--stage1-samples, --stage1-steps and --planner-updates take positive integers (at most 15 digits)" >&2; exit 2; }
 done
+if [ "$experiment" != terl-pipeline ] \
+    && { [ -n "$stage1_samples$planner_updates$stage1_steps" ] || [ "$last_stage" != 3 ]; }; then
+    echo "--stage1-samples, --stage1-steps, --planner-updates and --last-stage apply to terl-pipeline only" >&2
+    exit 2
+fi
 
 bin=${CARGO_TARGET_DIR:-target}/release
 if [ "$build" = 1 ]; then
@@ -118,6 +127,12 @@ if [ "$build" = 1 ]; then
     cargo build --release -q -p terl-cli -p terl-learner -p terl-actor -p terl-selector
 fi
 say() { printf '[experiment] %s\n' "$*" >&2; }
+
+# One instance per experiment and tag in a runs root: a second one would delete the first one's
+# run folders as unfinished.
+mkdir -p "$runs"
+exec 9> "$runs/.run-$experiment$tag.lock"
+flock -n 9 || { say "another run.sh $experiment${tag:+ (tag ${tag#-})} is running on $runs; wait for it or use another --tag"; exit 1; }
 
 # The base run file of an experiment at the chosen scale.
 base_config() {
@@ -193,6 +208,17 @@ train_run() {
 }
 
 mt1_tasks="door-open-v3 button-press-v3 pick-place-v3 window-open-v3 sweep-into-v3"
+
+# A string as the replacement of a sed `s|…|…|` (escapes \, & and |).
+sed_replacement() { local v=${1//\\/\\\\}; v=${v//&/\\&}; printf '%s' "${v//|/\\|}"; }
+
+# Selected samples a finished run's learner received (its last "trainer stopped" line), or
+# "unknown" for logs that predate the field.
+selected_of() {
+    local n
+    n=$(grep -ho 'trainer stopped.*selected_samples=[0-9]*' "$1/learner.log" 2>/dev/null | tail -1 | sed 's/.*selected_samples=//')
+    [ -n "$n" ] && echo "$n" || echo unknown
+}
 failed=()
 
 case "$experiment" in
@@ -279,28 +305,38 @@ print(" ".join(names))' "$stage3_tasks")
             # Stage 1: each task alone until its planner data is usable.
             datasets=()
             stage3_datasets=()
+            stage1_failed=0
             for task in $s1_tasks; do
                 id="pipeline-stage1-${task%-v3}-s$seed$tag"
+                f="$runs/$id/tep-dataset.mcap"
+                if [ -f "$runs/$id/eval-final.json" ] && [ ! -f "$f" ]; then
+                    say "$id: finished but its TEP dataset is missing: training it again"
+                    rm -f "$runs/$id/eval-final.json"
+                fi
                 s1_cap=(-e '')
                 [ -z "$stage1_steps" ] || s1_cap=(-e "s/^total_env_steps *=.*/total_env_steps = $stage1_steps/")
                 if run_config "$base1" pipeline-stage1 "$task" terl "" "$seed" \
                     | sed -E -e '/^stop_at_planner_samples_per_task *=/d' "${s1_cap[@]}" \
                         -e "s/^\[cluster\]\$/[cluster]\nstop_at_planner_samples_per_task = $s1_samples/" \
                     | train_run "$id" "$base1"; then
-                    f="$runs/$id/tep-dataset.mcap"
-                    if [ -s "$f" ]; then
+                    grep -h "planner ready\|training budget reached" "$runs/$id/learner.log" 2>/dev/null \
+                        | tail -1 | sed "s/^/[experiment] $id: /" >&2 || true
+                    n=$(selected_of "$runs/$id")
+                    if [ "$n" = 0 ] || [ ! -s "$f" ]; then
+                        say "$id: selected nothing within its budget (PTR's gate never opened): no data for the planner"
+                    else
                         datasets+=(--dataset "$f")
                         case " $stage3_names " in *" $task "*) stage3_datasets+=(--tep-dataset "$f") ;; esac
-                        grep -h "planner ready\|training budget reached" "$runs/$id/learner.log" 2>/dev/null \
-                            | tail -1 | sed "s/^/[experiment] $id: /" >&2 || true
-                    else
-                        say "$id: no TEP dataset (no trajectory was selected within the budget)"
-                        failed+=("$id")
                     fi
                 else
                     failed+=("$id")
+                    stage1_failed=1
                 fi
             done
+            if [ "$stage1_failed" = 1 ]; then
+                say "seed $seed: stage 1 is incomplete (see above); stages 2 and 3 wait for it"
+                continue
+            fi
             if [ ${#datasets[@]} -eq 0 ]; then
                 say "seed $seed: stage 1 gave no dataset; stages 2 and 3 skipped"
                 continue
@@ -313,7 +349,7 @@ print(" ".join(names))' "$stage3_tasks")
             stage3_cfg="$planner_dir/stage3.toml"
             run_config "$base3" mt10 "$stage3_tasks" terl pipeline "$seed" \
                 | sed -E -e '/^init_planner *=/d' \
-                    -e "s|^\[tep\]\$|[tep]\ninit_planner = \"$planner\"|" > "$stage3_cfg"
+                    -e "s|^\[tep\]\$|[tep]\ninit_planner = \"$(sed_replacement "$planner")\"|" > "$stage3_cfg"
             grep -q '^init_planner' "$stage3_cfg" \
                 || printf '\n[tep]\ninit_planner = "%s"\n' "$planner" >> "$stage3_cfg"
             # Smoke scale: a planner of a few hundred updates on tiny networks does not reach
@@ -323,9 +359,16 @@ print(" ".join(names))' "$stage3_tasks")
             # Stage 2: the planner offline, checked on held-out selected trajectories (stage 3's
             # [tep] without its init_planner, which names the file stage 2 writes).
             grep -v '^init_planner' "$stage3_cfg" > "$planner_dir/planner.toml"
-            if [ -f "$planner_dir/eval.json" ]; then
+            # Stage 2 is done when its planner and evaluation exist and were made from the same
+            # stage-1 datasets as now (a redone stage-1 run makes it train again).
+            inputs=$(for ((i = 1; i < ${#datasets[@]}; i += 2)); do md5sum "${datasets[i]}"; done)
+            if [ -f "$planner_dir/eval.json" ] && [ -f "$planner" ] \
+                && { [ ! -f "$planner_dir/inputs.md5" ] || [ "$(cat "$planner_dir/inputs.md5")" = "$inputs" ]; }; then
+                [ -f "$planner_dir/inputs.md5" ] || printf '%s\n' "$inputs" > "$planner_dir/inputs.md5"
                 say "pipeline-planner-s$seed$tag: done already"
             else
+                rm -f "$planner_dir/eval.json" "$planner"
+                printf '%s\n' "$inputs" > "$planner_dir/inputs.md5"
                 say "pipeline-planner-s$seed$tag: training the planner on $(( ${#datasets[@]} / 2 )) stage-1 datasets ($p_updates updates)"
                 printf '%s\n' "$bin/terl planner train ${datasets[*]} --hold-out-trajectories $hold_out --config $planner_dir/planner.toml --updates $p_updates --seed $seed --out $planner" \
                     "$bin/terl planner eval --planner $planner ${datasets[*]} --hold-out-trajectories $hold_out --rollouts $rollouts" \
@@ -347,8 +390,19 @@ print(" ".join(names))' "$stage3_tasks")
             [ "$last_stage" -ge 3 ] || continue
             # Stage 3: MT10 TERL from the planner; the stage-1 datasets of MT10's tasks give the
             # learner held-out trajectories to validate the planner on at start.
-            train_run "mt10-terl-pipeline-s$seed$tag" "$base3" "${stage3_datasets[@]}" < "$stage3_cfg" \
-                || failed+=("mt10-terl-pipeline-s$seed$tag")
+            # Done only from this planner: a changed one (stage 2 redone) trains stage 3 again.
+            id3="mt10-terl-pipeline-s$seed$tag"
+            planner_sum=$(md5sum < "$planner")
+            if [ -f "$runs/$id3/eval-final.json" ] && [ -f "$runs/$id3/planner.md5" ] \
+                && [ "$(cat "$runs/$id3/planner.md5")" != "$planner_sum" ]; then
+                say "$id3: its planner changed since it ran (stage 2 was redone): training it again"
+                rm -f "$runs/$id3/eval-final.json"
+            fi
+            if train_run "$id3" "$base3" "${stage3_datasets[@]}" < "$stage3_cfg"; then
+                [ -f "$runs/$id3/planner.md5" ] || printf '%s\n' "$planner_sum" > "$runs/$id3/planner.md5"
+            else
+                failed+=("$id3")
+            fi
         done
         ;;
     *) echo "unknown experiment $experiment (mt1-ind, mt10, mt-test, mt20, terl-pipeline)" >&2; exit 2 ;;
@@ -357,4 +411,8 @@ if [ ${#failed[@]} -gt 0 ]; then
     say "failed runs (the others finished): ${failed[*]}"
     exit 1
 fi
-say "done; report: $bin/terl report $runs/$experiment-* --out $runs/report-$experiment"
+if [ "$experiment" = terl-pipeline ]; then
+    say "done; report: $bin/terl report $runs/pipeline-stage1-* $runs/mt10-terl-pipeline-* --out $runs/report-$experiment"
+else
+    say "done; report: $bin/terl report $runs/$experiment-* --out $runs/report-$experiment"
+fi

@@ -213,6 +213,10 @@ impl GuidanceConfig {
     }
 }
 
+/// Fewest samples a selected trajectory needs to be held out for the planner check (the
+/// learner's gate, and `terl planner train|eval --hold-out-trajectories`); shorter ones train.
+pub const MIN_VALIDATION_STEPS: usize = 10;
+
 /// Goal states per task the learner sends with the planner (the most recent ones).
 pub const GOAL_LIBRARY_PER_TASK: usize = 32;
 

@@ -37,7 +37,7 @@ const MAX_TEP_UPDATES_PER_ROUND: u64 = 2;
 pub(crate) const GOALS_PER_TASK: usize = terl_rl::guidance::GOAL_LIBRARY_PER_TASK;
 
 /// Shortest selected trajectory (transitions) held out for the planner check.
-pub(crate) const MIN_VALIDATION_STEPS: usize = 10;
+pub(crate) use terl_rl::guidance::MIN_VALIDATION_STEPS;
 
 /// Pairs per held-out trajectory in the planner check.
 const VALIDATION_PAIRS: usize = 200;

@@ -376,7 +376,7 @@ pub(crate) fn run<T: Transport>(
         .map(PlannerTrainer::tool_file)
         .transpose()?;
     let path = checkpoints.last(&snapshot, tool_file)?;
-    tracing::info!(path = %path.display(), updates = sac.updates(), env_steps = c.env_steps, "trainer stopped; final checkpoint written");
+    tracing::info!(path = %path.display(), updates = sac.updates(), env_steps = c.env_steps, selected_samples = c.selected_samples, "trainer stopped; final checkpoint written");
     Ok(())
 }
 

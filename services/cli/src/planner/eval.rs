@@ -278,8 +278,9 @@ fn task_rollouts(
     for a in [&mut fin, &mut rep, &mut rnd] {
         a.finish();
     }
+    // An arm that ran no episode has no result (not 0 %).
     Ok([
-        want_final.then_some(fin),
+        (want_final && fin.episodes > 0).then_some(fin),
         want_replace.then_some(rep),
         Some(rnd),
     ])

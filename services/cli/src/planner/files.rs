@@ -1,7 +1,9 @@
 //! Reading TEP datasets as trajectories, and planner files.
 
 use std::collections::BTreeMap;
+
 use std::path::Path;
+use terl_rl::guidance::MIN_VALIDATION_STEPS;
 
 use anyhow::{Context, Result};
 use terl_nn::tensors::TensorFile;
@@ -53,13 +55,24 @@ impl Trajectory {
 }
 
 /// Reads TEP datasets into trajectories (grouped by trajectory id, sorted by step, duplicates
-/// dropped), in file order then id order. Trajectory ids are only unique within one file, so
-/// file `f`'s ids get `f << 48` added. A truncated file is used up to its damage, with a warning.
-/// A file without any sample (a run whose selection never started) is skipped with a warning;
-/// it is an error when no file has one.
+/// dropped), in file order, then in the order each trajectory first appears in its file (the
+/// order a learner loading the file receives them). Trajectory ids are only unique within one
+/// file, so file `f`'s ids get `f << 48` added. A truncated file is used up to its damage, with
+/// a warning. A file without any sample (a run whose selection never started) is skipped with a
+/// warning; it is an error when no file has one, and when a file is given twice.
 pub fn read_trajectories(paths: &[std::path::PathBuf]) -> Result<Vec<Trajectory>> {
     let mut out = Vec::new();
     let mut empty = Vec::new();
+    let mut seen = std::collections::HashSet::new();
+    for path in paths {
+        let canonical = std::fs::canonicalize(path).unwrap_or_else(|_| path.clone());
+        anyhow::ensure!(
+            seen.insert(canonical),
+            "the TEP dataset {} is given twice (its trajectories would count twice, and held-out \
+             ones would train)",
+            path.display()
+        );
+    }
     for (f, path) in paths.iter().enumerate() {
         let data = terl_telemetry::read_tep_dataset(path)
             .with_context(|| format!("cannot read the TEP dataset {}", path.display()))?;
@@ -69,15 +82,21 @@ pub fn read_trajectories(paths: &[std::path::PathBuf]) -> Result<Vec<Trajectory>
         if data.rejected > 0 {
             tracing::warn!(path = %path.display(), rejected = data.rejected, "invalid samples skipped");
         }
-        let mut by_id: BTreeMap<u64, Vec<TepSample>> = BTreeMap::new();
+        let mut order: Vec<u64> = Vec::new();
+        let mut by_id: std::collections::HashMap<u64, Vec<TepSample>> = Default::default();
         for s in data.samples {
-            by_id.entry(s.trajectory_id).or_default().push(s);
+            let entry = by_id.entry(s.trajectory_id).or_default();
+            if entry.is_empty() {
+                order.push(s.trajectory_id);
+            }
+            entry.push(s);
         }
-        if by_id.is_empty() {
+        if order.is_empty() {
             empty.push(path.display().to_string());
             continue;
         }
-        for (id, mut samples) in by_id {
+        for id in order {
+            let mut samples = by_id.remove(&id).unwrap_or_default();
             samples.sort_by_key(|s| s.step);
             samples.dedup_by_key(|s| s.step);
             let mut t = Trajectory {
@@ -120,7 +139,9 @@ pub fn read_trajectories(paths: &[std::path::PathBuf]) -> Result<Vec<Trajectory>
 }
 
 /// Splits trajectories into (training, held out): the first `per_task` trajectories of each task
-/// in read order ([`read_trajectories`]: file order, then id order) are held out, the rest train.
+/// with at least [`MIN_VALIDATION_STEPS`] samples, in read order ([`read_trajectories`]: file
+/// order, then order of appearance), are held out, the rest train: the trajectories the
+/// learner's gate holds out when it loads the same files.
 /// `terl planner train --hold-out-trajectories K` trains on the first part and `terl planner eval
 /// --hold-out-trajectories K` scores the second, so one PTR-selected dataset of a run serves
 /// both without overlap (the learner's gate holds out a task's first selected trajectories the
@@ -133,7 +154,7 @@ pub fn split_held_out(
     let (mut train, mut held) = (Vec::new(), Vec::new());
     for t in trajectories {
         let n = seen.entry(t.task.clone()).or_default();
-        if *n < per_task {
+        if *n < per_task && t.len() >= MIN_VALIDATION_STEPS {
             *n += 1;
             held.push(t);
         } else {
@@ -167,17 +188,21 @@ pub fn load_planner(path: &Path) -> Result<Tep<f32>> {
 mod tests {
     use super::*;
 
-    fn traj(task: &str, id: u64) -> Trajectory {
+    fn traj_of(task: &str, id: u64, n: usize) -> Trajectory {
         Trajectory {
             task: task.into(),
             id,
             variation: None,
-            steps: vec![0],
-            obs: vec![0.0; OBS_DIM],
-            actions: vec![0.0; ACTION_DIM],
-            next_obs: vec![0.0; OBS_DIM],
-            success: vec![false],
+            steps: (0..n as u32).collect(),
+            obs: vec![0.0; n * OBS_DIM],
+            actions: vec![0.0; n * ACTION_DIM],
+            next_obs: vec![0.0; n * OBS_DIM],
+            success: vec![false; n],
         }
+    }
+
+    fn traj(task: &str, id: u64) -> Trajectory {
+        traj_of(task, id, MIN_VALIDATION_STEPS)
     }
 
     #[test]
@@ -196,5 +221,12 @@ mod tests {
         let (train, held) = split_held_out(all, 0);
         assert!(held.is_empty());
         assert_eq!(train.len(), 5);
+        // A trajectory too short for the learner's check is not held out (it trains).
+        let (train, held) = split_held_out(
+            vec![traj_of("a", 1, MIN_VALIDATION_STEPS - 1), traj("a", 2)],
+            1,
+        );
+        assert_eq!(ids(&held), [2]);
+        assert_eq!(ids(&train), [1]);
     }
 }

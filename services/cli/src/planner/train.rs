@@ -171,6 +171,15 @@ pub fn run(args: TrainArgs) -> Result<ExitCode> {
         "no trajectory left to train on after holding out the first {} of each task",
         args.hold_out_trajectories
     );
+    for t in &split_off {
+        if !trajectories.iter().any(|x| x.task == t.task) {
+            eprintln!(
+                "[planner train] {}: every trajectory is held out; the planner gets no training \
+                 data of this task",
+                t.task
+            );
+        }
+    }
     let mut tasks: Vec<String> = Vec::new();
     for t in &trajectories {
         if !tasks.contains(&t.task) {
