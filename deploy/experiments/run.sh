@@ -380,7 +380,7 @@ print(" ".join(names))' "$stage3_tasks")
                         --hold-out-trajectories "$hold_out" --rollouts "$rollouts" \
                         --json-out "$planner_dir/eval.json.tmp" > "$planner_dir/eval.txt" 2>"$planner_dir/eval.log"; then
                     mv "$planner_dir/eval.json.tmp" "$planner_dir/eval.json"
-                    say "pipeline-planner-s$seed$tag: $(grep -m1 -i 'overall\|all' "$planner_dir/eval.txt" || true)"
+                    say "pipeline-planner-s$seed$tag: F on the held-out trajectories: $(awk '$1 == "all" { print "ρ " $3 " over " $2 " pairs" }' "$planner_dir/eval.txt")"
                 else
                     say "pipeline-planner-s$seed$tag: the planner stage failed; see $planner_dir"
                     failed+=("pipeline-planner-s$seed$tag")
