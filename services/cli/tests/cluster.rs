@@ -745,7 +745,7 @@ fn launcher_stops_the_cluster_at_the_training_budget() {
     let _ = std::fs::remove_dir_all(&run_dir);
     assert!(status.success(), "launcher exited with {status}: {err}");
     assert!(
-        err.contains("training budget") || err.contains("total_env_steps reached"),
+        err.contains("training budget") || err.contains("its budget or stop condition reached"),
         "{err}"
     );
     assert!(final_ckpt, "no final checkpoint");
