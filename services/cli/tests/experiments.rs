@@ -31,8 +31,9 @@ fn run_experiment(root: &Path, runs: &Path, experiment: &str) -> String {
     err
 }
 
-#[test]
-fn experiment_scripts_train_evaluate_and_report() {
+/// Builds the service binaries; false (with a message) when the tests are not a release build,
+/// since the experiment scripts run `target/release` binaries.
+fn release_binaries_built() -> bool {
     service_binaries();
     let release = Path::new(env!("CARGO_BIN_EXE_terl"))
         .parent()
@@ -42,6 +43,13 @@ fn experiment_scripts_train_evaluate_and_report() {
         eprintln!(
             "the experiment scripts run target/release binaries; run this test with --release"
         );
+    }
+    release
+}
+
+#[test]
+fn experiment_scripts_train_evaluate_and_report() {
+    if !release_binaries_built() {
         return;
     }
     let root = workspace();
@@ -136,15 +144,7 @@ fn experiment_scripts_train_evaluate_and_report() {
 /// the multi-task run starting from that planner, whose tasks are validated at start.
 #[test]
 fn terl_pipeline_runs_stage_one_the_offline_planner_and_stage_three() {
-    service_binaries();
-    let release = Path::new(env!("CARGO_BIN_EXE_terl"))
-        .parent()
-        .and_then(Path::file_name)
-        .is_some_and(|n| n == "release");
-    if !release {
-        eprintln!(
-            "the experiment scripts run target/release binaries; run this test with --release"
-        );
+    if !release_binaries_built() {
         return;
     }
     let root = workspace();
