@@ -126,6 +126,26 @@ pub fn guidance_probability(sigma: f64, episodes: u64) -> f64 {
     sigma.powf(episodes as f64)
 }
 
+/// What TERL guidance (Eq. 15) did at one environment step; all `false`/`None`/0 where the
+/// planner could not act (no planner weights yet, or the task not validated by the gate).
+///
+/// The actor stamps it on each transition (the transport's `Transition` flags and fields) so the learner can report, per task, σ^N, how often `f_t ≥ f_{t−1}` held and how far AN's
+/// action lies from the policy's.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct GuidanceStep {
+    /// The planner may guide this environment now (weights loaded, task validated).
+    pub active: bool,
+    /// `σ^N` of the environment at this decision, in [0, 1] (0 when not `active`).
+    pub probability: f64,
+    /// The decision compared `f_t` with `f_{t−1}`: `Some(f_t ≥ f_{t−1})` (the condition of
+    /// Eq. 15 that lets the planner act); `None` when F was not evaluated or there was no
+    /// `f_{t−1}` (first step of an episode, or the previous step skipped F).
+    pub not_improving: Option<bool>,
+    /// Guided steps only: `‖AN(s, g) − π(s)‖₂` of the executed (clamped) action against the
+    /// policy's, in action units (at most 2·√act_dim).
+    pub action_gap: Option<f64>,
+}
+
 /// Where the goal state `g` of an episode comes from (`[guidance] goal_source`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -423,6 +443,8 @@ pub struct BatchGuidance {
     action_gap_sum: f64,
     next_draw: Option<f64>,
     guided: Vec<bool>,
+    /// Per environment: what guidance did at the last [`Self::apply`].
+    steps: Vec<GuidanceStep>,
     obs_dim: usize,
     act_dim: usize,
     rows: Vec<usize>,
@@ -450,6 +472,7 @@ impl BatchGuidance {
             counter: EpisodeCounter::default(),
             next_draw: None,
             guided: vec![false; n],
+            steps: vec![GuidanceStep::default(); n],
             obs_dim: od,
             act_dim: ad,
             rows: Vec::with_capacity(n),
@@ -582,6 +605,11 @@ impl BatchGuidance {
         &self.guided
     }
 
+    /// What guidance did for environment `env` at the last [`Self::apply`].
+    pub fn step(&self, env: usize) -> GuidanceStep {
+        self.steps[env]
+    }
+
     /// `(decisions, F rows evaluated, AN rows evaluated)` so far.
     pub fn counts(&self) -> (u64, u64, u64) {
         let decisions = self.per_env.iter().map(|g| g.counts().0).sum();
@@ -598,6 +626,7 @@ impl BatchGuidance {
             "one row per environment"
         );
         self.guided.fill(false);
+        self.steps.fill(GuidanceStep::default());
         if !self.active() {
             return 0;
         }
@@ -610,6 +639,8 @@ impl BatchGuidance {
                 continue;
             }
             let p = self.per_env[i].probability();
+            self.steps[i].active = true;
+            self.steps[i].probability = p;
             if u_t < p || u_next < p {
                 self.draws[self.rows.len()] = u_t;
                 self.rows.push(i);
@@ -652,8 +683,10 @@ impl BatchGuidance {
         for j in 0..k {
             let i = self.rows[j];
             if let Some(prev) = self.per_env[i].prev {
+                let not_improving = f64::from(self.reach[j]) >= prev;
                 self.compared += 1;
-                self.non_improving += u64::from(f64::from(self.reach[j]) >= prev);
+                self.non_improving += u64::from(not_improving);
+                self.steps[i].not_improving = Some(not_improving);
             }
             if self.per_env[i].decide_with_draw(f64::from(self.reach[j]), self.draws[j]) {
                 self.guided[i] = true;
@@ -684,6 +717,7 @@ impl BatchGuidance {
                 *d = p;
             }
             self.action_gap_sum += gap.sqrt();
+            self.steps[i].action_gap = Some(gap.sqrt());
         }
         m
     }

@@ -56,6 +56,8 @@ pub struct StepRecord<'a> {
     pub success: bool,
     /// The action came from the planner (TERL guidance), not from the policy.
     pub guided: bool,
+    /// What guidance did at this step ([`PolicySource::guidance_step`]; default without it).
+    pub guidance: crate::guidance::GuidanceStep,
     /// Version of the policy that acted ([`PolicySource::version`]; 0: random actions).
     pub policy_version: u64,
 }
@@ -130,6 +132,13 @@ pub trait PolicySource {
         actions: &mut [f32],
         guided: &mut [bool],
     ) -> Result<bool, Self::Error>;
+
+    /// What guidance did for environment `env` at the last [`Self::act`] (σ^N, the
+    /// `f_t ≥ f_{t−1}` comparison, ‖AN − π‖); the default: no guidance.
+    fn guidance_step(&self, env: usize) -> crate::guidance::GuidanceStep {
+        let _ = env;
+        crate::guidance::GuidanceStep::default()
+    }
 
     /// Environment `env`'s episode ended (e.g. to count episodes for guidance).
     fn end_episode(&mut self, env: usize) {
@@ -235,6 +244,11 @@ where
                 truncated: out.truncated[i],
                 success: out.success[i],
                 guided: guided[i],
+                guidance: if acted {
+                    policy.guidance_step(i)
+                } else {
+                    crate::guidance::GuidanceStep::default()
+                },
                 policy_version: version,
             })
             .map_err(sink_error)?;

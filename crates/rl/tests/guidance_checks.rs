@@ -134,6 +134,8 @@ fn batch_guidance_matches_the_plain_rule_and_skips_unneeded_evaluations() {
     let mut ahead: Option<f64> = None;
     let mut data = ChaCha8Rng::seed_from_u64(3);
     let (mut guided_total, mut f_late) = (0usize, 0u64);
+    let mut prev_f: Vec<Option<f64>> = vec![None; e];
+    let (mut compared_steps, mut not_improving_steps, mut gap_sum) = (0u64, 0u64, 0.0f64);
     for step in 0..400 {
         let obs: Vec<f32> = (0..e * od).map(|_| data.gen_range(-1.0..1.0)).collect();
         let policy: Vec<f32> = (0..e * ad).map(|_| data.gen_range(-1.0..1.0)).collect();
@@ -154,6 +156,18 @@ fn batch_guidance_matches_the_plain_rule_and_skips_unneeded_evaluations() {
             reference.reach(o, &g, &policy[i * ad..(i + 1) * ad], &mut out);
             let want = plain[i].decide_with_draw(f64::from(out[0]), u_t);
             assert_eq!(batch.guided()[i], want, "step {step}, env {i}");
+            // What the actor stamps on the transition, against the plain rule's own values.
+            let told = batch.step(i);
+            assert!(told.active);
+            assert!((told.probability - plain[i].probability()).abs() < 1e-12);
+            if let Some(not_improving) = told.not_improving {
+                let prev = prev_f[i].expect("a comparison needs f_{t−1}");
+                assert_eq!(not_improving, f64::from(out[0]) >= prev, "step {step}");
+                compared_steps += 1;
+                not_improving_steps += u64::from(not_improving);
+            }
+            prev_f[i] = Some(f64::from(out[0]));
+            assert_eq!(told.action_gap.is_some(), want, "step {step}, env {i}");
             let row = &actions[i * ad..(i + 1) * ad];
             if want {
                 let mut a = [0.0f32; 4];
@@ -161,6 +175,14 @@ fn batch_guidance_matches_the_plain_rule_and_skips_unneeded_evaluations() {
                 for (x, y) in row.iter().zip(a) {
                     assert!((x - y.clamp(-1.0, 1.0)).abs() < 1e-5);
                 }
+                let gap: f64 = a
+                    .iter()
+                    .zip(&policy[i * ad..(i + 1) * ad])
+                    .map(|(y, p)| f64::from(y.clamp(-1.0, 1.0) - p).powi(2))
+                    .sum::<f64>()
+                    .sqrt();
+                assert!((told.action_gap.unwrap() - gap).abs() < 1e-5);
+                gap_sum += gap;
             } else {
                 assert_eq!(row, &policy[i * ad..(i + 1) * ad]);
             }
@@ -170,10 +192,19 @@ fn batch_guidance_matches_the_plain_rule_and_skips_unneeded_evaluations() {
             for (i, rule) in plain.iter_mut().enumerate() {
                 batch.end_episode(i);
                 rule.end_episode();
+                prev_f[i] = None;
             }
         }
     }
     assert!(guided_total > 20, "some steps were guided: {guided_total}");
+    // The per-step records add up to the batch's own decision counters.
+    let (compared, not_improving, mean_gap) = batch.take_decision_stats();
+    assert!(compared > 100, "{compared}");
+    assert_eq!(
+        (compared, not_improving),
+        (compared_steps, not_improving_steps)
+    );
+    assert!((mean_gap - gap_sum / guided_total as f64).abs() < 1e-6);
     let (decisions, f_rows, an_rows) = batch.counts();
     assert_eq!(decisions, 400 * e as u64);
     assert_eq!(an_rows, guided_total as u64);

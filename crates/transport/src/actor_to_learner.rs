@@ -23,7 +23,19 @@ pub mod flags {
     pub const SUCCESS: u8 = 1 << 2;
     /// The action came from TERL guidance (Action Network), not the policy.
     pub const GUIDED: u8 = 1 << 3;
+    /// TERL guidance could act at this step: planner weights loaded and the task validated by
+    /// the learner's gate ([`super::Transition::guidance_probability`] is then σ^N).
+    pub const GUIDANCE_ACTIVE: u8 = 1 << 4;
+    /// The guidance decision compared `f_t` with `f_{t−1}` (F evaluated on both steps).
+    pub const COMPARED: u8 = 1 << 5;
+    /// With [`COMPARED`]: `f_t ≥ f_{t−1}`, the condition of Eq. 15 under which the planner may
+    /// act (the policy's action does not bring the goal nearer by F's estimate).
+    pub const NOT_IMPROVING: u8 = 1 << 6;
 }
+
+/// Full scale of [`Transition::action_gap`]: the largest `‖a − b‖₂` of two actions in
+/// `[-1, 1]^ACTION_DIM` (2·√4 = 4).
+pub const ACTION_GAP_SCALE: f64 = 4.0;
 
 /// One environment step `(s, a, r, s')` with the bookkeeping the learner needs.
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend, bytemuck::Pod, bytemuck::Zeroable)]
@@ -45,7 +57,13 @@ pub struct Transition {
     /// [`flags`] bits.
     pub flags: u8,
     /// Explicit padding so the layout has no uninitialised bytes.
-    pub reserved: [u8; 5],
+    pub reserved: u8,
+    /// σ^N of TERL guidance at this step (Eq. 15) in units of 1/65535 (0 without
+    /// [`flags::GUIDANCE_ACTIVE`]); read it with [`Transition::guidance_probability`].
+    pub guidance_probability_q: u16,
+    /// Guided steps: `‖AN(s, g) − π(s)‖₂` in units of [`ACTION_GAP_SCALE`]/65535; read it with
+    /// [`Transition::action_gap`].
+    pub action_gap_q: u16,
 }
 
 const _: () = assert!(core::mem::size_of::<Transition>() == 352);
@@ -63,7 +81,9 @@ impl Transition {
         env_index: 0,
         task: 0,
         flags: 0,
-        reserved: [0; 5],
+        reserved: 0,
+        guidance_probability_q: 0,
+        action_gap_q: 0,
     };
 
     pub fn truncated(&self) -> bool {
@@ -77,6 +97,37 @@ impl Transition {
     }
     pub fn guided(&self) -> bool {
         self.flags & flags::GUIDED != 0
+    }
+
+    /// σ^N at this step, in [0, 1] (0 when guidance could not act).
+    pub fn guidance_probability(&self) -> f64 {
+        f64::from(self.guidance_probability_q) / f64::from(u16::MAX)
+    }
+
+    /// `‖AN − π‖₂` of a guided step, in [0, [`ACTION_GAP_SCALE`]].
+    pub fn action_gap(&self) -> f64 {
+        f64::from(self.action_gap_q) * ACTION_GAP_SCALE / f64::from(u16::MAX)
+    }
+
+    /// Stores σ^N (`p`, clamped to [0, 1]; NaN as 0) to within 1/131070.
+    pub fn set_guidance_probability(&mut self, p: f64) {
+        self.guidance_probability_q = quantize(p, 1.0);
+    }
+
+    /// Stores `‖AN − π‖₂` (clamped to [0, [`ACTION_GAP_SCALE`]]; NaN as 0) to within
+    /// `ACTION_GAP_SCALE`/131070.
+    pub fn set_action_gap(&mut self, gap: f64) {
+        self.action_gap_q = quantize(gap, ACTION_GAP_SCALE);
+    }
+}
+
+/// `x / full_scale` in units of 1/65535, rounded, clamped to `0..=u16::MAX`; NaN → 0.
+fn quantize(x: f64, full_scale: f64) -> u16 {
+    let q = (x / full_scale * f64::from(u16::MAX)).round();
+    if q.is_nan() {
+        0
+    } else {
+        q.clamp(0.0, f64::from(u16::MAX)) as u16
     }
 }
 
@@ -145,5 +196,40 @@ impl PartialEq for TransitionBatch {
             && self.actor_id == other.actor_id
             && self.sequence == other.sequence
             && self.as_slice() == other.as_slice()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn guidance_fields_round_trip_within_their_resolution_and_clamp() {
+        let mut t = Transition::ZERO;
+        for k in 0..=1000 {
+            let p = f64::from(k) / 1000.0;
+            t.set_guidance_probability(p);
+            assert!(
+                (t.guidance_probability() - p).abs() <= 0.5 / 65535.0 + 1e-12,
+                "{p}"
+            );
+            let gap = p * ACTION_GAP_SCALE;
+            t.set_action_gap(gap);
+            assert!(
+                (t.action_gap() - gap).abs() <= 2.0 / 65535.0 + 1e-12,
+                "{gap}"
+            );
+        }
+        t.set_guidance_probability(1.5);
+        assert_eq!(t.guidance_probability(), 1.0);
+        t.set_guidance_probability(-0.2);
+        assert_eq!(t.guidance_probability(), 0.0);
+        t.set_action_gap(f64::NAN);
+        assert_eq!(t.action_gap(), 0.0);
+        t.set_action_gap(f64::INFINITY);
+        assert_eq!(t.action_gap(), ACTION_GAP_SCALE);
+        // σ^N = 0.9^N of a late episode stays distinguishable from 0.
+        t.set_guidance_probability(0.9f64.powi(50));
+        assert!(t.guidance_probability() > 0.0);
     }
 }

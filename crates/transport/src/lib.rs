@@ -25,7 +25,9 @@ pub mod zenoh_net;
 /// Meta-World observation and action widths (defined once, in `terl_sim`).
 pub use terl_sim::{ACTION_DIM, OBS_DIM};
 
-pub use actor_to_learner::{flags, Transition, TransitionBatch, TRANSITIONS_PER_BATCH};
+pub use actor_to_learner::{
+    flags, Transition, TransitionBatch, ACTION_GAP_SCALE, TRANSITIONS_PER_BATCH,
+};
 pub use actor_to_selector::{EpisodeSummary, TrajectoryStep, MAX_EPISODE_STEPS, NO_VARIATION};
 pub use any::{ActorClaim, RunTransport};
 pub use channel::{

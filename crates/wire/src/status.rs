@@ -10,7 +10,7 @@ use tonic::Status;
 use crate::pb;
 
 /// Rolling success rate of one task.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize)]
 pub struct TaskSuccess {
     pub task: String,
     /// In [0, 1].
@@ -19,6 +19,17 @@ pub struct TaskSuccess {
     pub episodes: u64,
     /// Learner only: share of the task's env steps in the last window that were guided, [0, 1].
     pub guidance_rate: f64,
+    /// Learner only, TERL: mean σ^N (Eq. 15) over the window's steps on which the planner could
+    /// act (weights loaded, task validated), in [0, 1]; `None` when it could act on none.
+    pub guidance_probability: Option<f64>,
+    /// Learner only, TERL: of the window's steps that compared `f_t` with `f_{t−1}`, the share
+    /// with `f_t ≥ f_{t−1}`, in [0, 1]; `None` without comparisons.
+    pub not_improving_rate: Option<f64>,
+    /// Learner only, TERL: mean `‖AN(s, g) − π(s)‖₂` over the window's guided steps, in action
+    /// units, in [0, 4]; `None` without guided steps.
+    pub action_gap: Option<f64>,
+    /// Learner only, TERL: steps that compared `f_t` with `f_{t−1}` in the window.
+    pub compared_steps: u64,
 }
 
 /// What one actor has delivered, as the learner sees it.
@@ -399,7 +410,21 @@ impl TryFrom<pb::TaskSuccess> for TaskSuccess {
                 m.guidance_rate
             )));
         }
+        let within = |name: &str, v: Option<f64>, hi: f64| -> Result<Option<f64>, Status> {
+            let Some(v) = v else { return Ok(None) };
+            let field = format!("task_success[{}].{name}", m.task);
+            if !(0.0..=hi).contains(&finite(&field, v)?) {
+                return Err(Status::invalid_argument(format!(
+                    "{field} is outside [0, {hi}] ({v})"
+                )));
+            }
+            Ok(Some(v))
+        };
         Ok(Self {
+            guidance_probability: within("guidance_probability", m.guidance_probability, 1.0)?,
+            not_improving_rate: within("not_improving_rate", m.not_improving_rate, 1.0)?,
+            action_gap: within("action_gap", m.action_gap, 4.0)?,
+            compared_steps: m.compared_steps,
             task: m.task,
             success_rate: m.success_rate,
             episodes: m.episodes,
@@ -415,6 +440,10 @@ impl From<TaskSuccess> for pb::TaskSuccess {
             success_rate: d.success_rate,
             episodes: d.episodes,
             guidance_rate: d.guidance_rate,
+            guidance_probability: d.guidance_probability,
+            not_improving_rate: d.not_improving_rate,
+            action_gap: d.action_gap,
+            compared_steps: d.compared_steps,
         }
     }
 }
@@ -661,7 +690,7 @@ mod tests {
                 task: "reach".into(),
                 success_rate: 1.5,
                 episodes: 3,
-                guidance_rate: 0.0,
+                ..Default::default()
             }],
             ..Default::default()
         };
@@ -676,6 +705,35 @@ mod tests {
             .message()
             .contains("task_success[reach].guidance_rate is outside [0, 1]"));
         m.task_success[0].guidance_rate = 0.25;
+        m.task_success[0].action_gap = Some(4.5);
+        let e = LearnerStatus::try_from(m.clone()).unwrap_err();
+        assert!(
+            e.message()
+                .contains("task_success[reach].action_gap is outside [0, 4]"),
+            "{}",
+            e.message()
+        );
+        m.task_success[0].action_gap = None;
+        m.task_success[0].not_improving_rate = Some(f64::NAN);
+        let e = LearnerStatus::try_from(m.clone()).unwrap_err();
+        assert!(
+            e.message().contains("not_improving_rate"),
+            "{}",
+            e.message()
+        );
+        m.task_success[0].not_improving_rate = Some(0.5);
+        m.task_success[0].guidance_probability = Some(-0.5);
+        let e = LearnerStatus::try_from(m.clone()).unwrap_err();
+        assert!(
+            e.message().contains("guidance_probability"),
+            "{}",
+            e.message()
+        );
+        m.task_success[0].guidance_probability = Some(0.9);
+        assert_eq!(
+            LearnerStatus::try_from(m.clone()).unwrap().task_success[0].not_improving_rate,
+            Some(0.5)
+        );
         m.updates_per_second = f64::NAN;
         let e = LearnerStatus::try_from(m.clone()).unwrap_err();
         assert_eq!(e.message(), "updates_per_second is not finite (NaN)");

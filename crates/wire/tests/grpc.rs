@@ -48,6 +48,10 @@ fn learner_status() -> LearnerStatus {
             success_rate: 0.42,
             episodes: 50,
             guidance_rate: 0.125,
+            guidance_probability: Some(0.81),
+            not_improving_rate: Some(0.375),
+            action_gap: Some(1.5),
+            compared_steps: 64,
         }],
         staleness_mean: 3.5,
         staleness_max: 9,
@@ -138,7 +142,7 @@ impl SelectorBackend for TestSelector {
                 task: "reach".into(),
                 success_rate: 0.9,
                 episodes: 20,
-                guidance_rate: 0.0,
+                ..Default::default()
             }],
             selected_samples: 512,
             priority: PriorityStats {

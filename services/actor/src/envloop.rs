@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use rand_chacha::ChaCha8Rng;
-use terl_rl::guidance::{BatchGuidance, GoalTarget};
+use terl_rl::guidance::{BatchGuidance, GoalTarget, GuidanceStep};
 use terl_rl::rollout::{
     self, EpisodeRecord, Flow, PolicySource, RolloutProgress, StepRecord, TransitionSink,
 };
@@ -151,7 +151,8 @@ fn row<const N: usize>(flat: &[f32], i: usize) -> [f32; N] {
 }
 
 /// The message of one transition of the rollout loop: the observations, action and reward,
-/// the version of the policy that acted, and the `TRUNCATED`, `SUCCESS` and `GUIDED` flags.
+/// the version of the policy that acted, the `TRUNCATED`, `SUCCESS` and `GUIDED` flags, and what
+/// guidance did (`GUIDANCE_ACTIVE` with σ^N, `COMPARED`/`NOT_IMPROVING`, ‖AN − π‖).
 /// `next_obs` is the observation the action reached (at the time limit the episode's true last
 /// observation, not the reset observation the environment continues from); unstable physics
 /// steps never get here (the rollout loop drops and counts them).
@@ -166,7 +167,17 @@ pub(crate) fn transition_of(step: &StepRecord<'_>, actor_id: u16, task: u16) -> 
     if step.guided {
         f |= flags::GUIDED;
     }
-    Transition {
+    let g = &step.guidance;
+    if g.active {
+        f |= flags::GUIDANCE_ACTIVE;
+    }
+    if let Some(not_improving) = g.not_improving {
+        f |= flags::COMPARED;
+        if not_improving {
+            f |= flags::NOT_IMPROVING;
+        }
+    }
+    let mut t = Transition {
         policy_version: step.policy_version,
         obs: row(step.obs, 0),
         next_obs: row(step.next_obs, 0),
@@ -176,8 +187,15 @@ pub(crate) fn transition_of(step: &StepRecord<'_>, actor_id: u16, task: u16) -> 
         env_index: step.env as u16,
         task,
         flags: f,
-        reserved: [0; 5],
+        ..Transition::ZERO
+    };
+    if g.active {
+        t.set_guidance_probability(g.probability);
     }
+    if let Some(gap) = g.action_gap {
+        t.set_action_gap(gap);
+    }
+    t
 }
 
 /// The actor's policy source: the newest policy from the mailbox (uniform random actions until
@@ -249,6 +267,12 @@ impl PolicySource for ActorPolicy<'_> {
             guided.copy_from_slice(g.guided());
         }
         Ok(true)
+    }
+
+    fn guidance_step(&self, env: usize) -> GuidanceStep {
+        self.guide
+            .as_ref()
+            .map_or_else(GuidanceStep::default, |g| g.step(env))
     }
 
     fn end_episode(&mut self, env: usize) {
@@ -606,6 +630,7 @@ mod tests {
             truncated,
             success,
             guided,
+            guidance: GuidanceStep::default(),
             policy_version: 7,
         };
         let t = transition_of(&record(false, false, false), 2, 5);
@@ -627,6 +652,33 @@ mod tests {
             transition_of(&record(false, false, true), 2, 5).flags,
             flags::GUIDED
         );
+        let mut step = record(false, false, true);
+        step.guidance = GuidanceStep {
+            active: true,
+            probability: 0.9f64.powi(3),
+            not_improving: Some(true),
+            action_gap: Some(1.25),
+        };
+        let t = transition_of(&step, 2, 5);
+        assert_eq!(
+            t.flags,
+            flags::GUIDED | flags::GUIDANCE_ACTIVE | flags::COMPARED | flags::NOT_IMPROVING
+        );
+        assert!((t.guidance_probability() - 0.729).abs() < 1e-4);
+        assert!((t.action_gap() - 1.25).abs() < 1e-4);
+        step.guided = false;
+        step.guidance.not_improving = Some(false);
+        step.guidance.action_gap = None;
+        let t = transition_of(&step, 2, 5);
+        assert_eq!(t.flags, flags::GUIDANCE_ACTIVE | flags::COMPARED);
+        assert_eq!(t.action_gap(), 0.0);
+        // Not active (no planner, or the task not validated): no σ^N is stamped.
+        step.guidance = GuidanceStep {
+            probability: 0.5,
+            ..GuidanceStep::default()
+        };
+        let t = transition_of(&step, 2, 5);
+        assert_eq!((t.flags, t.guidance_probability()), (0, 0.0));
     }
 
     /// The memory twin's sink for transitions, its transport (to add a receiver later) and a

@@ -237,7 +237,19 @@ fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyho
         let guidance: Vec<String> = l
             .task_success
             .iter()
-            .map(|t| format!("{} {}", t.task, percent(t.guidance_rate)))
+            .map(|t| {
+                let mut s = format!("{} {}", t.task, percent(t.guidance_rate));
+                if let Some(p) = t.guidance_probability {
+                    s.push_str(&format!(" σ^N {p:.3}"));
+                }
+                if let Some(r) = t.not_improving_rate {
+                    s.push_str(&format!(" f≥f' {} of {}", percent(r), t.compared_steps));
+                }
+                if let Some(g) = t.action_gap {
+                    s.push_str(&format!(" ‖AN−π‖ {g:.2}"));
+                }
+                s
+            })
             .collect();
         println!(
             "tep       planner v{}  updates {}  buffer {}/{}  loss F {:.3} AN {:.3}  target {:.2}  distance {:.2}  selected {}  guided steps {}",
@@ -245,7 +257,10 @@ fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyho
             l.tep_f_loss, l.tep_an_loss, l.tep_target_mean, l.tep_goal_distance_mean,
             l.selected_samples, l.guided_steps
         );
-        println!("guidance  {}", guidance.join("  "));
+        println!(
+            "guidance  guided share (σ^N where the planner may act, share of f_t ≥ f_t-1 of the compared steps, mean ‖AN−π‖ of guided steps)  {}",
+            guidance.join("  |  ")
+        );
         let p = &l.planner;
         println!(
             "planner   F terms step {:.3} goal {:.3} symmetry {:.3}  AN bc {:.3}  mean gap {:.1}",

@@ -458,6 +458,7 @@ fn terl_cluster_selects_trains_the_planner_and_guides() {
     // docs/results/planner/): on two minutes of a near-random policy's selected data the held-out
     // ρ is not a stable signal (measured 0.06..0.47 on reach, −0.46..0.47 on push).
     let mut rho_seen = false;
+    let mut decisions_seen = false;
     let mut last = Value::Null;
     loop {
         assert!(
@@ -493,6 +494,30 @@ fn terl_cluster_selects_trains_the_planner_and_guides() {
             ts.iter()
                 .any(|t| t["guidance_rate"].as_f64().unwrap_or(0.0) > 0.0)
         });
+        // The decision metrics of Eq. 15, as the actors measured them: σ^N where the planner may
+        // act, the share of compared steps with f_t ≥ f_{t−1}, and ‖AN − π‖ of guided steps.
+        for t in l["task_success"].as_array().into_iter().flatten() {
+            if let Some(p) = t["guidance_probability"].as_f64() {
+                assert!(p > 0.0 && p <= 1.0, "σ^N {p}: {s}");
+            }
+            if let Some(r) = t["not_improving_rate"].as_f64() {
+                assert!(
+                    (0.0..=1.0).contains(&r) && u(t, &["compared_steps"]) > 0,
+                    "{s}"
+                );
+            }
+            if let Some(g) = t["action_gap"].as_f64() {
+                assert!((0.0..=4.0).contains(&g), "‖AN − π‖ {g}: {s}");
+                assert!(t["guidance_rate"].as_f64().unwrap_or(0.0) > 0.0, "{s}");
+            }
+        }
+        decisions_seen |= l["task_success"].as_array().is_some_and(|ts| {
+            ts.iter().any(|t| {
+                t["guidance_probability"].as_f64().is_some()
+                    && t["not_improving_rate"].as_f64().is_some()
+                    && t["action_gap"].as_f64().is_some_and(|g| g > 0.0)
+            })
+        });
         let done = u(sel, &["selected_samples"]) > 0
             && u(sel, &["priority", "scored"]) > 0
             && u(sel, &["critic_version"]) > 0
@@ -501,6 +526,7 @@ fn terl_cluster_selects_trains_the_planner_and_guides() {
             && u(l, &["planner_version"]) > 0
             && u(l, &["guided_steps"]) > 0
             && guided_rate_seen
+            && decisions_seen
             && rho_seen;
         last = s;
         if done {
@@ -531,6 +557,16 @@ fn terl_cluster_selects_trains_the_planner_and_guides() {
     let logged = |name: &str| metrics.records.iter().filter(|m| m.name == name).count();
     assert!(logged("tep/f_loss") > 0 && logged("guidance/rate/reach-v3") > 0);
     assert!(logged("tep/target_mean") > 0 && logged("tep/goal_distance_mean") > 0);
+    for name in [
+        "guidance/probability/",
+        "guidance/not_improving_rate/",
+        "guidance/action_gap/",
+    ] {
+        assert!(
+            metrics.records.iter().any(|m| m.name.starts_with(name)),
+            "{name}* in metrics.mcap"
+        );
+    }
     assert!(metrics
         .records
         .iter()

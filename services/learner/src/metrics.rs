@@ -10,8 +10,11 @@
 //! target of the hindsight term), `tep/goal_distance_mean` (mean `F(s_t, s', a_t)`), F's three
 //! loss terms (`tep/step_loss`, `tep/goal_loss`, `tep/symmetry_loss`), `tep/an_bc_loss`,
 //! `tep/gap_mean` (mean hindsight gap), and per task `tep/transitions/<task>` (TEP buffer),
-//! `tep/held_out_spearman/<task>` (the planner check's ρ) and `guidance/validated/<task>` (0/1:
-//! the gate; its step is the gate-open event).
+//! `tep/held_out_spearman/<task>` (the planner check's ρ), `guidance/validated/<task>` (0/1:
+//! the gate; its step is the gate-open event), and, per task in windows where they were
+//! measured, `guidance/probability/<task>` (mean σ^N of Eq. 15 where the planner could act),
+//! `guidance/not_improving_rate/<task>` (share of decisions with `f_t ≥ f_{t−1}`) and
+//! `guidance/action_gap/<task>` (mean ‖AN − π‖ over guided steps).
 
 use std::path::Path;
 
@@ -139,6 +142,16 @@ impl MetricsLog {
             ]);
             for t in &status.task_success {
                 out.push((format!("guidance/rate/{}", t.task), t.guidance_rate));
+                let optional = [
+                    ("guidance/probability", t.guidance_probability),
+                    ("guidance/not_improving_rate", t.not_improving_rate),
+                    ("guidance/action_gap", t.action_gap),
+                ];
+                for (name, value) in optional {
+                    if let Some(v) = value {
+                        out.push((format!("{name}/{}", t.task), v));
+                    }
+                }
             }
             let p = &status.planner;
             out.extend([

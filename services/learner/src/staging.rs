@@ -150,9 +150,7 @@ pub(crate) fn ingest(
     let now = Instant::now();
     for t in ts {
         let guided = t.flags & flags::GUIDED != 0;
-        let g = &mut c.guidance_window[t.task as usize];
-        g.0 += u64::from(guided);
-        g.1 += 1;
+        c.guidance_window[t.task as usize].record(t);
         c.guided_steps += u64::from(guided);
         replay.push(
             t.task as usize,
@@ -196,7 +194,9 @@ pub(crate) mod tests {
                 env_index: 0,
                 task,
                 flags: if k % 2 == 0 { flags::GUIDED } else { 0 },
-                reserved: [0; 5],
+                reserved: 0,
+                guidance_probability_q: 0,
+                action_gap_q: 0,
             });
             assert!(pushed);
         }
@@ -214,7 +214,8 @@ pub(crate) mod tests {
         );
         assert_eq!(c.actors[&3].env_steps, 20);
         assert_eq!(c.actors[&3].policy_version, 4);
-        assert_eq!(c.guidance_window[1], (10, 20));
+        let g = c.guidance_window[1];
+        assert_eq!((g.guided, g.steps, g.active, g.compared), (10, 20, 0, 0));
 
         let bad_task = batch(3, 2, 20, 4);
         let mut nan_obs = batch(3, 0, 20, 4);

@@ -32,6 +32,67 @@ pub(crate) struct ActorTrack {
     steps_per_second: f64,
 }
 
+/// One task's TERL guidance (Eq. 15) over a rate window, summed from the flags and fields the
+/// actors stamp on each transition (`terl_transport::flags::GUIDED`, `GUIDANCE_ACTIVE`,
+/// `COMPARED`, `NOT_IMPROVING`, σ^N and ‖AN − π‖).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub(crate) struct GuidanceWindow {
+    /// Env steps of the task, and of them guided.
+    pub(crate) steps: u64,
+    pub(crate) guided: u64,
+    /// Steps on which the planner could act, and the sum of their σ^N.
+    pub(crate) active: u64,
+    pub(crate) probability_sum: f64,
+    /// Steps that compared `f_t` with `f_{t−1}`, and of them `f_t ≥ f_{t−1}`.
+    pub(crate) compared: u64,
+    pub(crate) not_improving: u64,
+    /// Sum of ‖AN − π‖ over the guided steps.
+    pub(crate) action_gap_sum: f64,
+}
+
+impl GuidanceWindow {
+    /// Counts one transition.
+    pub(crate) fn record(&mut self, t: &terl_transport::Transition) {
+        use terl_transport::flags;
+        self.steps += 1;
+        if t.flags & flags::GUIDED != 0 {
+            self.guided += 1;
+            self.action_gap_sum += t.action_gap();
+        }
+        if t.flags & flags::GUIDANCE_ACTIVE != 0 {
+            self.active += 1;
+            self.probability_sum += t.guidance_probability();
+        }
+        if t.flags & flags::COMPARED != 0 {
+            self.compared += 1;
+            self.not_improving += u64::from(t.flags & flags::NOT_IMPROVING != 0);
+        }
+    }
+
+    /// The window's rates (a `None` where its denominator is 0).
+    pub(crate) fn shown(&self) -> GuidanceShown {
+        let ratio = |a: f64, b: u64| (b > 0).then(|| a / b as f64);
+        GuidanceShown {
+            rate: ratio(self.guided as f64, self.steps).unwrap_or(0.0),
+            probability: ratio(self.probability_sum, self.active).map(|p| p.clamp(0.0, 1.0)),
+            not_improving_rate: ratio(self.not_improving as f64, self.compared),
+            action_gap: ratio(self.action_gap_sum, self.guided)
+                .map(|g| g.clamp(0.0, terl_transport::ACTION_GAP_SCALE)),
+            compared: self.compared,
+        }
+    }
+}
+
+/// What status shows of one task's guidance: [`GuidanceWindow::shown`] of the last window.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub(crate) struct GuidanceShown {
+    pub(crate) rate: f64,
+    pub(crate) probability: Option<f64>,
+    pub(crate) not_improving_rate: Option<f64>,
+    pub(crate) action_gap: Option<f64>,
+    pub(crate) compared: u64,
+}
+
 /// Training state that is not the network itself.
 #[derive(Debug)]
 pub(crate) struct Counters {
@@ -58,10 +119,10 @@ pub(crate) struct Counters {
     /// Longest staging round in the current window, and in the last completed one.
     staging_max: Duration,
     staging_max_shown: Duration,
-    /// Per task, `(guided, all)` env steps in the current rate window.
-    pub(crate) guidance_window: Vec<(u64, u64)>,
-    /// Per task, the guided share of the last completed window.
-    guidance_shown: Vec<f64>,
+    /// Per task, what guidance did in the current rate window.
+    pub(crate) guidance_window: Vec<GuidanceWindow>,
+    /// Per task, the last completed window's guidance figures.
+    guidance_shown: Vec<GuidanceShown>,
     pub(crate) guided_steps: u64,
     /// Loss stamps of everything received (status: `*_dropped`).
     pub(crate) inbound: crate::losses::Inbound,
@@ -91,8 +152,8 @@ impl Counters {
             standalone_updates_per_second: 0.0,
             staging_max: Duration::ZERO,
             staging_max_shown: Duration::ZERO,
-            guidance_window: vec![(0, 0); num_tasks],
-            guidance_shown: vec![0.0; num_tasks],
+            guidance_window: vec![GuidanceWindow::default(); num_tasks],
+            guidance_shown: vec![GuidanceShown::default(); num_tasks],
             guided_steps: 0,
             inbound: crate::losses::Inbound::default(),
             resumed: None,
@@ -146,10 +207,10 @@ impl Counters {
                 .iter_mut()
                 .zip(&mut self.guidance_window)
             {
-                if w.1 > 0 {
-                    *shown = w.0 as f64 / w.1 as f64;
+                if w.steps > 0 {
+                    *shown = w.shown();
                 }
-                *w = (0, 0);
+                *w = GuidanceWindow::default();
             }
         }
         for track in self.actors.values_mut() {
@@ -210,11 +271,15 @@ pub(crate) fn snapshot(
             .iter()
             .zip(&c.windows)
             .zip(&c.guidance_shown)
-            .map(|((task, w), &guidance_rate)| TaskSuccess {
+            .map(|((task, w), g)| TaskSuccess {
                 task: (*task).to_string(),
                 success_rate: w.rate(),
                 episodes: w.len() as u64,
-                guidance_rate,
+                guidance_rate: g.rate,
+                guidance_probability: g.probability,
+                not_improving_rate: g.not_improving_rate,
+                action_gap: g.action_gap,
+                compared_steps: g.compared,
             })
             .collect(),
         staleness_mean: c.staleness_shown.mean(),
@@ -453,5 +518,48 @@ mod tests {
         assert_eq!(s.updates_per_second, 0.0);
         assert!((s.busy_updates_per_second - 20.0).abs() < 1e-9);
         assert_eq!(s.staging_max_ms, 0.0);
+    }
+}
+
+#[cfg(test)]
+mod guidance_window_tests {
+    use super::*;
+    use terl_transport::{flags, Transition};
+
+    fn step(f: u8, p: f64, gap: f64) -> Transition {
+        let mut t = Transition {
+            flags: f,
+            ..Transition::ZERO
+        };
+        t.set_guidance_probability(p);
+        t.set_action_gap(gap);
+        t
+    }
+
+    #[test]
+    fn the_window_averages_each_figure_over_its_own_steps() {
+        let mut w = GuidanceWindow::default();
+        assert_eq!(
+            w.shown(),
+            GuidanceShown::default(),
+            "nothing measured: all None"
+        );
+        // Two steps without a planner, three where it may act (σ^N 0.81), two compared (one of
+        // them not improving and guided, ‖AN − π‖ 1.5), one more guided without comparison.
+        w.record(&step(0, 0.0, 0.0));
+        w.record(&step(0, 0.0, 0.0));
+        let active = flags::GUIDANCE_ACTIVE;
+        w.record(&step(active | flags::COMPARED, 0.81, 0.0));
+        w.record(&step(
+            active | flags::COMPARED | flags::NOT_IMPROVING | flags::GUIDED,
+            0.81,
+            1.5,
+        ));
+        w.record(&step(active | flags::GUIDED, 0.81, 0.5));
+        let s = w.shown();
+        assert!((s.rate - 2.0 / 5.0).abs() < 1e-12);
+        assert!((s.probability.unwrap() - 0.81).abs() < 1e-4);
+        assert_eq!((s.not_improving_rate, s.compared), (Some(0.5), 2));
+        assert!((s.action_gap.unwrap() - 1.0).abs() < 1e-4);
     }
 }

@@ -52,7 +52,9 @@ fn feed(transport: MemoryTransport, stop: Arc<AtomicBool>) -> std::thread::JoinH
                     env_index: (k % 2) as u16,
                     task: (k % 2) as u16,
                     flags: 0,
-                    reserved: [0; 5],
+                    reserved: 0,
+                    guidance_probability_q: 0,
+                    action_gap_q: 0,
                 });
             }
             if sink.send(&b).is_ok() {

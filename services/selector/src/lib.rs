@@ -123,7 +123,7 @@ impl EpisodeStats {
                 task: task.clone(),
                 success_rate: t.window.rate(),
                 episodes: t.window.len() as u64,
-                guidance_rate: 0.0,
+                ..TaskSuccess::default()
             })
             .collect()
     }
