@@ -71,7 +71,7 @@ impl GuidanceWindow {
 
     /// The window's rates (a `None` where its denominator is 0).
     pub(crate) fn shown(&self) -> GuidanceShown {
-        let ratio = |a: f64, b: u64| (b > 0).then(|| a / b as f64);
+        let ratio = |a: f64, b: u64| if b > 0 { Some(a / b as f64) } else { None };
         GuidanceShown {
             rate: ratio(self.guided as f64, self.steps).unwrap_or(0.0),
             probability: ratio(self.probability_sum, self.active).map(|p| p.clamp(0.0, 1.0)),
