@@ -19,6 +19,7 @@
 //! task that reconnects when the learner goes away and hands the newest version to the loop
 //! through one-slot mailboxes (latest wins: the loop never waits for weights).
 
+pub mod args;
 mod envloop;
 
 use std::future::Future;

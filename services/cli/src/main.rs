@@ -1,87 +1,19 @@
-//! `terl`: the command line of the terl system.
+//! `terl`: the command line of the terl system (the parser and subcommands are in the library).
 
-mod bench;
-mod bench_netns;
-mod bench_tep;
-mod charts;
-mod cluster;
-mod env;
-mod eval;
-mod launcher;
-mod planner;
-mod report;
-mod results;
-mod router;
-mod status;
-mod train;
-
-use anyhow::Result;
-use clap::{Parser, Subcommand};
-
-#[derive(Debug, Parser)]
-#[command(
-    name = "terl",
-    version,
-    about = "Multi-task robot-manipulation RL on Meta-World v3"
-)]
-struct Cli {
-    #[command(subcommand)]
-    command: Command,
-}
-
-#[derive(Debug, Subcommand)]
-enum Command {
-    /// Meta-World tasks: list, replay traces, compare traces.
-    #[command(subcommand)]
-    Env(env::EnvCommand),
-    /// Benchmarks (JSON output).
-    #[command(subcommand)]
-    Bench(bench::BenchCommand),
-    /// Deterministic evaluation of a checkpoint on each task's 50 goal variations (success
-    /// rate, return, first-success step per task; MT-Test zero-shot tasks too).
-    Eval(eval::EvalArgs),
-    /// Single-process training (Meta-World envs + MTSAC in one process).
-    Train(train::TrainArgs),
-    /// Status of a running cluster (learner and selector).
-    Status(status::StatusArgs),
-    /// The local cluster: up (the launcher deploy/local-cluster.sh runs), down and clean.
-    #[command(subcommand)]
-    Cluster(cluster::ClusterCommand),
-    /// Reports of runs: final evaluation success over seeds next to the paper's Table I,
-    /// per-task breakdown and learning curves (results.md, PNG/SVG), and each cluster run's
-    /// training-episode table (report.md, learning-curves.svg).
-    Report(report::ReportArgs),
-    /// The planner offline: datasets from scripted policies, training, and evaluation against
-    /// true step gaps and in the real environment.
-    #[command(subcommand)]
-    Planner(planner::PlannerCommand),
-    /// Zenoh's router, for clusters whose processes run with `[cluster.zenoh] mode = "client"`
-    /// (e.g. the Kubernetes manifests in deploy/k8s); stops on SIGINT/SIGTERM.
-    ZenohRouter(router::RouterArgs),
-}
+use clap::Parser;
+use terl_cli::Cli;
 
 fn main() -> std::process::ExitCode {
+    // A closed pipe (`terl … | head`) ends the process as it does any Unix tool, instead of a
+    // panic in `println!` (exit 101). Sockets are unaffected: Rust sends with MSG_NOSIGNAL.
+    sigpipe::reset();
     terl_runtime::init_tracing_with_default("warn");
     let cli = Cli::parse();
-    match run(cli) {
+    match terl_cli::run(cli) {
         Ok(code) => code,
         Err(e) => {
             eprintln!("error: {e:#}");
             std::process::ExitCode::FAILURE
         }
-    }
-}
-
-fn run(cli: Cli) -> Result<std::process::ExitCode> {
-    match cli.command {
-        Command::Env(c) => env::run(c),
-        Command::Bench(c) => bench::run(c),
-        Command::Train(a) => train::run(a),
-        Command::Eval(a) => eval::run(a),
-        Command::Status(a) => status::run(a),
-        Command::Cluster(c) => cluster::run(c),
-        Command::Report(a) => report::run(a),
-        Command::Planner(c) => planner::run(c),
-        Command::ZenohRouter(a) => router::run(a),
     }
 }

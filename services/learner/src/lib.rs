@@ -18,6 +18,7 @@
 //! `run` returns when `shutdown` completes (or the trainer fails), after the trainer thread has
 //! written its final checkpoint and dropped its shared-memory node.
 
+pub mod args;
 mod checkpoint;
 mod checkpointing;
 mod dataset;

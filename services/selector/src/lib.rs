@@ -34,6 +34,7 @@ use terl_wire::{PriorityStats, SelectorBackend, SelectorStatus, TaskSuccess, Wei
 use tonic::Status;
 use tracing::Instrument;
 
+pub mod args;
 mod evaluator;
 pub mod scoring;
 

@@ -1,0 +1,54 @@
+//! The command line of `terl-learner` (clap), in the library so that tests can parse command
+//! lines written in the documentation with the binary's own parser.
+
+use std::path::PathBuf;
+
+use clap::Parser;
+
+/// Arguments of `terl-learner`.
+#[derive(Debug, Parser)]
+#[command(
+    name = "terl-learner",
+    version,
+    about = "MTSAC learner of a terl cluster"
+)]
+pub struct Args {
+    /// Run file (TOML), e.g. deploy/configs/mt10.toml.
+    #[arg(long)]
+    pub config: PathBuf,
+    /// Run id: names the shared-memory services and the default run folder.
+    #[arg(long)]
+    pub run_id: String,
+    /// gRPC listen address (port 0: any free port, written to <run-dir>/learner.addr).
+    #[arg(long, default_value = terl_wire::DEFAULT_LEARNER_ADDR)]
+    pub addr: std::net::SocketAddr,
+    /// Number of actor processes (sizes the shared-memory services).
+    #[arg(long, default_value_t = 1)]
+    pub num_actors: usize,
+    /// Run folder (default runs/<run-id>).
+    #[arg(long)]
+    pub run_dir: Option<PathBuf>,
+    /// `algorithm = "terl"`: start the TEP buffer from this dataset (an earlier run's
+    /// `runs/<id>/tep-dataset.mcap`); repeat the flag to load several, in order.
+    #[arg(long)]
+    pub tep_dataset: Vec<PathBuf>,
+    /// Continue the run in the run folder from its newest intact checkpoint (networks, targets,
+    /// optimisers, per-task α, counters, generators, planner; the TEP buffer from the run's
+    /// tep-dataset files). Damaged checkpoints are skipped with a warning; a run without any
+    /// checkpoint starts fresh. The replay buffer refills with warmup_env_steps fresh
+    /// transitions before updates continue.
+    #[arg(long)]
+    pub resume: bool,
+    /// Stop (as on SIGTERM) when the process with this pid, the launcher, exits or is killed:
+    /// no orphans (deploy/local-cluster.sh passes its own pid).
+    #[arg(long)]
+    pub parent_pid: Option<u32>,
+    /// With `[cluster] transport = "zenoh"`: a Zenoh endpoint to listen on, e.g.
+    /// `tcp/0.0.0.0:7447` (repeatable; replaces the run file's `[cluster.zenoh] listen`).
+    #[arg(long = "zenoh-listen", value_name = "ENDPOINT")]
+    pub zenoh_listen: Vec<String>,
+    /// With `[cluster] transport = "zenoh"`: a Zenoh endpoint to connect to, e.g. the
+    /// learner host's `tcp/10.0.0.1:7447` (repeatable; replaces `[cluster.zenoh] connect`).
+    #[arg(long = "zenoh-connect", value_name = "ENDPOINT")]
+    pub zenoh_connect: Vec<String>,
+}
