@@ -149,3 +149,27 @@ fn missing_assets_name_the_setup_script() {
     let t = text(&o);
     assert!(t.contains("deploy/setup.sh"), "{t}");
 }
+
+/// `terl env list | head -0`: the reader of terl's stdout is gone before terl writes. terl ends
+/// as Unix tools do (killed by SIGPIPE, no output on stderr) instead of panicking in `println!`
+/// with exit code 101.
+#[test]
+fn a_closed_pipe_ends_terl_quietly() {
+    use std::os::unix::process::ExitStatusExt;
+    let (reader, writer) = std::io::pipe().expect("pipe");
+    drop(reader);
+    let out = Command::new(env!("CARGO_BIN_EXE_terl"))
+        .args(["env", "list"])
+        .stdout(writer)
+        .stderr(std::process::Stdio::piped())
+        .output()
+        .expect("run terl");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!err.contains("panicked"), "terl panicked: {err}");
+    assert_eq!(
+        out.status.signal(),
+        Some(nix::sys::signal::Signal::SIGPIPE as i32),
+        "terl did not end by SIGPIPE: {:?}, stderr: {err}",
+        out.status
+    );
+}
