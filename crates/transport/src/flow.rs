@@ -31,7 +31,7 @@
 //! Losses after the last delivered message are reported with the next one; a sender that never
 //! gets a message through again reports them only in its own log.
 
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
 use iceoryx2::prelude::ZeroCopySend;
@@ -58,8 +58,10 @@ pub enum SendOutcome {
     /// At least one receiver's buffer was full and the policy (`DropNewest`) dropped the
     /// message for it. Counted in `dropped` and `full_events`.
     Full,
-    /// No receiver was connected, so nobody got the message. Counted in `no_receiver`.
-    /// Use `wait_for_receivers` at start-up so this only happens when a peer has gone.
+    /// No receiver was connected, so nobody got the message. Counted in `no_receiver`, and
+    /// also in `dropped` once the port has had a receiver (the peer went away: a restarted
+    /// learner, a link down past Zenoh's lease). Use `wait_for_receivers` at start-up so
+    /// this only happens when a peer has gone.
     NoReceiver,
 }
 
@@ -72,6 +74,8 @@ pub struct TransportStats {
     dropped_items: AtomicU64,
     full_events: AtomicU64,
     no_receiver: AtomicU64,
+    /// Whether any send has found a receiver (from then on, reaching nobody is a loss).
+    had_receiver: AtomicBool,
 }
 
 /// A point-in-time copy of [`TransportStats`].
@@ -81,16 +85,18 @@ pub struct StatsSnapshot {
     pub sent: u64,
     /// Messages taken out of a source.
     pub received: u64,
-    /// Messages not delivered to a receiver because it was full: dropped at once by
-    /// `DropNewest`, or given up on by a `Block` send after the block timeout
-    /// (`TransportError::BlockTimeout`) or on shutdown (`TransportError::Cancelled`).
+    /// Messages lost: not delivered to a receiver because it was full (dropped at once by
+    /// `DropNewest`, or given up on by a `Block` send after the block timeout,
+    /// `TransportError::BlockTimeout`, or on shutdown, `TransportError::Cancelled`), or sent
+    /// to nobody after the port had had a receiver (the receiver went away).
     pub dropped: u64,
     /// Items inside the `dropped` messages ([`Message::items`](crate::Message::items):
     /// transitions of a batch, 1 per episode, selected samples of a batch).
     pub dropped_items: u64,
     /// Sends that found a receiver's buffer full (whether they then blocked or dropped).
     pub full_events: u64,
-    /// Sends that found no receiver connected (message reached nobody).
+    /// Sends that found no receiver connected (message reached nobody), before the first
+    /// receiver as well as after one went away.
     pub no_receiver: u64,
 }
 
@@ -117,12 +123,22 @@ impl TransportStats {
     /// Records the outcome of one send of a message holding `items` items.
     pub(crate) fn record(&self, outcome: SendOutcome, items: u64) {
         let counter = match outcome {
-            SendOutcome::Delivered => &self.sent,
+            SendOutcome::Delivered => {
+                self.had_receiver.store(true, Ordering::Relaxed);
+                &self.sent
+            }
             SendOutcome::Full => {
+                self.had_receiver.store(true, Ordering::Relaxed);
                 self.dropped_items.fetch_add(items, Ordering::Relaxed);
                 &self.dropped
             }
-            SendOutcome::NoReceiver => &self.no_receiver,
+            SendOutcome::NoReceiver => {
+                if self.had_receiver.load(Ordering::Relaxed) {
+                    self.dropped.fetch_add(1, Ordering::Relaxed);
+                    self.dropped_items.fetch_add(items, Ordering::Relaxed);
+                }
+                &self.no_receiver
+            }
         };
         counter.fetch_add(1, Ordering::Relaxed);
     }
@@ -130,6 +146,7 @@ impl TransportStats {
     /// Records a send that gave up on a full receiver with an error (block timeout or
     /// cancellation): the message of `items` items is dropped.
     pub(crate) fn record_given_up(&self, items: u64) {
+        self.had_receiver.store(true, Ordering::Relaxed);
         self.dropped.fetch_add(1, Ordering::Relaxed);
         self.dropped_items.fetch_add(items, Ordering::Relaxed);
     }
@@ -507,24 +524,28 @@ mod tests {
     #[test]
     fn stats_count_each_outcome() {
         let stats = TransportStats::default();
+        // Before any receiver: reaching nobody is not a loss (start-up).
+        stats.record(SendOutcome::NoReceiver, 64);
+        assert_eq!(stats.losses(), Losses::default());
         stats.record(SendOutcome::Delivered, 64);
         stats.record(SendOutcome::Delivered, 64);
         stats.record(SendOutcome::Full, 7);
-        stats.record(SendOutcome::NoReceiver, 64);
         stats.record_given_up(3);
+        // After one: the receiver went away and the message is lost.
+        stats.record(SendOutcome::NoReceiver, 40);
         stats.add_full_event();
         stats.add_received(5);
         let s = stats.snapshot();
         assert_eq!(
             (s.sent, s.dropped, s.no_receiver, s.full_events, s.received),
-            (2, 2, 1, 1, 5)
+            (2, 3, 2, 1, 5)
         );
-        assert_eq!(s.dropped_items, 10);
+        assert_eq!(s.dropped_items, 50);
         assert_eq!(
             stats.losses(),
             Losses {
-                messages: 2,
-                items: 10
+                messages: 3,
+                items: 50
             }
         );
     }

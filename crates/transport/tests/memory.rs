@@ -51,6 +51,11 @@ fn back_pressure() {
 }
 
 #[test]
+fn a_receiver_gone_is_a_counted_loss() {
+    common::a_receiver_gone_is_a_counted_loss(&on(&MemoryBus::default()), "gone");
+}
+
+#[test]
 fn no_receiver() {
     no_receiver_is_reported(&on(&MemoryBus::default()), "none");
 }

@@ -77,6 +77,11 @@ fn back_pressure() {
 }
 
 #[test]
+fn a_receiver_gone_is_a_counted_loss() {
+    common::a_receiver_gone_is_a_counted_loss(&shm, &unique_run("gone"));
+}
+
+#[test]
 fn no_receiver() {
     no_receiver_is_reported(&shm, &unique_run("none"));
 }

@@ -384,6 +384,43 @@ pub fn block_applies_back_pressure<T: Transport>(make: Make<T>, run: &str) {
     });
 }
 
+/// A receiver that goes away: what the sender sends to nobody after it had a receiver is a
+/// counted loss, stamped on the first message the next receiver gets.
+pub fn a_receiver_gone_is_a_counted_loss<T: Transport>(make: Make<T>, run: &str) {
+    let cfg = TransportConfig::new(run, 1);
+    let actor = make(&cfg, "actor-0");
+    let mut sink = actor.sink::<TransitionBatch>().unwrap();
+    // Before the first receiver: nobody, but no loss (start-up).
+    assert_eq!(sink.send(&batch(0, 0)).unwrap(), SendOutcome::NoReceiver);
+    assert_eq!(sink.stats().dropped, 0);
+    {
+        let learner = make(&cfg, "learner");
+        let mut source = learner.source::<TransitionBatch>().unwrap();
+        sink.wait_for_receivers(1, Duration::from_secs(10)).unwrap();
+        assert_eq!(sink.send(&batch(0, 1)).unwrap(), SendOutcome::Delivered);
+        let got = receive_next(source.as_mut()).expect("the delivered batch");
+        assert_eq!((got.sequence, got.losses()), (1, Losses::default()));
+    }
+    eventually("the receiver is gone", || sink.receivers() == 0);
+    let lost = [batch(0, 2), batch(0, 3)];
+    for b in &lost {
+        assert_eq!(sink.send(b).unwrap(), SendOutcome::NoReceiver);
+    }
+    let items: u64 = lost.iter().map(|b| b.items()).sum();
+    let stats = sink.stats();
+    assert_eq!(
+        (stats.dropped, stats.dropped_items, stats.no_receiver),
+        (2, items, 3)
+    );
+    let learner = make(&cfg, "learner");
+    let mut source = learner.source::<TransitionBatch>().unwrap();
+    sink.wait_for_receivers(1, Duration::from_secs(10)).unwrap();
+    assert_eq!(sink.send(&batch(0, 4)).unwrap(), SendOutcome::Delivered);
+    let got = receive_next(source.as_mut()).expect("the batch after the loss");
+    assert_eq!(got.sequence, 4);
+    assert_eq!(got.losses(), Losses { messages: 2, items });
+}
+
 /// Without a subscriber a send reaches nobody and says so.
 pub fn no_receiver_is_reported<T: Transport>(make: Make<T>, run: &str) {
     let cfg = TransportConfig::new(run, 1);
