@@ -53,7 +53,7 @@ if [ "$build" = 1 ]; then
     ./deploy/setup.sh
     for b in terl terl-learner terl-actor terl-selector; do
         if [ ! -x "$bin/$b" ]; then
-            echo "[cluster] building release binaries (first time from cold: 10–20 minutes on 2 cores, without output)" >&2
+            echo "[cluster] building release binaries (first time from cold: 12–17 minutes on 2 cores, without output)" >&2
             break
         fi
     done

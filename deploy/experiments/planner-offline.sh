@@ -37,16 +37,23 @@ while [ $# -gt 0 ]; do
     esac
 done
 [ "$build" = 1 ] && cargo build --release -q -p terl-cli
-terl=$ROOT/target/release/terl
+terl=${CARGO_TARGET_DIR:-$ROOT/target}/release/terl
+[ -x "$terl" ] || { echo "no $terl: build it (cargo build --release -p terl-cli) or drop --no-build" >&2; exit 1; }
 data=$out/data
 mkdir -p "$data"
 say() { printf '[planner-offline] %s\n' "$*" >&2; }
 
 # Datasets are not committed (≈ 65 MB); they are made again in ~40 s, bit for bit.
-[ -f "$data/train-mt10.mcap" ] || "$terl" planner dataset --tasks mt10 --episodes-per-task 200 \
-    --variations 0..40 --noise 0.1 --seed 0 --out "$data/train-mt10.mcap" > "$out/dataset-train.txt"
-[ -f "$data/heldout-mt10.mcap" ] || "$terl" planner dataset --tasks mt10 --episodes-per-task 20 \
-    --variations 40..50 --noise 0.1 --seed 1 --out "$data/heldout-mt10.mcap" > "$out/dataset-heldout.txt"
+# Each summary is written beside its committed name and moved there only on success.
+dataset() {
+    local name=$1
+    shift
+    [ -f "$data/$name-mt10.mcap" ] && return 0
+    "$terl" planner dataset --tasks mt10 "$@" --out "$data/$name-mt10.mcap" > "$out/dataset-$name.txt.tmp"
+    mv "$out/dataset-$name.txt.tmp" "$out/dataset-$name.txt"
+}
+dataset train --episodes-per-task 200 --variations 0..40 --noise 0.1 --seed 0
+dataset heldout --episodes-per-task 20 --variations 40..50 --noise 0.1 --seed 1
 
 size=(--set 'f_hidden=[256,256,256]' --set 'an_hidden=[256,256,256]' --set batch_size=512)
 settings() {
@@ -72,7 +79,8 @@ for name in default gap-bounded paper no-bc; do
     ev=("$terl" planner eval --planner "$dir/planner.safetensors" --dataset "$data/heldout-mt10.mcap"
         --goals "$data/train-mt10.mcap" --rollouts "$rollouts")
     printf '%q ' "${ev[@]}" | sed "s|$ROOT/||g" >> "$dir/commands.txt"; echo >> "$dir/commands.txt"
-    "${ev[@]}" --json-out "$dir/eval.json.tmp" > "$dir/eval.txt"
+    "${ev[@]}" --json-out "$dir/eval.json.tmp" > "$dir/eval.txt.tmp"
+    mv "$dir/eval.txt.tmp" "$dir/eval.txt"
     mv "$dir/eval.json.tmp" "$dir/eval.json"
     say "$name: $(sed -n '/^all /p' "$dir/eval.txt")"
 done

@@ -20,10 +20,14 @@ fn ensure(ok: bool, message: &str) -> Result<(), ArgsError> {
     }
 }
 
+/// Longest benchmark accepted, in seconds (about 116 days; `Duration::from_secs_f64` panics
+/// near 1.8e19 s).
+pub const MAX_SECONDS: f64 = 1e7;
+
 fn positive_seconds(seconds: f64) -> Result<(), ArgsError> {
     ensure(
-        seconds > 0.0 && seconds.is_finite(),
-        "--seconds must be positive and finite",
+        seconds > 0.0 && seconds <= MAX_SECONDS,
+        "--seconds must be in (0, 1e7]",
     )
 }
 

@@ -46,6 +46,10 @@ use terl_nn::{
 
 /// Widest hidden layer a planner config accepts (a 16384² layer is 1 GiB of f32 weights).
 pub const MAX_WIDTH: usize = 16_384;
+
+/// Most weights and biases F and AN may have together (about 200 MB each for weights, targets
+/// and the two Adam moments).
+pub const MAX_PARAMETERS: usize = 50_000_000;
 /// Largest planner minibatch a config accepts.
 pub const MAX_BATCH: usize = 65_536;
 
@@ -269,6 +273,21 @@ impl TepConfig {
         if self.f_hidden.len() > 16 || self.an_hidden.len() > 16 {
             return bad("tep networks have at most 16 hidden layers".into());
         }
+        if self.obs_dim > MAX_WIDTH || self.act_dim > MAX_WIDTH {
+            return bad(format!(
+                "tep obs_dim {} / act_dim {} is above {MAX_WIDTH}",
+                self.obs_dim, self.act_dim
+            ));
+        }
+        let parameters = self.parameters();
+        if parameters > MAX_PARAMETERS {
+            return bad(format!(
+                "tep networks F {:?} and AN {:?} have {parameters} parameters, above \
+                 {MAX_PARAMETERS} (with their targets and Adam moments they would not fit in \
+                 memory)",
+                self.f_hidden, self.an_hidden
+            ));
+        }
         if self.batch_size > MAX_BATCH {
             return bad(format!(
                 "tep batch_size {} is above {MAX_BATCH}",
@@ -288,6 +307,24 @@ impl TepConfig {
             ));
         }
         Ok(())
+    }
+
+    /// Weights and biases of F and AN together (checked before anything is allocated).
+    pub fn parameters(&self) -> usize {
+        let count = |input: usize, hidden: &[usize], output: usize| -> usize {
+            let mut widths = vec![input];
+            widths.extend_from_slice(hidden);
+            widths.push(output);
+            widths
+                .windows(2)
+                .map(|w| w[0].saturating_mul(w[1]).saturating_add(w[1]))
+                .fold(0usize, usize::saturating_add)
+        };
+        count(self.f_input(), &self.f_hidden, 1).saturating_add(count(
+            self.an_input(),
+            &self.an_hidden,
+            self.act_dim,
+        ))
     }
 
     /// Input width of F: `[s, s', a]`.

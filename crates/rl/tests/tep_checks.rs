@@ -373,3 +373,33 @@ fn checkpoint_round_trip_continues_bit_identically() {
     assert!(err.to_string().contains("tep_an"), "{err}");
     assert_eq!(c.f_net().params, before);
 }
+
+/// Network sizes are bounded by their parameter count before anything is allocated: the paper's
+/// planner passes, four 16384-wide layers (within the width bound, 800M parameters) do not, and
+/// the count matches the layers' weights and biases counted by hand.
+#[test]
+fn planner_sizes_are_bounded_before_allocation() {
+    let paper = TepConfig {
+        obs_dim: 39,
+        act_dim: 4,
+        f_hidden: vec![512; 3],
+        an_hidden: vec![512; 3],
+        ..TepConfig::default()
+    };
+    assert!(paper.validate().is_ok());
+    // F: 82→512→512→512→1, AN: 78→512→512→512→4.
+    let f = 82 * 512 + 512 + 2 * (512 * 512 + 512) + 512 + 1;
+    let an = 78 * 512 + 512 + 2 * (512 * 512 + 512) + 512 * 4 + 4;
+    assert_eq!(paper.parameters(), f + an);
+    let huge = TepConfig {
+        f_hidden: vec![16_384; 4],
+        ..paper.clone()
+    };
+    let e = huge.validate().unwrap_err().to_string();
+    assert!(e.contains("parameters"), "{e}");
+    let wide_input = TepConfig {
+        obs_dim: 4_000_000_000,
+        ..paper
+    };
+    assert!(wide_input.validate().is_err());
+}

@@ -17,12 +17,15 @@ use terl_rl::{SacConfig, TepConfig};
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Algorithm {
+    /// Multi-task SAC alone (`"mtsac"`, the default).
     #[default]
     Mtsac,
+    /// MTSAC plus PTR selection, the TEP planner and guidance (`"terl"`).
     Terl,
 }
 
 impl Algorithm {
+    /// Its name as in the run file (`algorithm = "..."`): `"mtsac"` or `"terl"`.
     pub fn as_str(self) -> &'static str {
         match self {
             Self::Mtsac => "mtsac",
@@ -69,8 +72,11 @@ pub struct RunConfig {
     /// `"mtsac"` (default) or `"terl"` (cluster only: PTR selection, TEP, guidance).
     #[serde(default)]
     pub algorithm: Algorithm,
+    /// The training schedule (`[train]`): env-step budget, warm-up, update ratio, replay capacity,
+    /// evaluation, seed.
     #[serde(default)]
     pub train: TrainConfig,
+    /// SAC hyper-parameters and network sizes (`[sac]`).
     #[serde(default)]
     pub sac: SacConfig,
     /// PTR selection in the selector (`algorithm = "terl"`).
@@ -190,6 +196,24 @@ pub struct ClusterConfig {
     /// each MT1-Ind task trains until its planner data is usable (`deploy/experiments/run.sh
     /// terl-pipeline`). `train.total_env_steps` stays the cap. 0 (default): off.
     pub stop_at_planner_samples_per_task: u64,
+}
+
+/// Longest duration any flag or run-file key in seconds accepts (about 116 days): beyond it a
+/// value is a typo, and `Duration::from_secs_f64` would panic near 1.8e19 s.
+pub const MAX_SECONDS: f64 = 1e7;
+
+/// Parses a flag value in seconds: finite, > 0 and ≤ [`MAX_SECONDS`] (a clap `value_parser`:
+/// the error names the range, clap names the flag and exits 2).
+pub fn parse_seconds(text: &str) -> Result<f64, String> {
+    let v: f64 = text
+        .trim()
+        .parse()
+        .map_err(|_| format!("{text:?} is not a number of seconds"))?;
+    if v.is_finite() && v > 0.0 && v <= MAX_SECONDS {
+        Ok(v)
+    } else {
+        Err(format!("{text} s is not in (0, {MAX_SECONDS:e}] s"))
+    }
 }
 
 /// Largest `cluster.learner_calibrate_secs`.
@@ -385,8 +409,9 @@ impl RunConfig {
             "cluster.publish_every_updates must be at least 1"
         );
         anyhow::ensure!(
-            c.checkpoint_every_secs.is_finite() && c.checkpoint_every_secs >= 0.0,
-            "cluster.checkpoint_every_secs must be ≥ 0"
+            c.checkpoint_every_secs.is_finite()
+                && (0.0..=MAX_SECONDS).contains(&c.checkpoint_every_secs),
+            "cluster.checkpoint_every_secs must be in [0, {MAX_SECONDS:e}] (0: off)"
         );
         anyhow::ensure!(
             c.learner_calibrate_secs.is_finite()
@@ -396,8 +421,10 @@ impl RunConfig {
             c.learner_calibrate_secs
         );
         anyhow::ensure!(
-            c.block_timeout_secs.is_finite() && c.block_timeout_secs > 0.0,
-            "cluster.block_timeout_secs must be > 0"
+            c.block_timeout_secs.is_finite()
+                && c.block_timeout_secs > 0.0
+                && c.block_timeout_secs <= MAX_SECONDS,
+            "cluster.block_timeout_secs must be in (0, {MAX_SECONDS:e}]"
         );
         anyhow::ensure!(c.buffer_batches > 0, "cluster.buffer_batches must be ≥ 1");
         anyhow::ensure!(
@@ -635,6 +662,56 @@ mod tests {
                     );
                 }
             }
+        }
+    }
+
+    /// Every duration key of `[cluster]` with extreme values: refused naming the key (never a
+    /// panic later in `Duration::from_secs_f64`), and the longest accepted value converts.
+    #[test]
+    fn extreme_durations_are_refused_naming_the_key() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("r.toml");
+        for key in [
+            "checkpoint_every_secs",
+            "block_timeout_secs",
+            "learner_calibrate_secs",
+        ] {
+            for v in ["1e300", "inf", "-inf", "nan", "-1.0", "1.8e19", "1e7"] {
+                std::fs::write(
+                    &path,
+                    format!("tasks = \"mt10\"\nnum_envs = 10\n[cluster]\n{key} = {v}\n"),
+                )
+                .unwrap();
+                let accepted = v == "1e7" && key != "learner_calibrate_secs";
+                match RunConfig::load(&path) {
+                    Ok(cfg) => {
+                        assert!(accepted, "{key} = {v} accepted");
+                        let _ = std::time::Duration::from_secs_f64(
+                            cfg.cluster
+                                .checkpoint_every_secs
+                                .max(cfg.cluster.block_timeout_secs),
+                        );
+                    }
+                    Err(e) => {
+                        let e = format!("{e:#}");
+                        assert!(!accepted, "{key} = {v} refused: {e}");
+                        assert!(e.contains(key), "{key} = {v}: {e}");
+                    }
+                }
+            }
+        }
+        for (text, ok) in [
+            ("5", true),
+            ("1e7", true),
+            ("1e300", false),
+            ("inf", false),
+            ("nan", false),
+            ("0", false),
+            ("-0", false),
+            ("-1", false),
+            ("x", false),
+        ] {
+            assert_eq!(parse_seconds(text).is_ok(), ok, "{text}");
         }
     }
 

@@ -7,21 +7,25 @@
 //! It exists so the four binaries read one schema and step environments one way, instead of
 //! each carrying a copy.
 
+#![warn(missing_docs)]
+
 mod config;
 pub mod eval;
 mod metaworld_vec;
 pub mod service;
 
 pub use config::{
-    token_from_env, Algorithm, ClusterConfig, OnCheckpointError, RunConfig,
-    MAX_LEARNER_CALIBRATE_SECS,
+    parse_seconds, token_from_env, Algorithm, ClusterConfig, OnCheckpointError, RunConfig,
+    MAX_LEARNER_CALIBRATE_SECS, MAX_SECONDS,
 };
 pub use metaworld_vec::MetaWorldVec;
 
 /// What a cluster service (learner or selector) needs to start.
 #[derive(Debug, Clone)]
 pub struct ServiceConfig {
+    /// The run file.
     pub run: RunConfig,
+    /// The run's id: names its shared-memory services (`terl/<run_id>/...`) and appears in logs.
     pub run_id: String,
     /// gRPC listen address; port 0 picks a free port (see `<run_dir>/<service>.addr`).
     pub addr: std::net::SocketAddr,
@@ -47,6 +51,8 @@ pub struct ServiceConfig {
 }
 
 impl ServiceConfig {
+    /// A config with the given required fields and defaults for the rest: no learner address, no
+    /// TEP datasets, no token or TLS, a fresh (not resumed) run.
     pub fn new(
         run: RunConfig,
         run_id: String,

@@ -17,7 +17,7 @@ pub enum BenchCommand {
         #[arg(long, default_value = "mt10")]
         tasks: String,
         /// Seconds per measurement.
-        #[arg(long, default_value_t = 2.0)]
+        #[arg(long, value_parser = terl_runtime::parse_seconds, default_value_t = 2.0)]
         seconds: f64,
         /// Measure memory (RSS from /proc) instead of speed.
         #[arg(long)]
@@ -50,7 +50,7 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 3)]
         publishers: usize,
         /// Seconds per measurement.
-        #[arg(long, default_value_t = 3.0)]
+        #[arg(long, value_parser = terl_runtime::parse_seconds, default_value_t = 3.0)]
         seconds: f64,
         /// Also measure this transport beside shared memory: `zenoh` (loopback TCP).
         #[arg(long, value_enum)]
@@ -78,7 +78,7 @@ pub enum BenchCommand {
         run_id: String,
         #[arg(long)]
         publishers: usize,
-        #[arg(long)]
+        #[arg(long, value_parser = terl_runtime::parse_seconds)]
         seconds: f64,
     },
     /// The subscribers' half of `transport --netns` (run inside the namespace by it).

@@ -22,7 +22,7 @@ pub struct StatusArgs {
     #[arg(long)]
     pub json: bool,
     /// Seconds to wait for each server.
-    #[arg(long, default_value_t = 5.0)]
+    #[arg(long, default_value_t = 5.0, value_parser = terl_runtime::parse_seconds)]
     pub timeout: f64,
     /// File holding the control-plane token (the run's `cluster.token_file`); without it the
     /// TERL_TOKEN environment variable is sent, if set.

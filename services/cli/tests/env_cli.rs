@@ -1,4 +1,5 @@
-//! `terl env ...` as a user runs it: real binary, real files.
+//! `terl env ...` as a user runs it: real binary, real files; and terl's flags in seconds with
+//! extreme values.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -172,4 +173,27 @@ fn a_closed_pipe_ends_terl_quietly() {
         "terl did not end by SIGPIPE: {:?}, stderr: {err}",
         out.status
     );
+}
+
+/// Flags in seconds with extreme values are refused by the parser (exit 2, the flag named),
+/// never a panic when the value becomes a `Duration`.
+#[test]
+fn extreme_seconds_are_refused_before_anything_runs() {
+    for flag in [
+        &["status", "--addr", "127.0.0.1:1", "--timeout"][..],
+        &["bench", "env", "--tasks", "reach-v3", "--seconds"][..],
+        &["bench", "transport", "--seconds"][..],
+    ] {
+        for v in ["1e300", "inf", "nan", "-1", "0", "1.8e19"] {
+            // `--flag=value`, so that `-1` is a value and not a flag.
+            let last = format!("{}={v}", flag[flag.len() - 1]);
+            let mut args = flag[..flag.len() - 1].to_vec();
+            args.push(&last);
+            let o = terl(&args);
+            let t = text(&o);
+            assert_eq!(o.status.code(), Some(2), "{args:?}: {t}");
+            assert!(!t.contains("panicked"), "{args:?}: {t}");
+            assert!(t.contains(flag[flag.len() - 1]), "{args:?}: {t}");
+        }
+    }
 }

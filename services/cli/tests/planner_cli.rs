@@ -3,6 +3,7 @@
 //! actions replayed through `terl_sim::Env` give the recorded observations bit for bit, and
 //! success ends each episode), a planner trained on it is scored, and bad input is refused.
 
+use std::os::unix::fs::FileTypeExt;
 use std::path::Path;
 use std::process::{Command, Output};
 
@@ -34,6 +35,11 @@ fn refused(o: &Output, needle: &str) {
 
 fn p(dir: &Path, name: &str) -> String {
     dir.join(name).display().to_string()
+}
+
+/// A planner path nothing else in a test writes.
+fn other_planner(dir: &Path) -> String {
+    p(dir, "other.safetensors")
 }
 
 #[test]
@@ -164,14 +170,123 @@ fn dataset_replays_in_the_environment_and_a_trained_planner_is_scored() {
     let before = std::fs::metadata(&train).unwrap().len();
     refused(
         &terl(&["planner", "dataset", "--tasks", "reach-v3", "--out", &train]),
-        "cannot create",
+        "already exists",
     );
     assert_eq!(std::fs::metadata(&train).unwrap().len(), before);
+    // Outputs that would destroy an input, or are not files, are refused before any work.
+    let small = [
+        "--updates",
+        "2",
+        "--set",
+        "f_hidden=[8]",
+        "--set",
+        "an_hidden=[8]",
+    ];
+    for (out, needle) in [
+        (train.as_str(), "is also an input"),
+        (held.as_str(), "is also an input"),
+        ("/dev/null", "not a regular file"),
+    ] {
+        let mut a = vec!["planner", "train", "--dataset", &train];
+        a.extend(["--eval-dataset", &held, "--out", out]);
+        a.extend(small);
+        refused(&terl(&a), needle);
+    }
+    assert_eq!(std::fs::metadata(&train).unwrap().len(), before);
+    assert!(std::fs::metadata("/dev/null")
+        .unwrap()
+        .file_type()
+        .is_char_device());
+    let other_p = other_planner(dir.path());
+    let mut a = vec![
+        "planner",
+        "train",
+        "--dataset",
+        &train,
+        "--eval-dataset",
+        &train,
+    ];
+    a.extend(["--out", &other_p]);
+    refused(&terl(&a), "also a --dataset");
+    refused(
+        &terl(&[
+            "planner",
+            "eval",
+            "--planner",
+            &planner,
+            "--dataset",
+            &held,
+            "--rollouts",
+            "0",
+            "--json-out",
+            &planner,
+        ]),
+        "is also an input",
+    );
+    assert!(ok(&terl(&[
+        "planner",
+        "eval",
+        "--planner",
+        &planner,
+        "--dataset",
+        &held,
+        "--rollouts",
+        "0"
+    ]))
+    .contains("F against"));
+    // A damaged dataset is refused unless asked for.
+    let mut bytes = std::fs::read(&held).unwrap();
+    let mid = bytes.len() / 2;
+    for b in &mut bytes[mid..mid + 4] {
+        *b ^= 0xff;
+    }
+    let damaged = p(dir.path(), "damaged.mcap");
+    std::fs::write(&damaged, bytes).unwrap();
+    let mut a = vec![
+        "planner",
+        "train",
+        "--dataset",
+        &train,
+        "--dataset",
+        &damaged,
+    ];
+    a.extend(["--out", &other_p]);
+    a.extend(small);
+    refused(&terl(&a), "damaged or incomplete");
+    a.push("--accept-partial");
+    ok(&terl(&a));
+    // A run that writes nothing leaves nothing at --out (and no partial file).
+    let none = p(dir.path(), "none.mcap");
+    refused(
+        &terl(&[
+            "planner",
+            "dataset",
+            "--tasks",
+            "pick-place-v3",
+            "--episodes-per-task",
+            "1",
+            "--noise",
+            "100",
+            "--variations",
+            "0",
+            "--out",
+            &none,
+        ]),
+        "no episode succeeded",
+    );
+    let left: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with("none") || n.contains(".partial"))
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
     let other = p(dir.path(), "x.mcap");
     for (v, needle) in [
         ("40..40", "empty range"),
         ("60", "not in 0..50"),
         ("1,1", "twice"),
+        ("0..18446744073709551615", "goal variations 0..50"),
     ] {
         refused(
             &terl(&[

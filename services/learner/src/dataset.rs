@@ -104,6 +104,12 @@ pub(crate) fn load_into(
         truncated = data.truncated,
         "TEP buffer started from a dataset"
     );
+    if let (true, Some(reason)) = (data.samples.is_empty(), &data.truncation) {
+        anyhow::bail!(
+            "the TEP dataset {} is damaged before its first sample: {reason}",
+            path.display()
+        );
+    }
     anyhow::ensure!(
         accepted > 0 || data.samples.is_empty(),
         "the TEP dataset {} has no sample of this run's tasks",
@@ -167,8 +173,20 @@ mod tests {
         // A file without any sample of the run's tasks is an error naming it.
         let mut planner =
             PlannerTrainer::new(TepConfig::default(), Default::default(), 1, 1).unwrap();
-        let e = load_all(&[a], &["reach-v3"], &mut planner).unwrap_err();
+        let e = load_all(&[a.clone()], &["reach-v3"], &mut planner).unwrap_err();
         assert!(format!("{e:#}").contains("a.mcap"), "{e:#}");
+        // A file damaged inside its first chunk yields no sample: an error, not an empty start.
+        let mut bytes = std::fs::read(&a).unwrap();
+        let mid = bytes.len() / 2;
+        for b in &mut bytes[mid..mid + 4] {
+            *b ^= 0xff;
+        }
+        let c = dir.path().join("c.mcap");
+        std::fs::write(&c, bytes).unwrap();
+        let mut planner =
+            PlannerTrainer::new(TepConfig::default(), Default::default(), tasks.len(), 1).unwrap();
+        let e = load_all(&[c], &tasks, &mut planner).unwrap_err();
+        assert!(format!("{e:#}").contains("damaged"), "{e:#}");
     }
 
     #[test]

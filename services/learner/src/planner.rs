@@ -552,7 +552,8 @@ fn load_pretrained(tep: &mut Tep<f32>, path: &std::path::Path) -> anyhow::Result
             saved.f_hidden == c.f_hidden
                 && saved.an_hidden == c.an_hidden
                 && saved.f_output_scale == c.f_output_scale,
-            "the planner {} has F {:?}, AN {:?}, output scale {}; this run's [tep] has {:?},              {:?}, {}: set them to the planner's",
+            "the planner {} has F {:?}, AN {:?}, output scale {}; this run's [tep] has {:?}, \
+             {:?}, {}: set them to the planner's",
             path.display(),
             saved.f_hidden,
             saved.an_hidden,

@@ -75,6 +75,10 @@ pub fn parse_variations(spec: &str) -> Result<Vec<usize>> {
             .parse()
             .with_context(|| format!("variations {spec:?}"))?;
         anyhow::ensure!(a < b, "variations {spec:?}: an empty range");
+        anyhow::ensure!(
+            b <= NUM_VARIATIONS,
+            "variations {spec:?}: Meta-World has goal variations 0..{NUM_VARIATIONS}"
+        );
         (a..b).collect()
     } else {
         spec.split(',')
@@ -148,7 +152,8 @@ fn episode(
         if s.success && first_success.is_none() {
             first_success = Some(step);
         }
-        let done_after_success = first_success.is_some_and(|f| step >= f + after_success);
+        let done_after_success =
+            first_success.is_some_and(|f| step >= f.saturating_add(after_success));
         if s.truncated || s.unstable || done_after_success {
             break;
         }
@@ -168,40 +173,34 @@ pub fn run(args: DatasetArgs) -> Result<ExitCode> {
         "--noise must be finite and ≥ 0"
     );
     anyhow::ensure!(
-        args.episodes_per_task > 0,
-        "--episodes-per-task must be ≥ 1"
+        (1..=MAX_EPISODES_PER_TASK).contains(&args.episodes_per_task),
+        "--episodes-per-task must be in 1..={MAX_EPISODES_PER_TASK}"
     );
+    anyhow::ensure!(
+        !args.out.exists(),
+        "--out {} already exists; a dataset is never overwritten (remove it or give another path)",
+        args.out.display()
+    );
+    super::files::check_output(&args.out, "--out", &[])?;
     let tasks = terl_runtime::resolve_tasks(&args.tasks)?;
     let variations = parse_variations(&args.variations)?;
     let mut policies_of = Vec::new();
     for t in &tasks {
         policies_of.push(policies::policy(t)?);
     }
-    let mut writer = TepDatasetWriter::create(&args.out)
-        .with_context(|| format!("cannot create {}", args.out.display()))?;
-    // Episodes are written as they finish and flushed every FLUSH_EVERY episodes, so a killed
-    // run keeps what it completed (the reader stops at the damage and keeps the chunks before).
-    let log_time = terl_telemetry::unix_nanos();
-    let mut summaries = Vec::new();
-    for (k, (task, policy)) in tasks.iter().zip(&policies_of).enumerate() {
-        summaries.push(task_samples(
-            k,
-            task,
-            *policy,
-            &variations,
-            &args,
-            &mut writer,
-            log_time,
-        )?);
-    }
-    anyhow::ensure!(
-        summaries.iter().any(|s| s.kept > 0),
-        "no episode succeeded, so {} holds no trajectory (--keep-failures keeps them; is \
-         --noise {} too large?)",
-        args.out.display(),
-        args.noise
+    // Written under a marked name and linked to `--out` when complete, so a killed or failed
+    // run never leaves a partial dataset at `--out`.
+    let partial = super::train::partial_path(&args.out);
+    let result = write_dataset(&args, &tasks, &policies_of, &variations, &partial).and_then(
+        |(total, summaries)| {
+            // A hard link does not replace a file that appeared at `--out` meanwhile.
+            std::fs::hard_link(&partial, &args.out)
+                .with_context(|| format!("cannot create {}", args.out.display()))?;
+            Ok((total, summaries))
+        },
     );
-    let total = writer.finish()?;
+    let _ = std::fs::remove_file(&partial);
+    let (total, summaries) = result?;
     if args.json {
         println!(
             "{}",
@@ -221,6 +220,46 @@ pub fn run(args: DatasetArgs) -> Result<ExitCode> {
         println!("{} transitions written to {}", total, args.out.display());
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Episodes per task one dataset may hold (each up to 500 transitions).
+const MAX_EPISODES_PER_TASK: usize = 100_000;
+
+/// Writes every task's episodes to a new dataset at `path`: the transitions written and each
+/// task's summary.
+fn write_dataset(
+    args: &DatasetArgs,
+    tasks: &[&'static str],
+    policies_of: &[policies::Policy],
+    variations: &[usize],
+    path: &std::path::Path,
+) -> Result<(u64, Vec<TaskSummary>)> {
+    let mut writer = TepDatasetWriter::create(path)
+        .with_context(|| format!("cannot create {}", path.display()))?;
+    // Episodes are written as they finish and flushed every FLUSH_EVERY episodes, so a killed
+    // run's partial file keeps what it completed (readable with `--accept-partial`).
+    let log_time = terl_telemetry::unix_nanos();
+    let mut summaries = Vec::new();
+    for (k, (task, policy)) in tasks.iter().zip(policies_of).enumerate() {
+        summaries.push(task_samples(
+            k,
+            task,
+            *policy,
+            variations,
+            args,
+            &mut writer,
+            log_time,
+        )?);
+    }
+    anyhow::ensure!(
+        summaries.iter().any(|s| s.kept > 0),
+        "no episode succeeded, so {} holds no trajectory (--keep-failures keeps them; is \
+         --noise {} too large?)",
+        args.out.display(),
+        args.noise
+    );
+    let total = writer.finish()?;
+    Ok((total, summaries))
 }
 
 /// Episodes written between two flushes.

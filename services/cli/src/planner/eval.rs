@@ -33,7 +33,7 @@ use terl_rl::planner_eval::{predict_gaps, score, ReachScore};
 use terl_rl::{Planner, Tep};
 use terl_sim::{Env, ACTION_DIM, OBS_DIM};
 
-use super::files::{load_planner, read_trajectories, split_held_out, Trajectory};
+use super::files::{check_output, planner_from, read_trajectories, split_held_out, Trajectory};
 use super::train::held_out_pairs;
 
 #[derive(Debug, Args)]
@@ -73,6 +73,9 @@ pub struct EvalArgs {
     /// Also write the JSON object to this file (the tables still go to standard output).
     #[arg(long)]
     pub json_out: Option<PathBuf>,
+    /// Use damaged or incomplete datasets up to their damage (default: refuse them).
+    #[arg(long)]
+    pub accept_partial: bool,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -287,15 +290,33 @@ fn task_rollouts(
 }
 
 pub fn run(args: EvalArgs) -> Result<ExitCode> {
-    let tep = load_planner(&args.planner)?;
-    let mut held_out = read_trajectories(&args.datasets)?;
+    if let Some(path) = &args.json_out {
+        let mut inputs: Vec<&std::path::Path> = vec![args.planner.as_path()];
+        inputs.extend(
+            args.datasets
+                .iter()
+                .chain(&args.goals)
+                .map(PathBuf::as_path),
+        );
+        check_output(path, "--json-out", &inputs)?;
+    }
+    anyhow::ensure!(
+        args.pairs_per_trajectory > 0,
+        "--pairs-per-trajectory must be ≥ 1"
+    );
+    // One read of the planner file: the weights evaluated and the update count reported come
+    // from the same bytes, even if the file is replaced meanwhile (a live run's planner).
+    let file = terl_nn::tensors::TensorFile::load(&args.planner)
+        .with_context(|| format!("cannot read the planner file {}", args.planner.display()))?;
+    let tep = planner_from(&file, &args.planner)?;
+    let mut held_out = read_trajectories(&args.datasets, args.accept_partial)?;
     if args.hold_out_trajectories > 0 {
         held_out = split_held_out(held_out, args.hold_out_trajectories).1;
     }
     let goals = if args.goals.is_empty() {
         held_out.clone()
     } else {
-        read_trajectories(&args.goals)?
+        read_trajectories(&args.goals, args.accept_partial)?
     };
     let mut tasks: Vec<String> = Vec::new();
     let pairs = held_out_pairs(&held_out, &mut tasks, args.pairs_per_trajectory, args.seed);
@@ -361,7 +382,6 @@ pub fn run(args: EvalArgs) -> Result<ExitCode> {
             random,
         });
     }
-    let file = terl_nn::tensors::TensorFile::load(&args.planner)?;
     let report = Report {
         planner: args.planner.display().to_string(),
         planner_updates: file
@@ -377,14 +397,20 @@ pub fn run(args: EvalArgs) -> Result<ExitCode> {
         f: overall,
         tasks: reports,
     };
-    if let Some(path) = &args.json_out {
-        std::fs::write(path, serde_json::to_string_pretty(&report)? + "\n")
-            .with_context(|| format!("cannot write {}", path.display()))?;
-    }
     if args.json {
         println!("{}", serde_json::to_string(&report)?);
     } else {
         print_tables(&report);
+    }
+    if let Some(path) = &args.json_out {
+        // After the tables, so a failed write loses nothing that was printed.
+        let partial = super::train::partial_path(path);
+        std::fs::write(&partial, serde_json::to_string_pretty(&report)? + "\n")
+            .and_then(|()| std::fs::rename(&partial, path))
+            .with_context(|| format!("cannot write {}", path.display()))
+            .inspect_err(|_| {
+                let _ = std::fs::remove_file(&partial);
+            })?;
     }
     Ok(ExitCode::SUCCESS)
 }

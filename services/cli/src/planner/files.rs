@@ -57,10 +57,16 @@ impl Trajectory {
 /// Reads TEP datasets into trajectories (grouped by trajectory id, sorted by step, duplicates
 /// dropped), in file order, then in the order each trajectory first appears in its file (the
 /// order a learner loading the file receives them). Trajectory ids are only unique within one
-/// file, so file `f`'s ids get `f << 48` added. A truncated file is used up to its damage, with
-/// a warning. A file without any sample (a run whose selection never started) is skipped with a
-/// warning; it is an error when no file has one, and when a file is given twice.
-pub fn read_trajectories(paths: &[std::path::PathBuf]) -> Result<Vec<Trajectory>> {
+/// file, so file `f`'s ids get `f << 48` added. A file read only in part (cut, a chunk whose CRC
+/// fails, a writer killed or still writing) is an error naming the damage, unless
+/// `accept_partial` (then it is used up to the damage, with a warning). A file without any sample
+/// (a run whose selection never started) is skipped with a warning; it is an error when no file
+/// has one, and when a file is given twice.
+pub fn read_trajectories(
+    paths: &[std::path::PathBuf],
+    accept_partial: bool,
+) -> Result<Vec<Trajectory>> {
+    let known = terl_sim::metaworld::task_names();
     let mut out = Vec::new();
     let mut empty = Vec::new();
     let mut seen = std::collections::HashSet::new();
@@ -77,6 +83,13 @@ pub fn read_trajectories(paths: &[std::path::PathBuf]) -> Result<Vec<Trajectory>
         let data = terl_telemetry::read_tep_dataset(path)
             .with_context(|| format!("cannot read the TEP dataset {}", path.display()))?;
         if let Some(reason) = &data.truncation {
+            anyhow::ensure!(
+                accept_partial,
+                "the TEP dataset {} is damaged or incomplete: {reason} ({} samples readable \
+                 before that point; --accept-partial uses them)",
+                path.display(),
+                data.samples.len()
+            );
             tracing::warn!(path = %path.display(), "dataset read in part: {reason}");
         }
         if data.rejected > 0 {
@@ -99,6 +112,12 @@ pub fn read_trajectories(paths: &[std::path::PathBuf]) -> Result<Vec<Trajectory>
             let mut samples = by_id.remove(&id).unwrap_or_default();
             samples.sort_by_key(|s| s.step);
             samples.dedup_by_key(|s| s.step);
+            anyhow::ensure!(
+                known.contains(&samples[0].task.as_str()),
+                "{}: trajectory {id} is of {:?}, not a Meta-World task",
+                path.display(),
+                samples[0].task
+            );
             let mut t = Trajectory {
                 task: samples[0].task.clone(),
                 id: ((f as u64) << 48) | (id & ((1 << 48) - 1)),
@@ -164,11 +183,45 @@ pub fn split_held_out(
     (train, held)
 }
 
+/// Checks the output path of `flag` before any work is done: it must not be an existing
+/// directory, device or pipe, nor one of `inputs` (the same file under any name), and its folder
+/// is created if missing.
+pub fn check_output(out: &Path, flag: &str, inputs: &[&Path]) -> Result<()> {
+    if let Ok(meta) = std::fs::metadata(out) {
+        anyhow::ensure!(
+            meta.is_file(),
+            "{flag} {} exists and is not a regular file (a directory, device or pipe); give the \
+             path of a file to write",
+            out.display()
+        );
+        let target = std::fs::canonicalize(out)?;
+        for input in inputs {
+            anyhow::ensure!(
+                std::fs::canonicalize(input).ok().as_ref() != Some(&target),
+                "{flag} {} is also an input ({}); writing it would destroy that input",
+                out.display(),
+                input.display()
+            );
+        }
+    }
+    if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent)
+            .with_context(|| format!("{flag} {}: cannot create its folder", out.display()))?;
+    }
+    Ok(())
+}
+
 /// Loads a planner file (`terl planner train --out`, or a learner's
 /// `checkpoints/planner.safetensors`): its recorded config (`terl.tep_config`) and weights.
 pub fn load_planner(path: &Path) -> Result<Tep<f32>> {
     let file = TensorFile::load(path)
         .with_context(|| format!("cannot read the planner file {}", path.display()))?;
+    planner_from(&file, path)
+}
+
+/// The planner of a loaded planner file (`path` names it in errors): its recorded config is
+/// checked (Meta-World's dimensions, network sizes within bounds) before any network is built.
+pub fn planner_from(file: &TensorFile, path: &Path) -> Result<Tep<f32>> {
     let text = file.metadata.get("terl.tep_config").with_context(|| {
         format!(
             "{} has no terl.tep_config metadata: not a planner file of terl",
@@ -177,9 +230,22 @@ pub fn load_planner(path: &Path) -> Result<Tep<f32>> {
     })?;
     let mut config = TepConfig::from_saved_toml(text)
         .with_context(|| format!("the config recorded in {}", path.display()))?;
+    anyhow::ensure!(
+        (config.obs_dim, config.act_dim) == (OBS_DIM, ACTION_DIM),
+        "{} is a planner for observations of {} and actions of {} values; Meta-World's are {} \
+         and {}",
+        path.display(),
+        config.obs_dim,
+        config.act_dim,
+        OBS_DIM,
+        ACTION_DIM
+    );
+    config
+        .validate()
+        .with_context(|| format!("the config recorded in {}", path.display()))?;
     config.threads = 1;
     let mut tep: Tep<f32> = Tep::new(config)?;
-    tep.import_planner(&file)
+    tep.import_planner(file)
         .with_context(|| format!("the weights of {}", path.display()))?;
     Ok(tep)
 }

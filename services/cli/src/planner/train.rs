@@ -21,7 +21,7 @@ use terl_rl::planner_eval::{predict_gaps, score, PairSet};
 use terl_rl::{Tep, TepBatch, TepBuffer, TepConfig};
 use terl_wire::{ACTION_DIM, OBS_DIM};
 
-use super::files::{read_trajectories, split_held_out, Trajectory};
+use super::files::{check_output, read_trajectories, split_held_out, Trajectory};
 
 #[derive(Debug, Args)]
 pub struct TrainArgs {
@@ -56,7 +56,11 @@ pub struct TrainArgs {
     /// Threads of the update (default: the config's `threads`).
     #[arg(long)]
     pub threads: Option<usize>,
-    /// The planner file to write (replaced if it exists).
+    /// Use a damaged or incomplete dataset up to its damage (default: refuse it).
+    #[arg(long)]
+    pub accept_partial: bool,
+    /// The planner file to write (replaced if it exists; written to a temporary file and renamed,
+    /// so a killed run leaves the old one). The log goes beside it: `P.train.jsonl`.
     #[arg(long)]
     pub out: PathBuf,
 }
@@ -156,14 +160,34 @@ pub fn run(args: TrainArgs) -> Result<ExitCode> {
         cfg.threads = t;
     }
     anyhow::ensure!(args.updates > 0, "--updates must be ≥ 1");
-    anyhow::ensure!(
-        !args.out.is_dir(),
-        "--out {} is a directory; give the planner file's path",
-        args.out.display()
-    );
     anyhow::ensure!(args.eval_every > 0, "--eval-every must be ≥ 1");
+    let log_path = log_path(&args.out);
+    let mut inputs: Vec<&Path> = args
+        .datasets
+        .iter()
+        .chain(&args.eval_datasets)
+        .map(PathBuf::as_path)
+        .collect();
+    inputs.extend(args.config.as_deref());
+    if let Some(init) = &cfg.init_planner {
+        inputs.push(Path::new(init));
+    }
+    check_output(&args.out, "--out", &inputs)?;
+    check_output(&log_path, "the training log", &inputs)?;
+    for e in &args.eval_datasets {
+        let canonical = std::fs::canonicalize(e).ok();
+        anyhow::ensure!(
+            !args
+                .datasets
+                .iter()
+                .any(|d| canonical.is_some() && std::fs::canonicalize(d).ok() == canonical),
+            "--eval-dataset {} is also a --dataset: held-out ρ would be measured on training \
+             data (--hold-out-trajectories K holds out part of one dataset)",
+            e.display()
+        );
+    }
     let (trajectories, split_off) = split_held_out(
-        read_trajectories(&args.datasets)?,
+        read_trajectories(&args.datasets, args.accept_partial)?,
         args.hold_out_trajectories,
     );
     anyhow::ensure!(
@@ -189,7 +213,7 @@ pub fn run(args: TrainArgs) -> Result<ExitCode> {
     let buffer = fill_buffer(&trajectories, &tasks)?;
     let held_out = if !args.eval_datasets.is_empty() {
         let mut eval_tasks = tasks.clone();
-        let t = read_trajectories(&args.eval_datasets)?;
+        let t = read_trajectories(&args.eval_datasets, args.accept_partial)?;
         Some(held_out_pairs(&t, &mut eval_tasks, 64, 1))
     } else if !split_off.is_empty() {
         let mut eval_tasks = tasks.clone();
@@ -220,13 +244,12 @@ pub fn run(args: TrainArgs) -> Result<ExitCode> {
     }
     let mut rng = ChaCha8Rng::seed_from_u64(args.seed ^ 0x7e9_5a3d);
     let mut batch = TepBatch::with_capacity(cfg.batch_size, OBS_DIM, ACTION_DIM);
-    let log_path = log_path(&args.out);
-    if let Some(parent) = args.out.parent().filter(|p| !p.as_os_str().is_empty()) {
-        std::fs::create_dir_all(parent)?;
-    }
+    // The log is written beside its final name and renamed with the planner, so a killed run
+    // leaves the previous planner and log together.
+    let log_partial = partial_path(&log_path);
     let mut log = std::io::BufWriter::new(
-        std::fs::File::create(&log_path)
-            .with_context(|| format!("cannot create {}", log_path.display()))?,
+        std::fs::File::create(&log_partial)
+            .with_context(|| format!("cannot create {}", log_partial.display()))?,
     );
     let bar = std::io::stderr().is_terminal().then(|| {
         let b = indicatif::ProgressBar::new(args.updates);
@@ -257,8 +280,9 @@ pub fn run(args: TrainArgs) -> Result<ExitCode> {
                     );
                 }
             }
-            writeln!(log, "{}", serde_json::Value::Object(line.clone()))?;
-            log.flush()?;
+            writeln!(log, "{}", serde_json::Value::Object(line.clone()))
+                .and_then(|()| log.flush())
+                .with_context(|| format!("cannot write {}", log_partial.display()))?;
             let msg = format!(
                 "F loss {:.3}  goal distance {:.1} (gap {:.1})  AN bc {:.3}{}",
                 line["f_loss"].as_f64().unwrap_or(f64::NAN),
@@ -290,8 +314,19 @@ pub fn run(args: TrainArgs) -> Result<ExitCode> {
     );
     meta.insert("terl.tep_updates".to_string(), tep.updates().to_string());
     meta.insert("terl.tep_tasks".to_string(), tasks.join(","));
+    log.into_inner()
+        .map_err(|e| e.into_error())
+        .and_then(|f| f.sync_all())
+        .with_context(|| format!("cannot write {}", log_partial.display()))?;
     terl_nn::tensors::save_file(&args.out, &tep.planner_file_tensors(), &meta)
         .with_context(|| format!("cannot write {}", args.out.display()))?;
+    std::fs::rename(&log_partial, &log_path).with_context(|| {
+        format!(
+            "cannot rename {} to {}",
+            log_partial.display(),
+            log_path.display()
+        )
+    })?;
     eprintln!(
         "[planner train] {} updates in {:.0} s on {} transitions of {} tasks → {} (log {})",
         tep.updates(),
@@ -304,9 +339,24 @@ pub fn run(args: TrainArgs) -> Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// `P.safetensors` → `P.train.jsonl`.
+/// `P.safetensors` → `P.train.jsonl`; any other name gets `.train.jsonl` appended
+/// (`p-lr0.001` → `p-lr0.001.train.jsonl`, so two such names never share a log).
 fn log_path(out: &Path) -> PathBuf {
-    out.with_extension("train.jsonl")
+    if out.extension().is_some_and(|e| e == "safetensors") {
+        out.with_extension("train.jsonl")
+    } else {
+        let mut name = out.as_os_str().to_owned();
+        name.push(".train.jsonl");
+        PathBuf::from(name)
+    }
+}
+
+/// `X` → `X.partial-<pid>`, where this process writes a file before renaming it to `X` (a
+/// killed run leaves only that, clearly marked; two runs never share one).
+pub fn partial_path(path: &Path) -> PathBuf {
+    let mut name = path.as_os_str().to_owned();
+    name.push(format!(".partial-{}", std::process::id()));
+    PathBuf::from(name)
 }
 
 /// Mean losses over the updates since the last log line.
