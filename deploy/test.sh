@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Runs every check a change must pass: formatting, clippy, and the whole test suite (unit,
+# Runs every check a change must pass: formatting, clippy, rustdoc, and the whole test suite (unit,
 # parity with Python Meta-World, learning tests, integration) in release mode, then a
 # 2-minute soak of the smoke cluster under injected faults (deploy/soak.sh).
 #
@@ -19,6 +19,9 @@ cargo fmt --all -- --check
 
 say "cargo clippy (all targets, warnings are errors)"
 cargo clippy --workspace --all-targets --release -- -D warnings
+
+say "rustdoc (warnings are errors: broken links, and missing docs where a crate asks for them)"
+RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps --release -q
 
 say "Kubernetes manifests (deploy/k8s) against the API's schemas"
 "$ROOT/.deps/k8s-venv/bin/kubernetes-validate" --strict --quiet "$ROOT"/deploy/k8s/*.yaml

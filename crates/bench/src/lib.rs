@@ -2,7 +2,7 @@
 //! only through its public API and returns a serialisable report (`terl bench ...` prints them
 //! as JSON).
 //!
-//! - [`env`]: env steps/s per task against the bare physics of the same model (`terl-sim`);
+//! - [`env`](mod@env): env steps/s per task against the bare physics of the same model (`terl-sim`);
 //! - [`memory`]: RSS per Meta-World environment and the `mjData` arena they use (`terl-sim`);
 //! - [`sac`]: SAC update throughput, achieved GFLOP/s against faer's GEMM rate, inference
 //!   latency (`terl-rl`);

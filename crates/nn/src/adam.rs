@@ -7,9 +7,15 @@ use crate::tensors::{Tensor, TensorFile};
 /// Adam hyper-parameters (PyTorch defaults except the learning rate, which callers choose).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct AdamConfig {
+    /// Learning rate (PyTorch's `lr`).
     pub lr: f64,
+    /// Decay rate of the first-moment (mean) estimate (PyTorch's `betas[0]`, default 0.9).
     pub beta1: f64,
+    /// Decay rate of the second-moment (uncentred variance) estimate (PyTorch's `betas[1]`,
+    /// default 0.999).
     pub beta2: f64,
+    /// Added to the bias-corrected `sqrt(v_hat)` in the denominator for stability (PyTorch's
+    /// `eps`, default 1e-8).
     pub eps: f64,
 }
 
@@ -103,6 +109,7 @@ impl<T: Float> crate::simd::Kernel for AdamKernel<'_, T> {
 /// Adam state (first and second moments, step count) for one flat parameter vector.
 #[derive(Clone, Debug)]
 pub struct Adam<T> {
+    /// Hyper-parameters used by every [`Adam::step`]; may be changed between steps.
     pub config: AdamConfig,
     m: Vec<T>,
     v: Vec<T>,

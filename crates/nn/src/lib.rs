@@ -16,6 +16,8 @@
 //!
 //! Everything is generic over [`Float`] (`f32` for training, `f64` for gradient checks).
 
+#![warn(missing_docs)]
+
 pub mod adam;
 pub mod error;
 pub mod gaussian;

@@ -18,8 +18,11 @@ use std::ops::Range;
 /// Element-wise non-linearity after a layer.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Activation {
+    /// `y = z` (no non-linearity).
     Identity,
+    /// `y = max(0, z)`.
     Relu,
+    /// `y = tanh(z)`.
     Tanh,
     /// `ln(1 + e^z)`: a smooth, non-negative output (for quantities that are ≥ 0 by definition,
     /// like the planner's step count F). Its derivative is written through the output,
@@ -30,10 +33,15 @@ pub enum Activation {
 /// Shape of an MLP: `input → hidden[0] → … → output`.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct MlpSpec {
+    /// Width of the network input (features per row).
     pub input: usize,
+    /// Widths of the hidden layers, first to last (may be empty).
     pub hidden: Vec<usize>,
+    /// Width of the network output.
     pub output: usize,
+    /// Activation after every hidden layer.
     pub hidden_activation: Activation,
+    /// Activation after the output layer.
     pub output_activation: Activation,
 }
 
@@ -156,18 +164,22 @@ impl<T: Float> Mlp<T> {
         &self.sizes
     }
 
+    /// Number of dense layers (hidden layers + output layer).
     pub fn num_layers(&self) -> usize {
         self.sizes.len() - 1
     }
 
+    /// Width of the network input.
     pub fn input_dim(&self) -> usize {
         self.sizes[0]
     }
 
+    /// Width of the network output.
     pub fn output_dim(&self) -> usize {
         self.sizes[self.sizes.len() - 1]
     }
 
+    /// Total number of parameters (length of [`Mlp::params`]).
     pub fn num_params(&self) -> usize {
         self.params.len()
     }
@@ -433,6 +445,7 @@ impl<T: Float> MlpCache<T> {
         }
     }
 
+    /// Maximum number of rows these buffers hold.
     pub fn capacity(&self) -> usize {
         self.capacity
     }

@@ -8,8 +8,11 @@ use std::fmt::{Debug, Display};
 /// Element types used by this project's tensors.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Dtype {
+    /// 32-bit IEEE 754 float (safetensors `F32`).
     F32,
+    /// 64-bit IEEE 754 float (safetensors `F64`).
     F64,
+    /// 64-bit signed integer (safetensors `I64`), used for step counters.
     I64,
 }
 
@@ -57,13 +60,21 @@ pub trait Float:
     fn of_f32(x: f32) -> Self;
     /// Converts to `f32` (rounding for `f64`).
     fn f32(self) -> f32;
+    /// `e^self`.
     fn exp(self) -> Self;
+    /// Natural logarithm.
     fn ln(self) -> Self;
+    /// Hyperbolic tangent.
     fn tanh(self) -> Self;
+    /// Square root.
     fn sqrt(self) -> Self;
+    /// Absolute value.
     fn abs(self) -> Self;
+    /// The larger of `self` and `other` (the other one if either is NaN, like `f32::max`).
     fn max(self, other: Self) -> Self;
+    /// The smaller of `self` and `other` (the other one if either is NaN, like `f32::min`).
     fn min(self, other: Self) -> Self;
+    /// Neither infinite nor NaN.
     fn is_finite(self) -> bool;
     /// `ln(1 + e^x)` without overflow.
     fn softplus(self) -> Self {

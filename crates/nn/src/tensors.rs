@@ -33,9 +33,13 @@ impl Dtype {
 /// One named tensor with its data as little-endian bytes (row-major, C order).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Tensor {
+    /// Name of the tensor in the file (for example `{prefix}.m`).
     pub name: String,
+    /// Dimensions, outermost first.
     pub shape: Vec<usize>,
+    /// Element type of `data`.
     pub dtype: Dtype,
+    /// Raw elements, little-endian, row-major; `shape.iter().product() * dtype.size()` bytes.
     pub data: Vec<u8>,
 }
 
@@ -229,7 +233,9 @@ pub fn save_file(
 /// A decoded safetensors file: tensors by name plus metadata.
 #[derive(Clone, Debug, Default)]
 pub struct TensorFile {
+    /// The tensors, keyed by name.
     pub tensors: BTreeMap<String, Tensor>,
+    /// The file's string metadata (including [`CHECKSUM_KEY`] and [`FORMAT_VERSION_KEY`] when written by [`save_file`]).
     pub metadata: BTreeMap<String, String>,
 }
 

@@ -72,7 +72,7 @@ impl PolicySpec {
 ///
 /// Small batches are a different GEMM regime from training: every weight is read once per call
 /// for only a few rows. The policy therefore keeps its own copy of the weights packed in panels
-/// for a register-blocked small-batch kernel ([`SmallBatchMlp`]), which streams each weight once
+/// for a register-blocked small-batch kernel (`SmallBatchMlp`), which streams each weight once
 /// per call.
 #[derive(Clone, Debug)]
 pub struct Policy {

@@ -877,7 +877,7 @@ impl<T: Float> Tep<T> {
 }
 
 /// Inference-only planner for actors: `F(s, g, a)` and `AN(s, g)` over small batches, `f32`,
-/// sequential GEMMs on weights packed for few rows (see [`SmallBatchMlp`]), no allocation per
+/// sequential GEMMs on weights packed for few rows (see `SmallBatchMlp`), no allocation per
 /// call.
 #[derive(Debug)]
 pub struct Planner {

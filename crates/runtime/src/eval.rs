@@ -56,15 +56,23 @@ pub enum EvalError {
     Shape(String),
     /// The file is not a policy checkpoint, or no checkpoint was found.
     #[error("checkpoint {path}: {reason}")]
-    Checkpoint { path: String, reason: String },
+    Checkpoint {
+        /// The file or directory given.
+        path: String,
+        /// What is wrong with it.
+        reason: String,
+    },
     /// Invalid settings (no tasks, zero episodes, ...).
     #[error("invalid evaluation settings: {0}")]
     Settings(String),
     /// The caller's cancel flag was set.
     #[error("evaluation cancelled")]
     Cancelled,
+    /// Building or stepping a Meta-World environment failed.
     #[error(transparent)]
     Sim(#[from] SimError),
+    /// A SAC error from the policy, e.g. its tensors are missing from the checkpoint or do not have
+    /// the shapes its config states.
     #[error(transparent)]
     Policy(#[from] SacError),
 }
@@ -81,6 +89,7 @@ pub enum UnseenTaskEncoding {
 }
 
 impl UnseenTaskEncoding {
+    /// Its name, as `FromStr` and serde read it: `"uniform"` or `"zeros"`.
     pub fn as_str(self) -> &'static str {
         match self {
             Self::Uniform => "uniform",
@@ -140,7 +149,9 @@ impl TaskEncoding {
 /// One task to evaluate and the task vector the policy sees for it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct EvalTask {
+    /// Meta-World task name (e.g. `reach-v3`).
     pub name: &'static str,
+    /// The task vector the policy is conditioned on for this task.
     pub encoding: TaskEncoding,
 }
 
@@ -198,11 +209,15 @@ impl Default for EvalSettings {
 /// Per-task result of an evaluation.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TaskEvalStats {
+    /// Meta-World task name.
     pub task: String,
     /// `one-hot:<i>` for a trained task, else the unseen-task encoding used.
     pub encoding: String,
+    /// Whether the policy was trained on this task (its encoding is a one-hot).
     pub trained: bool,
+    /// Episodes evaluated.
     pub episodes: usize,
+    /// Episodes with success at any step.
     pub successes: usize,
     /// Fraction of episodes with success at any step, in [0, 1].
     pub success_rate: f64,
@@ -221,14 +236,19 @@ pub struct EvalSummary {
     pub mean_success_rate: f64,
     /// Unweighted mean over tasks of the mean return.
     pub mean_return: f64,
+    /// Per-task results, in the order the tasks were given.
     pub tasks: Vec<TaskEvalStats>,
+    /// Episodes evaluated per task ([`EvalSettings::episodes_per_task`]).
     pub episodes_per_task: usize,
+    /// Seed of the goal variations evaluated on.
     pub variation_seed: u64,
     /// Policy version (learner updates) of the evaluated weights.
     pub policy_version: u64,
     /// Environment steps simulated by the evaluation.
     pub eval_env_steps: u64,
+    /// Worker threads used: the requested count, at most one per lockstep chunk of episodes.
     pub threads: usize,
+    /// Wall-clock duration of the evaluation, in seconds.
     pub wall_seconds: f64,
     /// CPU time of the worker threads (Linux `/proc/thread-self/schedstat`; None elsewhere).
     pub cpu_seconds: Option<f64>,
@@ -555,9 +575,11 @@ fn run_chunk(
 /// SAC config as TOML in the `terl.sac_config` metadata, the update count in `counters`).
 #[derive(Debug, Clone)]
 pub struct PolicyCheckpoint {
+    /// The checkpoint file read (after [`resolve_checkpoint`] picked it from a run directory).
     pub path: std::path::PathBuf,
     /// The policy, version = the learner's update count at the checkpoint.
     pub policy: Policy,
+    /// The SAC config stored in the checkpoint's `terl.sac_config` metadata.
     pub sac: terl_rl::SacConfig,
     /// The run's `config.toml` (`<run>/config.toml` next to `<run>/checkpoints/`), if found.
     pub run_config: Option<(std::path::PathBuf, crate::RunConfig)>,

@@ -24,6 +24,8 @@
 //! from a fixed seed ([`DEFAULT_SEED`]), restarted for every interval, so the same scores give
 //! the same interval on every machine and in any order of calls.
 
+#![warn(missing_docs)]
+
 use rand_chacha::rand_core::{RngCore, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -43,19 +45,36 @@ pub const DEFAULT_CONFIDENCE: f64 = 0.95;
 pub enum StatsError {
     /// A matrix needs at least one run and one task.
     #[error("a score matrix needs at least one run and one task (got {runs} × {tasks})")]
-    Empty { runs: usize, tasks: usize },
+    Empty {
+        /// Runs (rows) given.
+        runs: usize,
+        /// Tasks (columns) given.
+        tasks: usize,
+    },
     /// The data length is not `runs × tasks`, or the rows differ in length.
     #[error("scores do not form a runs × tasks matrix: {0}")]
     Shape(String),
     /// NaN or ±∞ among the scores.
     #[error("score ({run}, {task}) is not finite: {value}")]
-    NotFinite { run: usize, task: usize, value: f64 },
+    NotFinite {
+        /// Row (run) of the score, 0-based.
+        run: usize,
+        /// Column (task) of the score, 0-based.
+        task: usize,
+        /// The offending value.
+        value: f64,
+    },
     /// Two algorithms compared on different numbers of tasks.
     #[error("the two score matrices have {0} and {1} tasks")]
     TaskMismatch(usize, usize),
     /// Coverage outside (0, 1) or no resamples.
     #[error("bootstrap needs reps ≥ 1 and a confidence in (0, 1) (got {reps}, {confidence})")]
-    Bootstrap { reps: usize, confidence: f64 },
+    Bootstrap {
+        /// Resamples asked for.
+        reps: usize,
+        /// Coverage asked for.
+        confidence: f64,
+    },
 }
 
 /// Scores of shape `runs × tasks`, row-major: `data[run * tasks + task]`. All finite.
@@ -202,9 +221,9 @@ fn poi_unchecked(x: &ScoreMatrix, y: &ScoreMatrix) -> f64 {
 pub struct Interval {
     /// The statistic on the scores themselves.
     pub point: f64,
-    /// Lower and upper percentile of the resampled statistic: `(1 − confidence) / 2` and
-    /// `(1 + confidence) / 2`.
+    /// Lower end: the `(1 − confidence) / 2` percentile of the resampled statistic.
     pub lower: f64,
+    /// Upper end: the `(1 + confidence) / 2` percentile of the resampled statistic.
     pub upper: f64,
 }
 

@@ -48,6 +48,8 @@
 //! an opcode the writer never writes, or fewer messages than the file's statistics count, and
 //! ends or marks the read the same way.
 
+#![warn(missing_docs)]
+
 mod log;
 mod records;
 mod tep;
@@ -106,37 +108,63 @@ pub fn unix_nanos() -> u64 {
 /// What can go wrong writing or reading a telemetry file.
 #[derive(Debug, thiserror::Error)]
 pub enum TelemetryError {
+    /// Creating, opening, reading or syncing the file failed.
     #[error("{path}: {source}")]
     Io {
+        /// The file.
         path: PathBuf,
+        /// The underlying I/O error.
         #[source]
         source: std::io::Error,
     },
+    /// A writer was asked to create a file that already exists.
     #[error(
         "{path} already exists; log writers never overwrite a file \
          (TepDatasetWriter::replace starts a dataset over)"
     )]
-    AlreadyExists { path: PathBuf },
+    AlreadyExists {
+        /// The existing file.
+        path: PathBuf,
+    },
+    /// The MCAP writer failed (or was used after a failure).
     #[error("{path}: MCAP error: {source}")]
     Mcap {
+        /// The file being written.
         path: PathBuf,
+        /// The error of the `mcap` crate.
         #[source]
         source: mcap::McapError,
     },
+    /// Reading stopped before the file's MCAP header: not an MCAP file, or an empty or cut one.
     #[error("{path} is not an MCAP file ({reason})")]
-    NotMcap { path: PathBuf, reason: String },
+    NotMcap {
+        /// The file.
+        path: PathBuf,
+        /// Why reading stopped, in words.
+        reason: String,
+    },
+    /// The file is MCAP but holds no channel on the topic the reader expects.
     #[error("{path} has no channel on topic {topic} (not a {what}){}",
         if *truncated { "; the file is also truncated" } else { "" })]
     NoChannel {
+        /// The file.
         path: PathBuf,
+        /// The topic that was looked for.
         topic: &'static str,
+        /// What kind of log that topic belongs to (e.g. "TEP dataset", "metrics log").
         what: &'static str,
+        /// Reading also stopped early (the file is cut or damaged).
         truncated: bool,
     },
+    /// The expected topic's channel has another message encoding or schema than protobuf
+    /// with this log's message type (or a schema the file does not define before it).
     #[error("{path}: channel {topic} {problem}")]
     WrongSchema {
+        /// The file.
         path: PathBuf,
+        /// The channel's topic.
         topic: &'static str,
+        /// What does not match, in words.
         problem: String,
     },
 }

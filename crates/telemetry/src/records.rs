@@ -101,10 +101,12 @@ impl<R: LogRecord> LogWriter<R> {
         })
     }
 
+    /// The file this writer appends to.
     pub fn path(&self) -> &Path {
         self.inner.path()
     }
 
+    /// Records written so far.
     pub fn messages(&self) -> u64 {
         self.inner.messages()
     }
@@ -114,6 +116,8 @@ impl<R: LogRecord> LogWriter<R> {
         self.inner.write(&record.to_proto(), log_time_ns)
     }
 
+    /// Closes the current chunk and hands everything written so far to the operating system: from
+    /// now on a crash or kill of this process cannot lose those records.
     pub fn flush(&mut self) -> Result<()> {
         self.inner.flush()
     }
@@ -127,6 +131,7 @@ impl<R: LogRecord> LogWriter<R> {
 /// The records of a log file.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Logged<R> {
+    /// The records that decoded and validated, in file order.
     pub records: Vec<R>,
     /// Messages that did not decode or failed validation (skipped).
     pub rejected: u64,

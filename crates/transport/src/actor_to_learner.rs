@@ -44,9 +44,14 @@ pub struct Transition {
     /// Version of the policy weights that chose `action`; the learner reports staleness
     /// (its update count minus this) on what it trains on.
     pub policy_version: u64,
+    /// Meta-World observation `s` the action was chosen in (39 floats, without the task one-hot).
     pub obs: [f32; OBS_DIM],
+    /// Observation `s'` the action reached (at the step limit the episode's true last observation,
+    /// not the reset one).
     pub next_obs: [f32; OBS_DIM],
+    /// Executed action `a`, in Meta-World's action space `[-1, 1]^ACTION_DIM`.
     pub action: [f32; ACTION_DIM],
+    /// Reward `r` of the step, as the environment returned it.
     pub reward: f32,
     /// Actor process that produced the step.
     pub actor_id: u16,
@@ -86,15 +91,19 @@ impl Transition {
         action_gap_q: 0,
     };
 
+    /// Whether [`flags::TRUNCATED`] is set.
     pub fn truncated(&self) -> bool {
         self.flags & flags::TRUNCATED != 0
     }
+    /// Whether [`flags::TERMINATED`] is set.
     pub fn terminated(&self) -> bool {
         self.flags & flags::TERMINATED != 0
     }
+    /// Whether [`flags::SUCCESS`] is set.
     pub fn success(&self) -> bool {
         self.flags & flags::SUCCESS != 0
     }
+    /// Whether [`flags::GUIDED`] is set.
     pub fn guided(&self) -> bool {
         self.flags & flags::GUIDED != 0
     }
@@ -139,6 +148,7 @@ pub struct TransitionBatch {
     pub len: u32,
     /// Actor that sent the batch (also in each transition; here for cheap routing/metrics).
     pub actor_id: u16,
+    /// Explicit padding so the layout has no uninitialised bytes.
     pub reserved: u16,
     /// Per-publisher sequence number, starting at 0 and incremented per batch (also for
     /// batches that were not delivered), so a receiver can detect gaps and reordering.
@@ -147,12 +157,14 @@ pub struct TransitionBatch {
     /// (`items`) its earlier sends gave up on because the receiver stayed full. Stamped by the
     /// transport on send (see [`crate::flow`]).
     pub losses: Losses,
+    /// The transitions; entries from `len` on are unused.
     pub transitions: [Transition; TRANSITIONS_PER_BATCH],
 }
 
 const _: () = assert!(core::mem::size_of::<TransitionBatch>() == 32 + 352 * TRANSITIONS_PER_BATCH);
 
 impl TransitionBatch {
+    /// A batch with no transitions (`len` 0, sequence 0, no losses).
     pub const EMPTY: TransitionBatch = TransitionBatch {
         len: 0,
         actor_id: 0,
@@ -167,6 +179,7 @@ impl TransitionBatch {
         &self.transitions[..(self.len as usize).min(TRANSITIONS_PER_BATCH)]
     }
 
+    /// Whether all [`TRANSITIONS_PER_BATCH`] entries are used.
     pub fn is_full(&self) -> bool {
         self.len as usize >= TRANSITIONS_PER_BATCH
     }

@@ -13,14 +13,18 @@ pub const MAX_EPISODE_STEPS: usize = 500;
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C)]
 pub struct TrajectoryStep {
+    /// Observation the action was chosen in (39 floats, without the task one-hot).
     pub obs: [f32; OBS_DIM],
+    /// Executed action, in Meta-World's action space `[-1, 1]^ACTION_DIM`.
     pub action: [f32; ACTION_DIM],
+    /// Reward of the step, as the environment returned it.
     pub reward: f32,
 }
 
 const _: () = assert!(core::mem::size_of::<TrajectoryStep>() == 4 * (OBS_DIM + ACTION_DIM + 1));
 
 impl TrajectoryStep {
+    /// An all-zero step (valid plain data, used to initialise trajectories).
     pub const ZERO: TrajectoryStep = TrajectoryStep {
         obs: [0.0; OBS_DIM],
         action: [0.0; ACTION_DIM],
@@ -47,11 +51,15 @@ pub struct EpisodeSummary {
     pub length: u32,
     /// Number of valid entries in `trajectory`.
     pub trajectory_len: u32,
+    /// Actor process that ran the episode.
     pub actor_id: u16,
+    /// Environment index inside that actor.
     pub env_index: u16,
+    /// Task index into the run's task list.
     pub task: u16,
     /// 1 if the task reported success at any step, else 0.
     pub success: u8,
+    /// Explicit padding so the layout has no uninitialised bytes.
     pub reserved0: u8,
     /// Steps that executed the Action Network's action (TERL guidance).
     pub guided_steps: u16,
@@ -60,6 +68,7 @@ pub struct EpisodeSummary {
     pub first_success: u16,
     /// Observation after the last step (s_T), so GAE can bootstrap on truncation.
     pub final_obs: [f32; OBS_DIM],
+    /// The steps in order; entries from `trajectory_len` on are unused.
     pub trajectory: [TrajectoryStep; MAX_EPISODE_STEPS],
     /// The goal variation the episode ran on (index into the task's 50 variations of the run's
     /// `variation_seed`, `terl_sim::metaworld::goal_variations`); [`NO_VARIATION`]: unknown.
@@ -76,6 +85,7 @@ const _: () = assert!(
 );
 
 impl EpisodeSummary {
+    /// An episode with no steps, no success and an unknown goal variation ([`NO_VARIATION`]).
     pub const EMPTY: EpisodeSummary = EpisodeSummary {
         policy_version: 0,
         episode_index: 0,
@@ -100,6 +110,7 @@ impl EpisodeSummary {
         &self.trajectory[..(self.trajectory_len as usize).min(MAX_EPISODE_STEPS)]
     }
 
+    /// Whether the task reported success at any step.
     pub fn succeeded(&self) -> bool {
         self.success != 0
     }

@@ -12,14 +12,18 @@ use crate::zenoh_net::{ZenohClaim, ZenohTransport};
 /// Shared memory or Zenoh, as `TransportConfig::transport` says.
 #[derive(Debug)]
 pub enum RunTransport {
+    /// iceoryx2 shared memory (`transport = "shm"`): every process on one host.
     Shm(ShmTransport),
+    /// Zenoh over TCP (`transport = "zenoh"`): processes on several hosts.
     Zenoh(ZenohTransport),
 }
 
 /// An actor id held by this process (see [`RunTransport::claim_actor_id`]).
 #[derive(Debug)]
 pub enum ActorClaim {
+    /// The claim over shared memory.
     Shm(Box<SenderClaim>),
+    /// The claim over Zenoh.
     Zenoh(ZenohClaim),
 }
 
@@ -33,6 +37,7 @@ impl RunTransport {
         })
     }
 
+    /// Which engine this is.
     pub fn kind(&self) -> TransportKind {
         match self {
             Self::Shm(_) => TransportKind::Shm,

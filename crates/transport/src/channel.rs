@@ -28,6 +28,7 @@ pub enum Topic {
 }
 
 impl Topic {
+    /// Every topic, in stream order.
     pub const ALL: [Topic; 3] = [Topic::Transitions, Topic::Episodes, Topic::Selected];
 
     /// Last component of the service name `terl/<run_id>/<name>`.
@@ -136,6 +137,7 @@ pub trait MessageSink<M: Message>: Send + Debug {
         Ok(())
     }
 
+    /// A copy of this sink's counters (sent, dropped, full, no receiver).
     fn stats(&self) -> StatsSnapshot;
 }
 
@@ -154,6 +156,7 @@ pub trait MessageSource<M: Message>: Send + Debug {
     /// Number of senders currently connected.
     fn senders(&self) -> usize;
 
+    /// A copy of this source's counters (`received` counts the messages taken out).
     fn stats(&self) -> StatsSnapshot;
 }
 
@@ -178,7 +181,9 @@ impl<T: MessageSource<SelectedBatch> + ?Sized> SelectedSource for T {}
 
 /// Creates sinks and sources for one run. One per process (or per thread in tests).
 pub trait Transport: Debug {
+    /// Opens a sending port on `M`'s topic ([`Message::TOPIC`]).
     fn sink<M: Message>(&self) -> Result<Box<dyn MessageSink<M>>, TransportError>;
+    /// Opens a receiving port on `M`'s topic ([`Message::TOPIC`]).
     fn source<M: Message>(&self) -> Result<Box<dyn MessageSource<M>>, TransportError>;
     /// Shutdown: every send of this transport's sinks that is blocked on a full receiver
     /// (now or later) returns `TransportError::Cancelled` instead of waiting.

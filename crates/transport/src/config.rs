@@ -74,6 +74,7 @@ pub enum ZenohMode {
 #[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ZenohConfig {
+    /// Peer, client or router (default: peer).
     pub mode: ZenohMode,
     /// Endpoints to listen on, e.g. `tcp/0.0.0.0:7447`. Empty: Zenoh's default for the mode
     /// (a peer listens on a random TCP port of every interface).
@@ -149,9 +150,15 @@ impl Default for TransportConfig {
 /// iceoryx2 limits of one service.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ServiceLimits {
+    /// Publishers the service admits (iceoryx2 `max_publishers`): the senders plus spares for
+    /// restarts and tools.
     pub max_publishers: usize,
+    /// Subscribers the service admits (iceoryx2 `max_subscribers`).
     pub max_subscribers: usize,
+    /// Nodes that may open the service (iceoryx2 `max_nodes`): actors, learner, selector and
+    /// spares.
     pub max_nodes: usize,
+    /// Messages each subscriber's queue holds (iceoryx2 `subscriber_max_buffer_size`).
     pub subscriber_buffer: usize,
 }
 
@@ -175,6 +182,8 @@ impl TransportConfig {
         }
     }
 
+    /// Checks the run id (1 to 64 characters of `[A-Za-z0-9._-]`), `num_actors ≥ 1` and every
+    /// buffer size ≥ 1; otherwise [`TransportError::Config`].
     pub fn validate(&self) -> Result<(), TransportError> {
         let id = &self.run_id;
         if id.is_empty()

@@ -101,6 +101,7 @@ pub struct StatsSnapshot {
 }
 
 impl TransportStats {
+    /// The current counters (each read atomically, not all at one instant).
     pub fn snapshot(&self) -> StatsSnapshot {
         StatsSnapshot {
             sent: self.sent.load(Ordering::Relaxed),
@@ -189,6 +190,7 @@ pub struct Losses {
 const _: () = assert!(core::mem::size_of::<Losses>() == 16);
 
 impl Losses {
+    /// No losses.
     pub const ZERO: Losses = Losses {
         messages: 0,
         items: 0,
@@ -243,6 +245,7 @@ struct Tracked {
 }
 
 impl LossTracker {
+    /// A tracker that has seen no sender.
     pub fn new() -> Self {
         Self::default()
     }
@@ -301,13 +304,21 @@ pub const DEFAULT_BLOCK_TIMEOUT: Duration = Duration::from_secs(30);
 /// Errors in the rate limiter's configuration.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum RateLimiterError {
+    /// `samples_per_insert` is not finite or not positive (the value given).
     #[error("samples_per_insert must be finite and > 0, got {0}")]
     SamplesPerInsert(f64),
+    /// `error_buffer` is below `max(1, samples_per_insert)`, so neither inserts nor samples
+    /// could proceed.
     #[error(
         "error_buffer {error_buffer} is too small: it must be at least max(1, samples_per_insert) \
          = {needed}, otherwise neither inserts nor samples can proceed (deadlock)"
     )]
-    ErrorBuffer { error_buffer: f64, needed: f64 },
+    ErrorBuffer {
+        /// The slack given, in samples.
+        error_buffer: f64,
+        /// The smallest slack accepted: `max(1, samples_per_insert)`.
+        needed: f64,
+    },
 }
 
 /// Keeps the ratio of samples (learner updates) to inserts (transitions added to replay)
@@ -379,22 +390,27 @@ impl RateLimiter {
         self.diff_after(self.inserts, self.samples + n) >= self.target() - self.error_buffer
     }
 
+    /// Counts `n` inserted transitions.
     pub fn record_insert(&mut self, n: u64) {
         self.inserts += n;
     }
 
+    /// Counts `n` learner updates.
     pub fn record_sample(&mut self, n: u64) {
         self.samples += n;
     }
 
+    /// Transitions inserted so far.
     pub fn inserts(&self) -> u64 {
         self.inserts
     }
 
+    /// Updates (samples) so far.
     pub fn samples(&self) -> u64 {
         self.samples
     }
 
+    /// The target ratio of updates to inserted transitions.
     pub fn samples_per_insert(&self) -> f64 {
         self.samples_per_insert
     }
@@ -404,8 +420,11 @@ impl RateLimiter {
 /// current version the transitions were when they were used.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct Staleness {
+    /// Transitions recorded.
     pub count: u64,
+    /// Sum of their staleness, in policy versions (`sum / count` is the mean).
     pub sum: u64,
+    /// Largest staleness recorded, in policy versions.
     pub max: u64,
 }
 

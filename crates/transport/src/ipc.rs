@@ -115,6 +115,7 @@ impl ShmTransport {
         check_free_space(Path::new(SHM_PATH), config.required_shm_bytes())
     }
 
+    /// The configuration this transport was opened with.
     pub fn config(&self) -> &TransportConfig {
         &self.config
     }
@@ -380,6 +381,7 @@ impl<M: Message> ShmSink<M> {
         Arc::clone(&self.stats)
     }
 
+    /// The iceoryx2 service this sink publishes on (`terl/<run_id>/<topic>`).
     pub fn service_name(&self) -> &str {
         &self.label
     }
@@ -467,6 +469,7 @@ impl<M: Message> core::fmt::Debug for ShmSource<M> {
 }
 
 impl<M: Message> ShmSource<M> {
+    /// Shared counters, for a metrics exporter that outlives borrowing the source.
     pub fn stats_handle(&self) -> Arc<TransportStats> {
         Arc::clone(&self.stats)
     }

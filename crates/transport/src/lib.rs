@@ -9,6 +9,8 @@
 //! next message, so receivers learn what never reached them), and the learner's
 //! update-to-data rate limiter.
 
+#![warn(missing_docs)]
+
 pub mod actor_to_learner;
 pub mod actor_to_selector;
 pub mod any;

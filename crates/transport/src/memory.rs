@@ -74,10 +74,12 @@ impl MemoryTransport {
         })
     }
 
+    /// The bus this transport's sinks and sources meet on.
     pub fn bus(&self) -> &MemoryBus {
         &self.bus
     }
 
+    /// The configuration this transport was created with.
     pub fn config(&self) -> &TransportConfig {
         &self.config
     }
@@ -87,6 +89,8 @@ impl MemoryTransport {
         self.memory_sink_with(self.config.overflow)
     }
 
+    /// A sink with overflow policy `policy`; [`TransportError::Ipc`] when the topic already has its
+    /// `max_publishers`.
     pub fn memory_sink_with<M: Message>(
         &self,
         policy: OverflowPolicy,
@@ -115,6 +119,8 @@ impl MemoryTransport {
         })
     }
 
+    /// A source on `M`'s topic; [`TransportError::Ipc`] when the topic already has its
+    /// `max_subscribers`.
     pub fn memory_source<M: Message>(&self) -> Result<MemorySource<M>, TransportError> {
         let label = self.config.service_name(M::TOPIC);
         let limits = self.config.limits(M::TOPIC);

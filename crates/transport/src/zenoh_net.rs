@@ -171,6 +171,7 @@ impl ZenohTransport {
         })
     }
 
+    /// The configuration this transport was opened with.
     pub fn config(&self) -> &TransportConfig {
         &self.config
     }
@@ -688,10 +689,12 @@ enum Credit {
 }
 
 impl<M: Message> ZenohSink<M> {
+    /// Shared counters, for a metrics exporter that outlives borrowing the sink.
     pub fn stats_handle(&self) -> Arc<TransportStats> {
         Arc::clone(&self.stats)
     }
 
+    /// The stream's key (`terl/<run_id>/<topic>`).
     pub fn service_name(&self) -> &str {
         &self.label
     }
@@ -900,6 +903,7 @@ impl<M: Message> core::fmt::Debug for ZenohSource<M> {
 }
 
 impl<M: Message> ZenohSource<M> {
+    /// Shared counters, for a metrics exporter that outlives borrowing the source.
     pub fn stats_handle(&self) -> Arc<TransportStats> {
         Arc::clone(&self.stats)
     }

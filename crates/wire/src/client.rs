@@ -64,7 +64,7 @@ pub struct ClientOptions {
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Watcher {
     pub actor_id: u32,
-    /// At most [`crate::status::MAX_HOST_BYTES`] bytes (longer names are cut).
+    /// At most `MAX_HOST_BYTES` (`status.rs`) bytes (longer names are cut).
     pub host: String,
 }
 

@@ -19,6 +19,8 @@
 //! task that reconnects when the learner goes away and hands the newest version to the loop
 //! through one-slot mailboxes (latest wins: the loop never waits for weights).
 
+#![warn(missing_docs)]
+
 pub mod args;
 mod envloop;
 
@@ -34,7 +36,9 @@ use tracing::Instrument;
 /// Everything an actor needs to start.
 #[derive(Debug, Clone)]
 pub struct ActorConfig {
+    /// The run file.
     pub run: RunConfig,
+    /// The run's id: names its shared-memory services (`terl/<run_id>/...`) and appears in logs.
     pub run_id: String,
     /// This actor's id, below `num_actors` (ignored with `auto_id`).
     pub actor_id: usize,
@@ -42,6 +46,8 @@ pub struct ActorConfig {
     /// replicas of one Kubernetes Deployment, which cannot be told apart). `num_actors` is then
     /// the most actors the run takes.
     pub auto_id: bool,
+    /// Actor processes of the run: sizes the transport and, with a fixed id, splits the
+    /// environments' tasks among the actors.
     pub num_actors: usize,
     /// The learner's gRPC address (`host:port`).
     pub learner_addr: String,
@@ -51,6 +57,7 @@ pub struct ActorConfig {
 }
 
 impl ActorConfig {
+    /// A config with a fixed `actor_id`, no `auto_id` and no token or TLS.
     pub fn new(
         run: RunConfig,
         run_id: String,

@@ -166,7 +166,18 @@ fn dataset_replays_in_the_environment_and_a_trained_planner_is_scored() {
     let pairs: u64 = lens.values().map(|&n| (n * (n + 1) / 2).min(200)).sum();
     assert_eq!(e["f"]["pairs"].as_u64().unwrap(), pairs);
 
-    // Bad input: clear errors, nothing overwritten.
+    bad_input_is_refused_and_nothing_is_overwritten(dir.path(), &train, &held, &planner);
+}
+
+/// Bad input to the three commands, given a dataset pair and a planner made by them: clear
+/// errors, nothing overwritten, no partial file left.
+fn bad_input_is_refused_and_nothing_is_overwritten(
+    dir: &Path,
+    train: &str,
+    held: &str,
+    planner: &str,
+) {
+    let (train, held, planner) = (train.to_string(), held.to_string(), planner.to_string());
     let before = std::fs::metadata(&train).unwrap().len();
     refused(
         &terl(&["planner", "dataset", "--tasks", "reach-v3", "--out", &train]),
@@ -197,7 +208,7 @@ fn dataset_replays_in_the_environment_and_a_trained_planner_is_scored() {
         .unwrap()
         .file_type()
         .is_char_device());
-    let other_p = other_planner(dir.path());
+    let other_p = other_planner(dir);
     let mut a = vec![
         "planner",
         "train",
@@ -240,7 +251,7 @@ fn dataset_replays_in_the_environment_and_a_trained_planner_is_scored() {
     for b in &mut bytes[mid..mid + 4] {
         *b ^= 0xff;
     }
-    let damaged = p(dir.path(), "damaged.mcap");
+    let damaged = p(dir, "damaged.mcap");
     std::fs::write(&damaged, bytes).unwrap();
     let mut a = vec![
         "planner",
@@ -256,7 +267,7 @@ fn dataset_replays_in_the_environment_and_a_trained_planner_is_scored() {
     a.push("--accept-partial");
     ok(&terl(&a));
     // A run that writes nothing leaves nothing at --out (and no partial file).
-    let none = p(dir.path(), "none.mcap");
+    let none = p(dir, "none.mcap");
     refused(
         &terl(&[
             "planner",
@@ -274,14 +285,14 @@ fn dataset_replays_in_the_environment_and_a_trained_planner_is_scored() {
         ]),
         "no episode succeeded",
     );
-    let left: Vec<_> = std::fs::read_dir(dir.path())
+    let left: Vec<_> = std::fs::read_dir(dir)
         .unwrap()
         .flatten()
         .map(|e| e.file_name().to_string_lossy().into_owned())
         .filter(|n| n.starts_with("none") || n.contains(".partial"))
         .collect();
     assert!(left.is_empty(), "{left:?}");
-    let other = p(dir.path(), "x.mcap");
+    let other = p(dir, "x.mcap");
     for (v, needle) in [
         ("40..40", "empty range"),
         ("60", "not in 0..50"),

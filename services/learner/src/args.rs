@@ -19,13 +19,13 @@ pub struct Args {
     /// Run id: names the shared-memory services and the default run folder.
     #[arg(long)]
     pub run_id: String,
-    /// gRPC listen address (port 0: any free port, written to <run-dir>/learner.addr).
+    /// gRPC listen address (port 0: any free port, written to `<run-dir>/learner.addr`).
     #[arg(long, default_value = terl_wire::DEFAULT_LEARNER_ADDR)]
     pub addr: std::net::SocketAddr,
     /// Number of actor processes (sizes the shared-memory services).
     #[arg(long, default_value_t = 1)]
     pub num_actors: usize,
-    /// Run folder (default runs/<run-id>).
+    /// Run folder (default `runs/<run-id>`).
     #[arg(long)]
     pub run_dir: Option<PathBuf>,
     /// `algorithm = "terl"`: start the TEP buffer from this dataset (an earlier run's

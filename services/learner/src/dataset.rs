@@ -173,7 +173,7 @@ mod tests {
         // A file without any sample of the run's tasks is an error naming it.
         let mut planner =
             PlannerTrainer::new(TepConfig::default(), Default::default(), 1, 1).unwrap();
-        let e = load_all(&[a.clone()], &["reach-v3"], &mut planner).unwrap_err();
+        let e = load_all(std::slice::from_ref(&a), &["reach-v3"], &mut planner).unwrap_err();
         assert!(format!("{e:#}").contains("a.mcap"), "{e:#}");
         // A file damaged inside its first chunk yields no sample: an error, not an empty start.
         let mut bytes = std::fs::read(&a).unwrap();

@@ -12,11 +12,13 @@
 //! longer than `[cluster] block_timeout_secs`) are reported in the status and the metrics log
 //! from the loss stamps on what does arrive (see `losses`).
 //!
-//! Two halves: the training loop ([`trainer`]) is CPU-bound and runs on its own thread; the
+//! Two halves: the training loop (`trainer`) is CPU-bound and runs on its own thread; the
 //! gRPC server runs on the tokio runtime of the caller. They share a status snapshot the
 //! trainer refreshes a few times a second, the [`WeightHub`], and a checkpoint-request channel.
 //! `run` returns when `shutdown` completes (or the trainer fails), after the trainer thread has
 //! written its final checkpoint and dropped its shared-memory node.
+
+#![warn(missing_docs)]
 
 pub mod args;
 mod checkpoint;

@@ -38,7 +38,9 @@ use crate::{LearnerConfig, Shared};
 /// A `SaveCheckpoint` request handed to the trainer thread, with where to send the answer.
 #[derive(Debug)]
 pub struct CheckpointJob {
+    /// The request (an optional label for the checkpoint's file name).
     pub request: CheckpointRequest,
+    /// Where the trainer sends the saved checkpoint, or the error in words.
     pub reply: tokio::sync::oneshot::Sender<Result<CheckpointSaved, String>>,
 }
 

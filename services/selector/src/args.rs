@@ -19,13 +19,13 @@ pub struct Args {
     /// Run id: names the shared-memory services and the default run folder.
     #[arg(long)]
     pub run_id: String,
-    /// gRPC listen address (port 0: any free port, written to <run-dir>/selector.addr).
+    /// gRPC listen address (port 0: any free port, written to `<run-dir>/selector.addr`).
     #[arg(long, default_value = terl_wire::DEFAULT_SELECTOR_ADDR)]
     pub addr: std::net::SocketAddr,
     /// Number of actor processes of the run (sizes the shared-memory services).
     #[arg(long, default_value_t = 1)]
     pub num_actors: usize,
-    /// Run folder (default runs/<run-id>).
+    /// Run folder (default `runs/<run-id>`).
     #[arg(long)]
     pub run_dir: Option<PathBuf>,
     /// `algorithm = "terl"`: the learner's gRPC address; PTR scoring follows its policy and

@@ -14,9 +14,11 @@
 //! episodes this selector itself never received (`episodes_missed`, and `missed_before` on the
 //! next record of that actor in `episodes.mcap`).
 //!
-//! With `train.eval_every_env_steps > 0` and the learner's address, its [`evaluator`] thread
+//! With `train.eval_every_env_steps > 0` and the learner's address, its `evaluator` thread
 //! evaluates the latest policy version deterministically on every task at that interval
 //! (`runs/<id>/eval.mcap`, and the last result in `GetStatus`).
+
+#![warn(missing_docs)]
 
 use std::future::Future;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -46,10 +48,15 @@ pub type SelectorConfig = terl_runtime::ServiceConfig;
 /// Per-task episode statistics: a rolling success window plus running totals.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TaskEpisodes {
+    /// Outcomes (success or not) of the task's last `[train] success_window` episodes.
     pub window: SuccessWindow,
+    /// Episodes recorded for the task.
     pub episodes: u64,
+    /// Of those, episodes with success at any step.
     pub successes: u64,
+    /// Sum of the finite episode returns (non-finite ones are left out).
     pub return_sum: f64,
+    /// Sum of the episode lengths, in env steps.
     pub length_sum: u64,
 }
 
@@ -69,6 +76,8 @@ pub struct EpisodeStats {
 }
 
 impl EpisodeStats {
+    /// Empty statistics for `tasks` (the run's task list, in task-id order) with success windows of
+    /// `window_len` episodes.
     pub fn new(tasks: Vec<String>, window_len: usize) -> Self {
         let empty = TaskEpisodes {
             window: SuccessWindow::new(window_len),
@@ -111,6 +120,7 @@ impl EpisodeStats {
         t.length_sum += u64::from(length);
     }
 
+    /// Per-task statistics, in task-id order.
     pub fn per_task(&self) -> &[TaskEpisodes] {
         &self.per_task
     }

@@ -67,10 +67,13 @@ pub struct Scorer {
     pub unscored_no_weights: u64,
     /// Episodes whose scores were not finite (a diverged critic); dropped.
     pub unscored_non_finite: u64,
+    /// Transitions selected so far, over all tasks (what the pools released for the TEP buffer).
     pub selected: u64,
 }
 
 impl Scorer {
+    /// A scorer with PTR settings `cfg` for `sac.num_tasks` tasks: empty pools, no weights
+    /// loaded yet.
     pub fn new(cfg: PtrConfig, sac: &SacConfig) -> Self {
         Self {
             gate: SuccessGate::new(&cfg, sac.num_tasks),
@@ -88,14 +91,17 @@ impl Scorer {
         }
     }
 
+    /// The value estimator, to load the policy and critic weights from the weight stream into.
     pub fn estimator_mut(&mut self) -> &mut ValueEstimator {
         &mut self.estimator
     }
 
+    /// Version of the critic weights loaded (0: none yet).
     pub fn critic_version(&self) -> u64 {
         self.estimator.critic_version()
     }
 
+    /// Whether `task`'s success gate is open (its episodes are scored and selected).
     pub fn gate_open(&self, task: usize) -> bool {
         self.gate.is_open(task)
     }

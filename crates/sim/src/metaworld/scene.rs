@@ -141,7 +141,7 @@ impl Scene {
             (r[2] + l[2]) / 2.0,
         ]
     }
-    /// Finger separation normalised to [0, 1], obs[3].
+    /// Finger separation normalised to [0, 1], `obs[3]`.
     pub fn gripper_distance_apart(&self) -> f64 {
         let d = dist(
             self.sim.body_xpos(self.right_claw),

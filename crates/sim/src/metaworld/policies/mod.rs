@@ -1,7 +1,7 @@
 //! Meta-World's scripted expert policies (`metaworld.policies`, v3), ported to Rust.
 //!
 //! Each policy is a pure function of the 39-dim observation: a small state machine over the hand
-//! position (obs[0..3]), the gripper opening (obs[3]), the first object's position (obs[4..7])
+//! position (`obs[0..3]`), the gripper opening (`obs[3]`), the first object's position (`obs[4..7]`)
 //! and the goal (obs[36..39]). Like the Python policies, the returned xyz components are the
 //! unclipped `p * (target - hand)` (the environment clips them to [-1, 1]); the values equal
 //! Python's float32 action for the same observation.
