@@ -190,7 +190,7 @@ pub fn run(args: DatasetArgs) -> Result<ExitCode> {
     }
     // Written under a marked name and linked to `--out` when complete, so a killed or failed
     // run never leaves a partial dataset at `--out`.
-    let partial = super::train::partial_path(&args.out);
+    let partial = super::files::partial_path(&args.out);
     let result = write_dataset(&args, &tasks, &policies_of, &variations, &partial).and_then(
         |(total, summaries)| {
             // A hard link does not replace a file that appeared at `--out` meanwhile.

@@ -404,7 +404,7 @@ pub fn run(args: EvalArgs) -> Result<ExitCode> {
     }
     if let Some(path) = &args.json_out {
         // After the tables, so a failed write loses nothing that was printed.
-        let partial = super::train::partial_path(path);
+        let partial = super::files::partial_path(path);
         std::fs::write(&partial, serde_json::to_string_pretty(&report)? + "\n")
             .and_then(|()| std::fs::rename(&partial, path))
             .with_context(|| format!("cannot write {}", path.display()))

@@ -2,7 +2,7 @@
 
 use std::collections::BTreeMap;
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use terl_rl::guidance::MIN_VALIDATION_STEPS;
 
 use anyhow::{Context, Result};
@@ -209,6 +209,14 @@ pub fn check_output(out: &Path, flag: &str, inputs: &[&Path]) -> Result<()> {
             .with_context(|| format!("{flag} {}: cannot create its folder", out.display()))?;
     }
     Ok(())
+}
+
+/// `X` → `X.partial-<pid>`, where this process writes a file before renaming it to `X` (a
+/// killed run leaves only that, clearly marked; two runs never share one).
+pub fn partial_path(path: &Path) -> PathBuf {
+    let mut name = path.as_os_str().to_owned();
+    name.push(format!(".partial-{}", std::process::id()));
+    PathBuf::from(name)
 }
 
 /// Loads a planner file (`terl planner train --out`, or a learner's

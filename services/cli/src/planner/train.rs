@@ -21,7 +21,7 @@ use terl_rl::planner_eval::{predict_gaps, score, PairSet};
 use terl_rl::{Tep, TepBatch, TepBuffer, TepConfig};
 use terl_wire::{ACTION_DIM, OBS_DIM};
 
-use super::files::{check_output, read_trajectories, split_held_out, Trajectory};
+use super::files::{check_output, partial_path, read_trajectories, split_held_out, Trajectory};
 
 #[derive(Debug, Args)]
 pub struct TrainArgs {
@@ -349,14 +349,6 @@ fn log_path(out: &Path) -> PathBuf {
         name.push(".train.jsonl");
         PathBuf::from(name)
     }
-}
-
-/// `X` → `X.partial-<pid>`, where this process writes a file before renaming it to `X` (a
-/// killed run leaves only that, clearly marked; two runs never share one).
-pub fn partial_path(path: &Path) -> PathBuf {
-    let mut name = path.as_os_str().to_owned();
-    name.push(format!(".partial-{}", std::process::id()));
-    PathBuf::from(name)
 }
 
 /// Mean losses over the updates since the last log line.
