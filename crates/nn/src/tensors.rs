@@ -118,7 +118,10 @@ impl Tensor {
     }
 }
 
-/// Encodes tensors (names must be unique) and string metadata as safetensors bytes.
+/// Encodes tensors (names must be unique) and string metadata as safetensors bytes. The same
+/// tensors and metadata always give the same bytes: the header's keys are written in sorted
+/// order (the safetensors crate takes the metadata as a `HashMap`, whose order changes from
+/// process to process), so reproducible runs can be compared file against file.
 pub fn to_safetensors(
     tensors: &[Tensor],
     metadata: &BTreeMap<String, String>,
@@ -133,8 +136,47 @@ pub fn to_safetensors(
         .iter()
         .map(|(k, v)| (k.clone(), v.clone()))
         .collect();
-    safetensors::serialize(views, if meta.is_empty() { None } else { Some(meta) })
-        .map_err(|e| NnError::Format(e.to_string()))
+    let mut bytes = safetensors::serialize(views, if meta.is_empty() { None } else { Some(meta) })
+        .map_err(|e| NnError::Format(e.to_string()))?;
+    canonical_header(&mut bytes)?;
+    Ok(bytes)
+}
+
+/// Rewrites the JSON header of safetensors `bytes` in place with every object's keys sorted.
+/// The same members in another order encode to the same length, and the header keeps its
+/// space padding, so the data offsets do not move.
+fn canonical_header(bytes: &mut [u8]) -> Result<(), NnError> {
+    let bad = |what: &str| NnError::Format(format!("encoded safetensors header: {what}"));
+    let len_bytes: [u8; 8] = bytes
+        .get(..8)
+        .and_then(|b| b.try_into().ok())
+        .ok_or_else(|| bad("shorter than its length field"))?;
+    let n = usize::try_from(u64::from_le_bytes(len_bytes)).map_err(|_| bad("length"))?;
+    let header = bytes
+        .get(8..8 + n)
+        .ok_or_else(|| bad("longer than the file"))?;
+    // `BTreeMap`s sort the keys of the header and of its `__metadata__` object.
+    let parsed: BTreeMap<String, serde_json::Value> =
+        serde_json::from_slice(header).map_err(|e| bad(&e.to_string()))?;
+    let sorted: BTreeMap<&String, serde_json::Value> = parsed
+        .iter()
+        .map(|(k, v)| {
+            let v = match v.as_object() {
+                Some(o) => serde_json::to_value(o.iter().collect::<BTreeMap<_, _>>())
+                    .map_err(|e| bad(&e.to_string()))?,
+                None => v.clone(),
+            };
+            Ok((k, v))
+        })
+        .collect::<Result<_, NnError>>()?;
+    let text = serde_json::to_vec(&sorted).map_err(|e| bad(&e.to_string()))?;
+    if text.len() > n {
+        return Err(bad("sorted header longer than the original"));
+    }
+    let out = &mut bytes[8..8 + n];
+    out[..text.len()].copy_from_slice(&text);
+    out[text.len()..].fill(b' ');
+    Ok(())
 }
 
 /// Metadata key of the content checksum [`save_file`] writes and [`TensorFile::from_bytes`]

@@ -166,3 +166,29 @@ fn newer_format_versions_are_refused() {
         "{err}"
     );
 }
+
+/// The same tensors and metadata encode to the same bytes every time (the header's keys sorted,
+/// not in a hash map's per-process order), and the sorted file reads back.
+#[test]
+fn encoding_is_the_same_bytes_every_time_with_sorted_header_keys() {
+    let mut rng = ChaCha8Rng::seed_from_u64(2);
+    let mlp: Mlp<f32> = Mlp::new(&spec(8), &mut rng);
+    let mut tensors = Vec::new();
+    mlp.export("policy", &mut tensors);
+    let meta: BTreeMap<String, String> = (0..24)
+        .map(|k| (format!("key.{k:02}"), format!("value {k}")))
+        .collect();
+    let first = to_safetensors(&tensors, &meta).unwrap();
+    for _ in 0..16 {
+        assert_eq!(to_safetensors(&tensors, &meta).unwrap(), first);
+    }
+    let n = u64::from_le_bytes(first[..8].try_into().unwrap()) as usize;
+    let header = std::str::from_utf8(&first[8..8 + n]).unwrap();
+    let positions: Vec<usize> = meta
+        .keys()
+        .map(|k| header.find(k.as_str()).unwrap())
+        .collect();
+    assert!(positions.windows(2).all(|w| w[0] < w[1]), "{header}");
+    let back = TensorFile::from_bytes(&first).unwrap();
+    assert_eq!(back.metadata, meta);
+}

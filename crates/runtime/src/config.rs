@@ -196,6 +196,17 @@ pub struct ClusterConfig {
     /// each MT1-Ind task trains until its planner data is usable (`deploy/experiments/run.sh
     /// terl-pipeline`). `train.total_env_steps` stays the cap. 0 (default): off.
     pub stop_at_planner_samples_per_task: u64,
+    /// The same run file and seed give the same run bit for bit, whatever the machine's load:
+    /// transitions enter replay in rounds of one batch per actor, in actor order; updates run at
+    /// fixed transition counts; and an actor's policy version is fixed by its transition count,
+    /// `policy_lag_rounds` behind (see [`crate::Lockstep`]). Needs `algorithm = "mtsac"` and
+    /// actors with fixed ids; a learner restarted with `--resume` is refused. Default: false
+    /// (asynchronous: the rate limiter keeps the update-to-data ratio on average).
+    pub reproducible: bool,
+    /// `reproducible = true`: rounds (one 64-transition batch per actor) the acting policy
+    /// lags the transitions sent, so actors step ahead while the learner learns; 0 (default):
+    /// the publication period, `⌈publish_every_updates / (actors·64·samples_per_insert)⌉`.
+    pub policy_lag_rounds: u64,
 }
 
 /// Longest duration any flag or run-file key in seconds accepts (about 116 days): beyond it a
@@ -215,6 +226,10 @@ pub fn parse_seconds(text: &str) -> Result<f64, String> {
         Err(format!("{text} s is not in (0, {MAX_SECONDS:e}] s"))
     }
 }
+
+/// Largest `cluster.policy_lag_rounds`: 4096 rounds are 262,144 transitions per actor, far
+/// beyond any useful staleness.
+pub const MAX_POLICY_LAG_ROUNDS: u64 = 4096;
 
 /// Largest `cluster.learner_calibrate_secs`.
 pub const MAX_LEARNER_CALIBRATE_SECS: f64 = 10.0;
@@ -249,6 +264,8 @@ impl Default for ClusterConfig {
             transport: terl_transport::TransportKind::Shm,
             zenoh: terl_transport::ZenohConfig::default(),
             stop_at_planner_samples_per_task: 0,
+            reproducible: false,
+            policy_lag_rounds: 0,
         }
     }
 }
@@ -455,6 +472,16 @@ impl RunConfig {
             c.stop_at_planner_samples_per_task == 0 || cfg.algorithm == Algorithm::Terl,
             "cluster.stop_at_planner_samples_per_task needs algorithm = \"terl\" (an MTSAC run \
              has no planner)"
+        );
+        anyhow::ensure!(
+            !c.reproducible || cfg.algorithm == Algorithm::Mtsac,
+            "cluster.reproducible = true needs algorithm = \"mtsac\": TERL's selected samples \
+             reach the learner from the selector asynchronously"
+        );
+        anyhow::ensure!(
+            c.policy_lag_rounds <= MAX_POLICY_LAG_ROUNDS,
+            "cluster.policy_lag_rounds must be at most {MAX_POLICY_LAG_ROUNDS} (got {})",
+            c.policy_lag_rounds
         );
         c.zenoh
             .validate()

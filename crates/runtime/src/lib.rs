@@ -11,13 +11,15 @@
 
 mod config;
 pub mod eval;
+pub mod lockstep;
 mod metaworld_vec;
 pub mod service;
 
 pub use config::{
     parse_seconds, token_from_env, Algorithm, ClusterConfig, OnCheckpointError, RunConfig,
-    MAX_LEARNER_CALIBRATE_SECS, MAX_SECONDS,
+    MAX_LEARNER_CALIBRATE_SECS, MAX_POLICY_LAG_ROUNDS, MAX_SECONDS,
 };
+pub use lockstep::Lockstep;
 pub use metaworld_vec::MetaWorldVec;
 
 /// What a cluster service (learner or selector) needs to start.

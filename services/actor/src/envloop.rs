@@ -12,7 +12,7 @@ use terl_rl::rollout::{
     self, EpisodeRecord, Flow, PolicySource, RolloutProgress, StepRecord, TransitionSink,
 };
 use terl_rl::{Policy, PolicySpec};
-use terl_runtime::{Algorithm, MetaWorldVec, RunConfig};
+use terl_runtime::{Algorithm, Lockstep, MetaWorldVec, RunConfig};
 use terl_transport::{
     flags, EpisodeSummary, Message, MessageSink, ServiceTransport, TrajectoryStep, Transition,
     TransitionBatch, TransportError, ACTION_DIM, OBS_DIM,
@@ -205,14 +205,82 @@ struct ActorPolicy<'a> {
     policy: Policy,
     guide: Option<BatchGuidance>,
     mailbox: &'a Mailbox,
+    /// `[cluster] reproducible = true`: the schedule that fixes the version of each batch.
+    lockstep: Option<Lockstep>,
 }
 
+/// How a reproducible actor's wait for the version its batch needs ended.
+#[derive(Debug, PartialEq, Eq)]
+enum Scheduled {
+    /// The version is loaded (or none is due yet: random actions).
+    Ready,
+    /// This actor was asked to stop while waiting.
+    Stopped,
+}
+
+impl ActorPolicy<'_> {
+    /// Loads exactly the policy version the schedule fixes for the batch being filled, waiting
+    /// for it to arrive; older versions still in the mailbox are passed over.
+    ///
+    /// # Errors
+    /// The mailbox holds a newer version than the one due (the learner runs another schedule),
+    /// or weights that do not fit the policy.
+    fn load_scheduled(&mut self, schedule: &Lockstep) -> anyhow::Result<Scheduled> {
+        let batch = self.mailbox.sent_batches.load(Ordering::Relaxed);
+        let due = schedule.policy_version_for_batch(batch);
+        let began = Instant::now();
+        let mut log_at = SCHEDULED_LOG_AFTER;
+        while self.policy.version != due {
+            if self.mailbox.stop.load(Ordering::Relaxed) {
+                return Ok(Scheduled::Stopped);
+            }
+            let fresh = self.mailbox.slot.lock().ok().and_then(|mut s| s.take());
+            match fresh {
+                Some((version, params)) if version == due => {
+                    self.policy
+                        .set_params(&params, version)
+                        .with_context(|| format!("policy version {version}"))?;
+                }
+                Some((version, _)) if version > due => anyhow::bail!(
+                    "reproducible run: the learner published policy version {version} while                      batch {batch} of this actor needs version {due} (do the learner and this                      actor read the same run file and actor count?)"
+                ),
+                // An older version, delivered late: the due one follows.
+                Some(_) => {}
+                None => {
+                    std::thread::sleep(SCHEDULED_POLL);
+                    if began.elapsed() >= log_at {
+                        tracing::info!(
+                            batch,
+                            due,
+                            waited_secs = began.elapsed().as_secs(),
+                            "reproducible run: waiting for the policy version this batch needs"
+                        );
+                        log_at += SCHEDULED_LOG_AFTER;
+                    }
+                }
+            }
+        }
+        Ok(Scheduled::Ready)
+    }
+}
+
+/// How often a reproducible actor looks for the version it waits for.
+const SCHEDULED_POLL: Duration = Duration::from_micros(200);
+/// A reproducible actor waiting this long (and every as long again) logs what it waits for.
+const SCHEDULED_LOG_AFTER: Duration = Duration::from_secs(30);
+
 impl PolicySource for ActorPolicy<'_> {
-    type Error = terl_rl::SacError;
+    type Error = anyhow::Error;
 
     fn refresh(&mut self, _: &RolloutProgress) -> Result<Flow, Self::Error> {
         if self.mailbox.stop.load(Ordering::Relaxed) {
             return Ok(Flow::Stop);
+        }
+        if let Some(schedule) = self.lockstep {
+            return Ok(match self.load_scheduled(&schedule)? {
+                Scheduled::Ready => Flow::Continue,
+                Scheduled::Stopped => Flow::Stop,
+            });
         }
         let fresh = self.mailbox.slot.lock().ok().and_then(|mut s| s.take());
         if let Some((version, params)) = fresh {
@@ -381,6 +449,9 @@ impl<T: ServiceTransport> TransitionSink for ActorSink<'_, T> {
                 return Ok(());
             }
             self.sequence += 1;
+            self.mailbox
+                .sent_batches
+                .store(self.sequence, Ordering::Relaxed);
             self.batch.clear();
         }
         Ok(())
@@ -542,10 +613,19 @@ pub(crate) fn run<T: ServiceTransport>(
             .with_tasks(env_tasks)
             .with_goal_source(run.guidance.goal_source)
     });
+    anyhow::ensure!(
+        !(run.cluster.reproducible && config.auto_id),
+        "cluster.reproducible = true needs actors with fixed ids (--actor-id), not --auto-id"
+    );
+    let lockstep = run
+        .cluster
+        .reproducible
+        .then(|| Lockstep::new(run, config.num_actors));
     let mut policy = ActorPolicy {
         policy: Policy::new(spec, num_envs),
         guide,
         mailbox,
+        lockstep,
     };
 
     let transitions = transport.sink::<TransitionBatch>()?;
@@ -557,8 +637,9 @@ pub(crate) fn run<T: ServiceTransport>(
         "actor started; waiting for the learner and selector to subscribe"
     );
     let waiting = Instant::now();
+    // A reproducible run cannot lose its first batches to nobody: it waits as long as it takes.
     while (transitions.receivers() < 1 || episodes.receivers() < 2)
-        && waiting.elapsed() < STARTUP_WAIT
+        && (waiting.elapsed() < STARTUP_WAIT || lockstep.is_some())
     {
         if mailbox.stop.load(Ordering::Relaxed) {
             return Ok(());

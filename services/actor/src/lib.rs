@@ -102,6 +102,9 @@ pub(crate) struct Mailbox {
     /// actor has seen, so rejoining waits on this count, not on the version).
     pub(crate) policy_posts: AtomicU64,
     pub(crate) stop: AtomicBool,
+    /// Transition batches this actor has sent (the index of the batch being filled), which a
+    /// reproducible run's policy version is fixed by.
+    pub(crate) sent_batches: AtomicU64,
 }
 
 /// Hands one received weight version to the environment loop's mailbox.

@@ -24,6 +24,7 @@ pub mod args;
 mod checkpoint;
 mod checkpointing;
 mod dataset;
+mod lockstep;
 mod losses;
 mod metrics;
 mod planner;

@@ -19,7 +19,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use terl_rl::replay::MultiTaskReplay;
 use terl_rl::{Batch, Sac, SacError, SuccessWindow};
-use terl_runtime::Algorithm;
+use terl_runtime::{Algorithm, Lockstep};
 use terl_transport::{
     EpisodeSummary, Message, MessageSource, RateLimiter, SelectedBatch, TransitionBatch, Transport,
     ACTION_DIM, OBS_DIM, TRANSITIONS_PER_BATCH,
@@ -28,6 +28,7 @@ use terl_wire::{CheckpointRequest, CheckpointSaved, WeightHub};
 
 use crate::checkpoint::{self, LearnerState, RngState, Snapshot};
 use crate::checkpointing::Checkpoints;
+use crate::lockstep::LockstepStaging;
 use crate::metrics::MetricsLog;
 use crate::planner::PlannerTrainer;
 use crate::publisher::Publisher;
@@ -92,48 +93,88 @@ fn open_planner(
     Ok(p)
 }
 
-/// Up to [`MAX_UPDATES_PER_ROUND`] SAC updates while the rate limiter allows; true if any ran.
-/// A batch with non-finite values is skipped; non-finite losses or gradients are counted, and
-/// `max_failed_in_a_row` of them in a row stop the learner.
-#[allow(clippy::too_many_arguments)] // the trainer's parts, borrowed for one round
-fn update_round(
+/// One SAC update on a fresh batch from replay. A batch with non-finite values is skipped;
+/// non-finite losses or gradients are counted, and `max_failed_in_a_row` of them in a row stop
+/// the learner.
+fn update_once(
     sac: &mut Sac<f32>,
     replay: &mut MultiTaskReplay,
-    limiter: &mut RateLimiter,
     rng: &mut ChaCha8Rng,
     batch: &mut Batch,
     metrics: &mut MetricsLog,
     c: &mut Counters,
     max_failed_in_a_row: u64,
-) -> anyhow::Result<bool> {
-    let mut ran = false;
-    for _ in 0..MAX_UPDATES_PER_ROUND {
-        if !limiter.can_sample(1) {
-            break;
+) -> anyhow::Result<()> {
+    replay.sample_into(sac.config().batch_size, rng, batch);
+    let began = Instant::now();
+    let result = sac.update(batch);
+    c.update_time += began.elapsed();
+    match result {
+        Ok(stats) => {
+            c.failed_in_a_row = 0;
+            metrics.record_update(&stats);
         }
-        replay.sample_into(sac.config().batch_size, rng, batch);
-        limiter.record_sample(1);
-        ran = true;
-        let began = Instant::now();
-        let result = sac.update(batch);
-        c.update_time += began.elapsed();
-        match result {
-            Ok(stats) => {
-                c.failed_in_a_row = 0;
-                metrics.record_update(&stats);
+        Err(SacError::NonFiniteBatch { .. }) => {}
+        Err(e @ (SacError::NonFiniteLoss { .. } | SacError::NonFiniteGradient { .. })) => {
+            c.failed_updates += 1;
+            c.failed_in_a_row += 1;
+            if c.failed_in_a_row >= max_failed_in_a_row {
+                return Err(e).context("too many failed updates in a row");
             }
-            Err(SacError::NonFiniteBatch { .. }) => {}
-            Err(e @ (SacError::NonFiniteLoss { .. } | SacError::NonFiniteGradient { .. })) => {
-                c.failed_updates += 1;
-                c.failed_in_a_row += 1;
-                if c.failed_in_a_row >= max_failed_in_a_row {
-                    return Err(e).context("too many failed updates in a row");
-                }
-            }
-            Err(e) => return Err(e.into()),
         }
+        Err(e) => return Err(e.into()),
     }
-    Ok(ran)
+    Ok(())
+}
+
+/// The learner's mutable parts one update needs.
+struct Learning<'a> {
+    sac: &'a mut Sac<f32>,
+    replay: &'a mut MultiTaskReplay,
+    rng: &'a mut ChaCha8Rng,
+    batch: &'a mut Batch,
+    metrics: &'a mut MetricsLog,
+    c: &'a mut Counters,
+    max_failed_in_a_row: u64,
+}
+
+impl Learning<'_> {
+    fn update(&mut self) -> anyhow::Result<()> {
+        update_once(
+            self.sac,
+            self.replay,
+            self.rng,
+            self.batch,
+            self.metrics,
+            self.c,
+            self.max_failed_in_a_row,
+        )
+    }
+
+    /// Up to [`MAX_UPDATES_PER_ROUND`] updates while the rate limiter allows; true if any ran.
+    fn rate_limited(&mut self, limiter: &mut RateLimiter) -> anyhow::Result<bool> {
+        let mut ran = false;
+        for _ in 0..MAX_UPDATES_PER_ROUND {
+            if !limiter.can_sample(1) {
+                break;
+            }
+            limiter.record_sample(1);
+            ran = true;
+            self.update()?;
+        }
+        Ok(ran)
+    }
+
+    /// Up to [`MAX_UPDATES_PER_ROUND`] of the updates the reproducible schedule has due; true if
+    /// any ran.
+    fn scheduled(&mut self, lockstep: &mut LockstepStaging) -> anyhow::Result<bool> {
+        let n = lockstep.updates_due().min(MAX_UPDATES_PER_ROUND as u64);
+        for _ in 0..n {
+            self.update()?;
+            lockstep.record_updates(1);
+        }
+        Ok(n > 0)
+    }
 }
 
 /// The SAC configuration of this run: the run file's `[sac]` with Meta-World's dimensions and
@@ -197,6 +238,15 @@ pub(crate) fn run<T: Transport>(
     let terl = run.algorithm == Algorithm::Terl;
     let checkpoint_dir = config.run_dir.join("checkpoints");
     let resume_from = resume_point(config, &checkpoint_dir)?;
+    anyhow::ensure!(
+        !(run.cluster.reproducible && config.resume),
+        "cluster.reproducible = true: a resumed run would not be the same run bit for bit \
+         (the replay buffer is not in the checkpoint); start it again without --resume"
+    );
+    let mut lockstep = run
+        .cluster
+        .reproducible
+        .then(|| LockstepStaging::new(Lockstep::new(run, config.num_actors)));
     let mut planner = if terl {
         Some(open_planner(config, &tasks, resume_from.is_some())?)
     } else {
@@ -250,7 +300,10 @@ pub(crate) fn run<T: Transport>(
 
     let budget = run.train.total_env_steps;
     while !shared.stop.load(Ordering::Relaxed) {
-        if budget > 0 && c.env_steps >= budget {
+        let between_rounds = lockstep
+            .as_ref()
+            .is_none_or(LockstepStaging::between_rounds);
+        if budget > 0 && c.env_steps >= budget && between_rounds {
             tracing::info!(
                 env_steps = c.env_steps,
                 updates = sac.updates(),
@@ -270,19 +323,31 @@ pub(crate) fn run<T: Transport>(
             break;
         }
         let began = Instant::now();
-        let mut busy = staging.round(
-            transitions.as_mut(),
-            &mut limiter,
-            nt,
-            &mut replay,
-            &mut c,
-            publisher.policy_version,
-        )?;
+        let mut busy = match lockstep.as_mut() {
+            Some(l) => {
+                let got = l.fill(transitions.as_mut())?;
+                let version = publisher.policy_version;
+                got | l.load_round(&mut c, |b, c| {
+                    crate::staging::ingest(b, nt, &mut replay, c, version)
+                })
+            }
+            None => staging.round(
+                transitions.as_mut(),
+                &mut limiter,
+                nt,
+                &mut replay,
+                &mut c,
+                publisher.policy_version,
+            )?,
+        };
         c.staging_round(began.elapsed());
         while episodes.try_receive_into(&mut episode)? {
             let e = &*episode;
             c.inbound.episode(e);
-            c.episode(e.task as usize, e.succeeded());
+            // A reproducible run keeps its success windows from the transitions, in round order.
+            if lockstep.is_none() {
+                c.episode(e.task as usize, e.succeeded());
+            }
             busy = true;
         }
         while selected.try_receive_into(&mut selected_batch)? {
@@ -295,22 +360,44 @@ pub(crate) fn run<T: Transport>(
             busy = true;
         }
 
-        busy |= update_round(
-            &mut sac,
-            &mut replay,
-            &mut limiter,
-            &mut rng,
-            &mut batch,
-            &mut metrics,
-            &mut c,
-            run.train.max_consecutive_failed_updates,
-        )?;
+        let mut learning = Learning {
+            sac: &mut sac,
+            replay: &mut replay,
+            rng: &mut rng,
+            batch: &mut batch,
+            metrics: &mut metrics,
+            c: &mut c,
+            max_failed_in_a_row: run.train.max_consecutive_failed_updates,
+        };
+        busy |= match lockstep.as_mut() {
+            Some(l) => learning.scheduled(l)?,
+            None => learning.rate_limited(&mut limiter)?,
+        };
         if let Some(p) = planner.as_mut() {
             if p.train(sac.updates())? > 0 {
                 busy = true;
             }
         }
-        publisher.publish_due(hub, &sac, planner.as_mut())?;
+        match lockstep.as_mut() {
+            Some(l) => {
+                let made = l.finish_round(|version| {
+                    crate::to_weights(
+                        terl_wire::WeightsKind::Policy,
+                        version,
+                        sac.updates(),
+                        sac.policy_tensors(),
+                    )
+                })?;
+                if let Some(version) = made {
+                    // The newest version made (what a checkpoint records), released or not.
+                    publisher.policy_version = version;
+                }
+                l.release(hub)?;
+            }
+            None => {
+                publisher.publish_due(hub, &sac, planner.as_mut())?;
+            }
+        }
 
         let snapshot = || {
             let state = learner_state(
