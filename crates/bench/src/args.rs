@@ -53,6 +53,7 @@ pub struct SacArgs {
     /// Policy input width: observation plus one-hot task id (39 + 10 for MT10).
     #[arg(long, default_value_t = 49)]
     pub obs_dim: usize,
+    /// Action width (4 in Meta-World).
     #[arg(long, default_value_t = 4)]
     pub act_dim: usize,
     /// Width of every hidden layer.
@@ -61,15 +62,19 @@ pub struct SacArgs {
     /// Number of hidden layers.
     #[arg(long, default_value_t = 3)]
     pub layers: usize,
+    /// Minibatch rows per update.
     #[arg(long, default_value_t = 1280)]
     pub batch: usize,
+    /// Threads of the update's GEMMs (1 to 256).
     #[arg(long, default_value_t = 2)]
     pub threads: usize,
+    /// Seconds of timed updates (the GEMM and inference measurements add about half of that).
     #[arg(long, default_value_t = 5.0)]
     pub seconds: f64,
     /// Tasks in the one-hot part of obs-dim.
     #[arg(long, default_value_t = 10)]
     pub num_tasks: usize,
+    /// Print the report as JSON (the only format: the report is JSON either way).
     #[arg(long)]
     pub json: bool,
 }
@@ -107,8 +112,10 @@ impl SacArgs {
 /// them ([`TepUpdateArgs::config`]).
 #[derive(Debug, Clone, PartialEq, Args)]
 pub struct TepUpdateArgs {
+    /// Minibatch rows per TEP update (at least 1).
     #[arg(long, default_value_t = 1024)]
     pub batch: usize,
+    /// Threads of the update's GEMMs (1 to 256).
     #[arg(long, default_value_t = 2)]
     pub threads: usize,
     /// Seconds of timed updates, and of each guidance variant.

@@ -18,6 +18,7 @@ use terl_sim::Result;
 /// One task's numbers.
 #[derive(Debug, Clone, Serialize)]
 pub struct EnvBenchRow {
+    /// Meta-World v3 task name.
     pub task: String,
     /// Env steps per second including auto-resets.
     pub env_steps_per_s: f64,
@@ -36,6 +37,7 @@ pub struct EnvBenchRow {
 /// Batched stepping.
 #[derive(Debug, Clone, Serialize)]
 pub struct VecBenchRow {
+    /// Environments in the `VecEnv` (E).
     pub num_envs: usize,
     /// Distinct tasks among the environments.
     pub tasks: usize,
@@ -46,8 +48,11 @@ pub struct VecBenchRow {
 /// The full report printed as JSON.
 #[derive(Debug, Clone, Serialize)]
 pub struct EnvBenchReport {
+    /// Seconds each rate was measured for.
     pub seconds_per_measurement: f64,
+    /// Per task results, in the order measured.
     pub tasks: Vec<EnvBenchRow>,
+    /// Smallest `ratio` over the tasks.
     pub min_ratio: f64,
     /// The goal for every task's `ratio`: task logic costs at most 15 % of the physics rate.
     pub target_ratio: f64,

@@ -28,14 +28,20 @@ pub const TRANSITION_PAYLOAD_BYTES: usize = (2 * OBS_DIM + ACTION_DIM + 1) * 4 +
 /// Errors of the benchmark harness itself (not of the measured path).
 #[derive(Debug, thiserror::Error)]
 pub enum BenchError {
+    /// The tokio runtime or the loopback listener could not be set up.
     #[error("runtime: {0}")]
     Io(#[from] std::io::Error),
+    /// The learner server failed.
     #[error("server: {0}")]
     Serve(#[from] terl_wire::ServeError),
+    /// A client could not connect.
     #[error("client: {0}")]
     Connect(#[from] terl_wire::ConnectError),
+    /// A call failed with this gRPC status.
     #[error("rpc: {0}")]
     Rpc(#[from] Status),
+    /// Anything else of the harness: a server task that failed, a bad endpoint, a version not
+    /// delivered within 10 s.
     #[error("{0}")]
     Harness(String),
 }
@@ -52,11 +58,17 @@ fn runtime() -> std::io::Result<tokio::runtime::Runtime> {
 /// Result of [`grpc_transition_stream`].
 #[derive(Debug, Clone, Serialize)]
 pub struct TransitionStreamReport {
+    /// Always `"grpc"` (the shared-memory and Zenoh rows come from [`crate::transport`]).
     pub transport: &'static str,
+    /// Seconds the client streamed, until the server's summary arrived.
     pub seconds: f64,
+    /// Transitions per batch message.
     pub batch_transitions: usize,
+    /// Batches the server received.
     pub batches: u64,
+    /// Transitions in those batches.
     pub transitions: u64,
+    /// Transitions received per second.
     pub transitions_per_second: f64,
     /// Bytes of the fixed layout per transition ([`TRANSITION_PAYLOAD_BYTES`]).
     pub payload_bytes_per_transition: usize,
@@ -226,19 +238,28 @@ pub fn policy_weights(version: u64, layers: &[usize]) -> Weights {
 /// Result of [`broadcast_latency`].
 #[derive(Debug, Clone, Serialize)]
 pub struct BroadcastReport {
+    /// Separately connected subscriber clients.
     pub subscribers: usize,
+    /// Versions published.
     pub versions: u64,
+    /// `f32` parameters of each version (a 3×400 policy).
     pub parameters: usize,
+    /// Bytes of one encoded `WeightsUpdate` (protobuf, before HTTP/2 framing).
     pub encoded_bytes_per_version: usize,
     /// Publish (including encoding and CRC) → received, validated and decoded to `Vec<f32>` at
     /// each subscriber; one sample per (version, subscriber).
     pub samples: usize,
+    /// Median latency, milliseconds.
     pub latency_ms_p50: f64,
+    /// 95th-percentile latency, milliseconds.
     pub latency_ms_p95: f64,
+    /// Largest latency, milliseconds.
     pub latency_ms_max: f64,
     /// Versions a subscriber never saw because a newer one overtook it (latest-wins).
     pub skipped: u64,
+    /// The target for `latency_ms_p95`: 20 ms.
     pub floor_p95_ms: f64,
+    /// Whether `latency_ms_p95 <= floor_p95_ms`.
     pub meets_floor: bool,
 }
 

@@ -14,6 +14,8 @@
 //!   the production contract);
 //! - [`args`]: the clap arguments shared by `terl bench` and this crate's examples.
 
+#![warn(missing_docs)]
+
 pub mod args;
 pub mod env;
 pub mod grpc;

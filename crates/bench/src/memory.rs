@@ -38,6 +38,7 @@ pub fn rss_mb() -> f64 {
 /// What one probe measured.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct MemoryProbe {
+    /// Meta-World v3 names of the tasks probed together.
     pub tasks: Vec<String>,
     /// Environments per task in the last measurement.
     pub envs_per_task: usize,
@@ -62,8 +63,9 @@ pub struct MemoryProbe {
     pub arena_bytes: usize,
     /// Peak `mjData.maxuse_arena` over the rollouts, bytes (max over tasks).
     pub arena_peak_bytes: usize,
-    /// Peak contacts and constraint rows over the rollouts.
+    /// Peak contacts over the rollouts (`mjData.maxuse_con`).
     pub peak_contacts: usize,
+    /// Peak constraint rows over the rollouts (`mjData.maxuse_efc`).
     pub peak_constraints: usize,
     /// Env steps rolled out for the arena peak (random and scripted).
     pub rollout_steps: u64,
@@ -186,16 +188,27 @@ pub fn memory_probe(tasks: &[&str], envs_per_task: usize, episodes: usize) -> Re
 /// One task's row of the report.
 #[derive(Debug, Clone, Serialize)]
 pub struct MemoryRow {
+    /// Meta-World v3 task name.
     pub task: String,
+    /// RSS of the model plus the first environment's data, MB ([`MemoryProbe::mb_first_env`]).
     pub mb_first_env: f64,
+    /// RSS of each further environment, MB (NaN when only one was measured).
     pub mb_per_additional_env: f64,
+    /// RSS with one environment, MB.
     pub rss_one_mb: f64,
+    /// RSS with `envs_per_task` environments, MB.
     pub rss_n_mb: f64,
+    /// Size of the compiled model's buffer (`mjModel.nbuffer`), MB.
     pub model_buffer_mb: f64,
+    /// Part of that buffer given back to the OS ([`terl_sim::Model::release_render_data`]), MB.
     pub model_released_mb: f64,
+    /// Whether all environments of the task hold one model.
     pub model_shared: bool,
+    /// Peak `mjData.maxuse_arena` over the rollouts, bytes.
     pub arena_peak_bytes: usize,
+    /// Peak contacts over the rollouts (`mjData.maxuse_con`).
     pub peak_contacts: usize,
+    /// Peak constraint rows over the rollouts (`mjData.maxuse_efc`).
     pub peak_constraints: usize,
 }
 
@@ -206,21 +219,30 @@ pub struct MemoryReport {
     pub envs_per_task: usize,
     /// Episodes rolled out per task for the arena peak.
     pub episodes_per_task: usize,
+    /// One row per task, each from its own single-task probe.
     pub tasks: Vec<MemoryRow>,
+    /// Smallest `mb_per_additional_env` over the tasks, MB.
     pub mb_per_additional_env_min: f64,
+    /// Median `mb_per_additional_env` over the tasks, MB.
     pub mb_per_additional_env_median: f64,
+    /// Largest `mb_per_additional_env` over the tasks, MB.
     pub mb_per_additional_env_max: f64,
+    /// The floor each task's `mb_per_additional_env` must stay within, MB.
     pub max_mb_per_additional_env_floor: f64,
     /// Tasks above the per-environment floor.
     pub above_floor: Vec<String>,
-    /// The arena every environment gets, bytes, and the largest peak seen over all tasks.
+    /// The arena every environment gets, bytes.
     pub arena_bytes: usize,
+    /// The largest arena peak seen over all tasks, bytes.
     pub arena_peak_bytes_max: usize,
     /// `arena_bytes / arena_peak_bytes_max`.
     pub arena_headroom: f64,
     /// An MT10 actor's set: one environment of each MT10 task in a fresh process.
     pub mt10_set: MemoryProbe,
+    /// The floor for the MT10 set's total RSS (`mt10_set.rss_all_mb`), MB.
     pub mt10_set_floor_mb: f64,
+    /// Whether every task is within the per-environment floor with a shared model and the MT10
+    /// set within its floor.
     pub floors_met: bool,
 }
 

@@ -20,13 +20,17 @@ use terl_rl::{Policy, Sac, SacConfig, SacError};
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SacBenchConfig {
+    /// Policy input width: observation plus one-hot task id.
     pub obs_dim: usize,
+    /// Action width.
     pub act_dim: usize,
     /// Width of every hidden layer (policy and critics).
     pub hidden: usize,
     /// Number of hidden layers.
     pub layers: usize,
+    /// Minibatch rows per update.
     pub batch: usize,
+    /// Threads of the update's GEMMs (a rayon pool of this size, and [`SacConfig::threads`]).
     pub threads: usize,
     /// Seconds of timed updates (the GEMM and inference measurements add about half of that).
     pub seconds: f64,
@@ -52,17 +56,24 @@ impl Default for SacBenchConfig {
 /// Measured numbers (the same fields as the PyTorch script's JSON).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SacBenchReport {
+    /// Which implementation produced the numbers: `"terl-rust-faer"` here,
+    /// `"pytorch-<version>-cpu"` from `deploy/bench/sac_torch.py`.
     pub implementation: String,
     /// SIMD level the GEMMs and the small-batch kernels ran with (`avx512`, `avx2`,
     /// `portable`; chosen at run time, [`terl_nn::InstructionSet::detect`]).
     #[serde(default)]
     pub instruction_set: String,
+    /// What was measured.
     pub config: SacBenchConfig,
+    /// Updates timed.
     pub updates: u64,
+    /// Updates per second, timed alternately with the bare GEMMs.
     pub updates_per_s: f64,
+    /// Milliseconds per update (`1000 / updates_per_s`).
     pub update_ms: f64,
     /// FLOPs of the GEMMs of one update.
     pub flops_per_update: u64,
+    /// GFLOP/s the update's GEMMs reach inside the update (`flops_per_update · updates_per_s`).
     pub achieved_gflops: f64,
     /// GFLOP/s of the same GEMM shapes alone, issued as the update issues them.
     pub gemm_gflops: f64,

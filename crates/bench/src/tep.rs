@@ -22,13 +22,17 @@ use terl_rl::{Planner, SacError, Tep, TepBatch, TepConfig};
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct TepBenchConfig {
+    /// Observation width of `s` and `s'` (39 in Meta-World).
     pub obs_dim: usize,
+    /// Action width (4 in Meta-World).
     pub act_dim: usize,
     /// Width of every hidden layer (F and AN).
     pub hidden: usize,
     /// Number of hidden layers.
     pub layers: usize,
+    /// Minibatch rows per update.
     pub batch: usize,
+    /// Threads of the update's GEMMs ([`TepConfig::threads`]).
     pub threads: usize,
     /// Seconds of timed updates (the GEMM and latency measurements add about half of that).
     pub seconds: f64,
@@ -81,6 +85,7 @@ impl TepBenchConfig {
 pub struct GuidanceOverhead {
     /// Environments stepped together by the actor.
     pub num_envs: usize,
+    /// Meta-World v3 names of the actor's tasks (the policy's one-hot spans all of them).
     pub tasks: Vec<String>,
     /// Policy hidden widths.
     pub policy_hidden: Vec<usize>,
@@ -112,17 +117,24 @@ pub struct GuidanceOverhead {
 /// Measured numbers (the same fields as the PyTorch script's JSON, plus `guidance`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TepBenchReport {
+    /// Which implementation produced the numbers: `"terl-rust-faer"` here,
+    /// `"pytorch-<version>-cpu"` from `deploy/bench/tep_torch.py`.
     pub implementation: String,
     /// SIMD level the GEMMs and the small-batch kernels ran with (`avx512`, `avx2`,
     /// `portable`; chosen at run time, [`terl_nn::InstructionSet::detect`]).
     #[serde(default)]
     pub instruction_set: String,
+    /// What was measured.
     pub config: TepBenchConfig,
+    /// TEP updates timed.
     pub updates: u64,
+    /// Updates per second, timed alternately with the bare GEMMs.
     pub updates_per_s: f64,
+    /// Milliseconds per update (`1000 / updates_per_s`).
     pub update_ms: f64,
     /// FLOPs of the GEMMs of one update.
     pub flops_per_update: u64,
+    /// GFLOP/s the update's GEMMs reach inside the update (`flops_per_update · updates_per_s`).
     pub achieved_gflops: f64,
     /// GFLOP/s of the same GEMM shapes alone, issued as the update issues them.
     pub gemm_gflops: f64,

@@ -21,14 +21,24 @@ use terl_transport::{
 /// Result of one [`shm_throughput`] run.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ShmBenchReport {
+    /// The transport measured: `"iceoryx2"` (shared memory), `"zenoh-tcp-loopback"`, or the
+    /// label of a cross-host [`zenoh_receive`].
     pub transport: String,
+    /// Publishers sending concurrently (each with its own sequence numbers).
     pub publishers: usize,
+    /// Observation width of each transition ([`OBS_DIM`]).
     pub obs_dim: usize,
+    /// Transitions per batch message ([`TRANSITIONS_PER_BATCH`]).
     pub transitions_per_batch: usize,
+    /// Bytes of one [`Transition`] in the message.
     pub transition_bytes: usize,
+    /// Seconds measured.
     pub seconds: f64,
+    /// Batches the publishers sent, summed.
     pub batches_sent: u64,
+    /// Batches the subscriber received.
     pub batches_received: u64,
+    /// Transitions in the received batches.
     pub transitions_received: u64,
     /// Batches sent but never received (must be 0).
     pub lost_batches: u64,
@@ -36,6 +46,7 @@ pub struct ShmBenchReport {
     pub out_of_order: u64,
     /// Sends that met a full receiver and waited (back-pressure, not loss).
     pub full_events: u64,
+    /// Transitions received per second.
     pub transitions_per_sec: f64,
     /// Payload bytes per second through shared memory, in 10⁹ B/s.
     pub gigabytes_per_sec: f64,
@@ -275,6 +286,7 @@ fn send_until(
 /// What the publishing half of a cross-host measurement ([`zenoh_publish`]) sent.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct PublishReport {
+    /// Batches this publisher sent.
     pub batches_sent: u64,
     /// Sends that met a full receiver and waited (back-pressure, not loss).
     pub full_events: u64,

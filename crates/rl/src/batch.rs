@@ -6,13 +6,21 @@ use crate::error::SacError;
 /// for a true terminal state: a time-limit truncation stores 0.0 so the target bootstraps.
 #[derive(Clone, Debug)]
 pub struct Batch {
+    /// Observation length of `obs` and `next_obs` rows (task one-hot not included).
     pub obs_dim: usize,
+    /// Action length of `actions` rows.
     pub act_dim: usize,
+    /// Observations `s`, `[len, obs_dim]` row-major.
     pub obs: Vec<f32>,
+    /// Actions `a`, `[len, act_dim]` row-major, in `[-1, 1]`.
     pub actions: Vec<f32>,
+    /// Rewards `r`, one per row.
     pub rewards: Vec<f32>,
+    /// Next observations `s'`, `[len, obs_dim]` row-major.
     pub next_obs: Vec<f32>,
+    /// 1.0 for a true terminal state, else 0.0, one per row.
     pub terminated: Vec<f32>,
+    /// Task index of each row (selects the one-hot and the temperature).
     pub task_ids: Vec<u32>,
 }
 
@@ -31,10 +39,12 @@ impl Batch {
         }
     }
 
+    /// Number of transitions (rows).
     pub fn len(&self) -> usize {
         self.rewards.len()
     }
 
+    /// Whether the batch has no rows.
     pub fn is_empty(&self) -> bool {
         self.rewards.is_empty()
     }

@@ -12,6 +12,7 @@ pub struct StepBuffers {
     /// Observation reached by this step's action (rows × obs_dim): what replay stores as `s'`,
     /// also when the episode ended.
     pub final_obs: Vec<f32>,
+    /// Reward of this step, one per environment.
     pub reward: Vec<f32>,
     /// The episode reached a true terminal state: the target does not bootstrap.
     pub terminated: Vec<bool>,
@@ -41,8 +42,10 @@ impl StepBuffers {
 
 /// A fixed set of environments, each bound to one task, stepped in lockstep.
 pub trait VecEnvironment {
+    /// Error of a reset or step.
     type Error: std::error::Error + Send + Sync + 'static;
 
+    /// Number of environments (rows of every per-step buffer).
     fn num_envs(&self) -> usize;
     /// Observation size without any task id.
     fn obs_dim(&self) -> usize;

@@ -7,13 +7,26 @@ use thiserror::Error;
 pub enum SacError {
     /// The batch holds NaN or infinity; it was rejected before touching any weight.
     #[error("batch rejected: non-finite value in `{field}` at row {row}")]
-    NonFiniteBatch { field: &'static str, row: usize },
+    NonFiniteBatch {
+        /// The [`crate::Batch`] field, e.g. `"obs"`.
+        field: &'static str,
+        /// The first row holding the value.
+        row: usize,
+    },
     /// A loss became NaN or infinite; the update stopped and no weight changed.
     #[error("update stopped: {loss} loss is not finite ({value}); weights unchanged")]
-    NonFiniteLoss { loss: &'static str, value: f64 },
+    NonFiniteLoss {
+        /// Which loss: `"qf1"`, `"qf2"`, `"actor"`, `"alpha"` (SAC) or `"tep f"`, `"tep an"`.
+        loss: &'static str,
+        /// Its value.
+        value: f64,
+    },
     /// A gradient became NaN or infinite; the update stopped and no weight changed.
     #[error("update stopped: non-finite gradient in {network}; weights unchanged")]
-    NonFiniteGradient { network: &'static str },
+    NonFiniteGradient {
+        /// The network whose gradient it was.
+        network: &'static str,
+    },
     /// A batch or observation does not fit the configured sizes.
     #[error("shape error: {0}")]
     Shape(String),

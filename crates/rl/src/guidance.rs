@@ -244,12 +244,16 @@ pub const GOAL_LIBRARY_PER_TASK: usize = 32;
 /// [`GoalSource::FinalState`]. Row `i` is task `tasks[i]`'s state `states[i·obs_dim..]`.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct GoalLibrary {
+    /// Observation length of every state.
     pub obs_dim: usize,
+    /// Task index of each goal state, one per row.
     pub tasks: Vec<u32>,
+    /// The goal states, `[len, obs_dim]` row-major.
     pub states: Vec<f32>,
 }
 
 impl GoalLibrary {
+    /// An empty library of states of `obs_dim` values.
     pub fn new(obs_dim: usize) -> Self {
         Self {
             obs_dim,
@@ -257,10 +261,12 @@ impl GoalLibrary {
         }
     }
 
+    /// Number of goal states, over all tasks.
     pub fn len(&self) -> usize {
         self.tasks.len()
     }
 
+    /// Whether the library holds no goal state.
     pub fn is_empty(&self) -> bool {
         self.tasks.is_empty()
     }
@@ -325,6 +331,8 @@ pub struct Guidance {
 }
 
 impl Guidance {
+    /// A fresh environment state with decay base `sigma` (σ of `σ^N`, 0.98 in the paper) and
+    /// no finished episode (`N = 0`, so `σ^N = 1`).
     pub fn new(sigma: f64) -> Self {
         Self::with_episodes(sigma, 0)
     }
@@ -587,10 +595,12 @@ impl BatchGuidance {
         self
     }
 
+    /// The planner (F and AN) the rule consults.
     pub fn planner(&self) -> &Planner {
         &self.planner
     }
 
+    /// Mutable access to the planner, e.g. to load new weights into it.
     pub fn planner_mut(&mut self) -> &mut Planner {
         &mut self.planner
     }

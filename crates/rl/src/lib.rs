@@ -21,6 +21,8 @@
 //! - [`guidance`]: the TERL guidance rule and goal states;
 //! - [`value`]: `V(s)` and policy entropy from published weights, for PTR scoring.
 
+#![warn(missing_docs)]
+
 pub mod batch;
 pub mod config;
 pub mod env;

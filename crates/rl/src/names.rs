@@ -12,6 +12,7 @@ pub const TEP_F: &str = "tep_f";
 pub const TEP_AN: &str = "tep_an";
 /// Target copies of F and AN (learner checkpoints only).
 pub const TEP_F_TARGET: &str = "tep_f_target";
+/// Target copy of AN (learner checkpoints only).
 pub const TEP_AN_TARGET: &str = "tep_an_target";
 /// The guidance gate in the planner weights message: one 0/1 per task (validated).
 pub const TEP_GATE: &str = "tep_gate.validated";

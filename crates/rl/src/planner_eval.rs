@@ -119,8 +119,9 @@ pub fn median(v: &[f64]) -> f64 {
 /// The relative error of one bin of [`GAP_BINS`].
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct BinScore {
-    /// Smallest and largest gap `k` of the bin (inclusive).
+    /// Smallest gap `k` of the bin (inclusive).
     pub lo: u32,
+    /// Largest gap `k` of the bin (inclusive).
     pub hi: u32,
     /// Pairs in the bin.
     pub pairs: usize,
@@ -133,9 +134,11 @@ pub struct BinScore {
 /// Scores of F on a set of pairs.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct ReachScore {
+    /// Pairs scored, over all bins.
     pub pairs: usize,
     /// Spearman ρ between F and `k`.
     pub spearman: f64,
+    /// Relative error per bin of [`GAP_BINS`], in that order.
     pub bins: Vec<BinScore>,
 }
 
@@ -174,16 +177,24 @@ pub fn score(pred: &[f64], gaps: &[u32]) -> ReachScore {
 /// Evaluation pairs `(s_t, s_{t+k}, a_t)` with their task and gap, row-major `f32`.
 #[derive(Clone, Debug, Default)]
 pub struct PairSet {
+    /// Observation length of `obs` and `goals` rows.
     pub obs_dim: usize,
+    /// Action length of `actions` rows.
     pub act_dim: usize,
+    /// Task index of each pair.
     pub tasks: Vec<usize>,
+    /// Start states `s_t`, `[len, obs_dim]` row-major.
     pub obs: Vec<f32>,
+    /// Goal states `s_{t+k}` of the same trajectory, `[len, obs_dim]` row-major.
     pub goals: Vec<f32>,
+    /// Actions `a_t` taken at `s_t`, `[len, act_dim]` row-major.
     pub actions: Vec<f32>,
+    /// True step gaps `k ≥ 1`, one per pair: what F should predict.
     pub gaps: Vec<u32>,
 }
 
 impl PairSet {
+    /// An empty set of pairs of these widths.
     pub fn new(obs_dim: usize, act_dim: usize) -> Self {
         Self {
             obs_dim,
@@ -192,10 +203,12 @@ impl PairSet {
         }
     }
 
+    /// Number of pairs.
     pub fn len(&self) -> usize {
         self.gaps.len()
     }
 
+    /// Whether the set holds no pair.
     pub fn is_empty(&self) -> bool {
         self.gaps.is_empty()
     }

@@ -12,13 +12,19 @@ use terl_nn::{gaussian, Activation, Mlp, MlpSpec};
 /// What an actor needs to rebuild the policy network: sizes only.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct PolicySpec {
+    /// Observation length without the task one-hot (39 for Meta-World).
     pub obs_dim: usize,
+    /// Action length (4 for Meta-World).
     pub act_dim: usize,
+    /// Number of tasks: the length of the one-hot appended to the observation.
     pub num_tasks: usize,
+    /// Widths of the hidden layers.
     pub hidden: Vec<usize>,
 }
 
 impl PolicySpec {
+    /// The policy's sizes from the training configuration (`obs_dim`, `act_dim`, `num_tasks`,
+    /// `policy_hidden`).
     pub fn from_config(cfg: &SacConfig) -> Self {
         Self {
             obs_dim: cfg.obs_dim,
@@ -109,6 +115,7 @@ impl Policy {
         self.small.load(&self.net);
     }
 
+    /// The sizes this policy was built with.
     pub fn spec(&self) -> &PolicySpec {
         &self.spec
     }

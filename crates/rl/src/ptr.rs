@@ -157,7 +157,10 @@ pub enum TrajectoryEnd {
     /// A true terminal state: `V(s_T) = 0`.
     Terminated,
     /// Cut by a time limit (or still running): bootstrap with the critic's `V(s_T)`.
-    Truncated { last_value: f64 },
+    Truncated {
+        /// The critic's `V(s_T)` of the state after the last step.
+        last_value: f64,
+    },
 }
 
 /// GAE over one trajectory (Eq. 6–7) into `out`: `rewards[t] = r_t`, `values[t] = V(s_t)` for
@@ -344,6 +347,7 @@ pub struct PtrPool<I> {
 }
 
 impl<I> PtrPool<I> {
+    /// An empty pool ranking by `cfg` (its `pool_trajectories`, `top_fraction` and `batch_size`).
     pub fn new(cfg: &PtrConfig) -> Self {
         Self {
             cfg: cfg.clone(),
@@ -435,6 +439,9 @@ struct TaskGate {
 }
 
 impl SuccessGate {
+    /// A gate for `num_tasks` tasks, all closed, each over a [`SuccessWindow`] of
+    /// `cfg.success_window` episodes; a task opens once it has at least `cfg.min_episodes` episodes
+    /// (default: the window length) and a rate of at least `cfg.success_threshold`.
     pub fn new(cfg: &PtrConfig, num_tasks: usize) -> Self {
         Self {
             threshold: cfg.success_threshold,

@@ -37,10 +37,12 @@ impl TaskReplay {
         }
     }
 
+    /// Transitions stored, at most the capacity.
     pub fn len(&self) -> usize {
         self.len
     }
 
+    /// Whether no transition has been stored.
     pub fn is_empty(&self) -> bool {
         self.len == 0
     }
@@ -87,6 +89,11 @@ pub struct MultiTaskReplay {
 }
 
 impl MultiTaskReplay {
+    /// Empty ring buffers of `capacity_per_task` transitions for each of `num_tasks` tasks,
+    /// allocated up front.
+    ///
+    /// # Panics
+    /// If `capacity_per_task` is 0.
     pub fn new(num_tasks: usize, capacity_per_task: usize, obs_dim: usize, act_dim: usize) -> Self {
         Self {
             tasks: (0..num_tasks)
@@ -96,10 +103,13 @@ impl MultiTaskReplay {
         }
     }
 
+    /// Task `task`'s ring buffer (panics if `task >= num_tasks`).
     pub fn task(&self, task: usize) -> &TaskReplay {
         &self.tasks[task]
     }
 
+    /// Adds a transition to task `task`'s ring buffer, overwriting its oldest once full:
+    /// `obs` and `next_obs` of length `obs_dim`, `action` of length `act_dim`.
     pub fn push(
         &mut self,
         task: usize,

@@ -20,17 +20,22 @@ pub type BoxError = Box<dyn std::error::Error + Send + Sync>;
 /// Whether the loop goes on after a call.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Flow {
+    /// Go on.
     Continue,
+    /// End the loop after this call.
     Stop,
 }
 
 /// Why the rollout loop stopped early.
 #[derive(Debug, Error)]
 pub enum RolloutError {
+    /// The environment's reset or step failed.
     #[error("environment error: {0}")]
     Env(BoxError),
+    /// The [`PolicySource`] failed.
     #[error("policy source: {0}")]
     Policy(BoxError),
+    /// The [`TransitionSink`] failed.
     #[error("transition sink: {0}")]
     Sink(BoxError),
 }
@@ -45,12 +50,16 @@ pub struct StepRecord<'a> {
     pub task: usize,
     /// Observation the action was chosen from.
     pub obs: &'a [f32],
+    /// Action executed (in `[-1, 1]`).
     pub action: &'a [f32],
+    /// Reward of the step.
     pub reward: f32,
     /// Observation the action reached: at an episode's end its true last observation, not the
     /// reset observation the environment continues from.
     pub next_obs: &'a [f32],
+    /// The episode reached a true terminal state (no bootstrap).
     pub terminated: bool,
+    /// The episode hit its time limit (bootstrap).
     pub truncated: bool,
     /// The task's success criterion holds after this step.
     pub success: bool,
@@ -65,7 +74,9 @@ pub struct StepRecord<'a> {
 /// An episode that ended in the last vector step.
 #[derive(Clone, Copy, Debug)]
 pub struct EpisodeRecord<'a> {
+    /// Index of the environment in the vector.
     pub env: usize,
+    /// Task id of the environment ([`VecEnvironment::task_ids`]).
     pub task: usize,
     /// Sum of the episode's rewards.
     pub episode_return: f64,
@@ -90,7 +101,9 @@ pub struct EpisodeRecord<'a> {
 pub struct RolloutProgress {
     /// Environment steps (vector steps × environments).
     pub env_steps: u64,
+    /// Vector steps (calls of [`VecEnvironment::step`]).
     pub vec_steps: u64,
+    /// Finished episodes over all environments.
     pub episodes: u64,
     /// Finished episodes with success at any step.
     pub successes: u64,
@@ -106,6 +119,7 @@ pub struct RolloutProgress {
 
 /// Where actions come from.
 pub trait PolicySource {
+    /// The source's error, boxed into [`RolloutError::Policy`].
     type Error: Into<BoxError>;
 
     /// Before every vector step: take the newest weights (or pause). [`Flow::Stop`] ends the
@@ -148,6 +162,7 @@ pub trait PolicySource {
 
 /// Where transitions and finished episodes go.
 pub trait TransitionSink {
+    /// The sink's error, boxed into [`RolloutError::Sink`].
     type Error: Into<BoxError>;
 
     /// One transition of the last vector step (in environment order).

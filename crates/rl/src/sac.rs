@@ -35,9 +35,15 @@ use terl_nn::{
 /// Losses and diagnostics of one update (names follow cleanrl's metric names).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct UpdateStats {
+    /// Mean squared TD error of critic 1 against the clipped double-Q soft target
+    /// `r + γ (1 − terminated) (min_k Q'_k(s', a') − α log π(a'|s'))`.
     pub qf1_loss: f64,
+    /// The same for critic 2.
     pub qf2_loss: f64,
+    /// Mean of `α log π(ã|s) − min_k Q_k(s, ã)` over the batch.
     pub actor_loss: f64,
+    /// Mean of `−ln α_task · (log π(ã|s) + target_entropy)` over the batch (per-task
+    /// temperature).
     pub alpha_loss: f64,
     /// Mean of `Q_1(s, a)` over the batch.
     pub qf1_mean: f64,
@@ -283,6 +289,7 @@ impl<T: Float> Sac<T> {
         })
     }
 
+    /// The hyper-parameters this agent was built with.
     pub fn config(&self) -> &SacConfig {
         &self.config
     }
@@ -302,14 +309,17 @@ impl<T: Float> Sac<T> {
         &self.log_alpha
     }
 
+    /// Mutable per-task `ln α`; the temperature optimiser's state is left as is.
     pub fn log_alpha_mut(&mut self) -> &mut [T] {
         &mut self.log_alpha
     }
 
+    /// The policy network (outputs mean and log-std of the tanh-squashed Gaussian).
     pub fn policy_net(&self) -> &Mlp<T> {
         &self.policy
     }
 
+    /// Mutable policy network (its parameters; the Adam state is left as is).
     pub fn policy_net_mut(&mut self) -> &mut Mlp<T> {
         &mut self.policy
     }
@@ -319,6 +329,7 @@ impl<T: Float> Sac<T> {
         &self.critics[k].net
     }
 
+    /// Mutable critic `k` (0 or 1); its target and Adam state are left as is.
     pub fn critic_net_mut(&mut self, k: usize) -> &mut Mlp<T> {
         &mut self.critics[k].net
     }

@@ -47,6 +47,7 @@ impl SuccessWindow {
         self.recent.len()
     }
 
+    /// Whether no episode has been recorded yet.
     pub fn is_empty(&self) -> bool {
         self.recent.is_empty()
     }

@@ -230,6 +230,14 @@ impl TepConfig {
         Ok(cfg)
     }
 
+    /// Checks the configuration before anything is allocated: positive sizes, `tau` and the
+    /// learning rates in range, widths at most [`MAX_WIDTH`] and at most 16 hidden layers, at
+    /// most [`MAX_PARAMETERS`] parameters, `batch_size` at most [`MAX_BATCH`], finite
+    /// non-negative `an_bc_weight` and `updates_per_sac_update`, `f_output_scale` in
+    /// `[0.001, 10000]`, and the near-goal sampling in range.
+    ///
+    /// # Errors
+    /// [`SacError::Config`] naming the first field that fails.
     pub fn validate(&self) -> Result<(), SacError> {
         let bad = |m: String| Err(SacError::Config(m));
         if self.obs_dim == 0 || self.act_dim == 0 || self.batch_size == 0 {
@@ -337,6 +345,8 @@ impl TepConfig {
         2 * self.obs_dim
     }
 
+    /// Architecture of F: input `[s, s', a]` ([`Self::f_input`]), `f_hidden` ReLU layers, one
+    /// softplus output (a step count, `F ≥ 0`; see the module docs).
     pub fn f_spec(&self) -> MlpSpec {
         MlpSpec {
             input: self.f_input(),
@@ -347,6 +357,8 @@ impl TepConfig {
         }
     }
 
+    /// Architecture of AN: input `[s, s']` ([`Self::an_input`]), `an_hidden` ReLU layers, `act_dim`
+    /// tanh outputs (an action in `[-1, 1]`).
     pub fn an_spec(&self) -> MlpSpec {
         MlpSpec {
             input: self.an_input(),
@@ -423,6 +435,12 @@ fn put<T: Float>(dst: &mut [T], src: &[f32]) {
 }
 
 impl<T: Float> Tep<T> {
+    /// F and AN initialised from `config.seed`, their targets as exact copies, Adam optimisers at
+    /// `f_lr` and `an_lr`, and update buffers for `batch_size` rows (a thread pool of `threads`
+    /// workers when above 1).
+    ///
+    /// # Errors
+    /// [`SacError::Config`] if [`TepConfig::validate`] fails or the thread pool cannot be built.
     pub fn new(config: TepConfig) -> Result<Self, SacError> {
         config.validate()?;
         let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
@@ -460,6 +478,7 @@ impl<T: Float> Tep<T> {
         })
     }
 
+    /// The hyper-parameters this planner learner was built with.
     pub fn config(&self) -> &TepConfig {
         &self.config
     }
@@ -474,22 +493,27 @@ impl<T: Float> Tep<T> {
         self.rejected_batches
     }
 
+    /// The reachability network F (`[s, s', a] → steps`).
     pub fn f_net(&self) -> &Mlp<T> {
         &self.f
     }
 
+    /// Mutable F; its target and Adam state are left as is.
     pub fn f_net_mut(&mut self) -> &mut Mlp<T> {
         &mut self.f
     }
 
+    /// The Action Network AN (`[s, s'] → a`).
     pub fn an_net(&self) -> &Mlp<T> {
         &self.an
     }
 
+    /// Mutable AN; its target and Adam state are left as is.
     pub fn an_net_mut(&mut self) -> &mut Mlp<T> {
         &mut self.an
     }
 
+    /// The Polyak-averaged target F̃ (used only in the bootstrapped target `z`).
     pub fn f_target_net(&self) -> &Mlp<T> {
         &self.f_target
     }
@@ -499,6 +523,7 @@ impl<T: Float> Tep<T> {
         &mut self.f_target
     }
 
+    /// The Polyak-averaged target ÃN (used only in the bootstrapped target `z`).
     pub fn an_target_net(&self) -> &Mlp<T> {
         &self.an_target
     }

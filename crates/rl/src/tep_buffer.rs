@@ -23,7 +23,9 @@ use rand::Rng;
 /// uniformly over the later transitions of the segment.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GoalSampling {
+    /// Probability of drawing the goal from the near window, in `[0, 1]`.
     pub near_fraction: f64,
+    /// Width of the near window in transitions after `s_t` (at least 1).
     pub near_steps: u32,
 }
 
@@ -38,10 +40,15 @@ impl GoalSampling {
 /// A minibatch for [`crate::tep::Tep::update`]: rows `(s_t, a_t, s_{t+1}, s')`, row-major `f32`.
 #[derive(Clone, Debug)]
 pub struct TepBatch {
+    /// Observation length of `obs`, `next_obs` and `goals` rows.
     pub obs_dim: usize,
+    /// Action length of `actions` rows.
     pub act_dim: usize,
+    /// States `s_t`, `[len, obs_dim]` row-major.
     pub obs: Vec<f32>,
+    /// Actions `a_t`, `[len, act_dim]` row-major.
     pub actions: Vec<f32>,
+    /// Next states `s_{t+1}`, `[len, obs_dim]` row-major.
     pub next_obs: Vec<f32>,
     /// Hindsight goal state `s'` of each row.
     pub goals: Vec<f32>,
@@ -50,6 +57,7 @@ pub struct TepBatch {
 }
 
 impl TepBatch {
+    /// An empty batch with room for `capacity` rows (pushing within it does not allocate).
     pub fn with_capacity(capacity: usize, obs_dim: usize, act_dim: usize) -> Self {
         Self {
             obs_dim,
@@ -62,14 +70,17 @@ impl TepBatch {
         }
     }
 
+    /// Number of rows.
     pub fn len(&self) -> usize {
         self.gaps.len()
     }
 
+    /// Whether the batch has no rows.
     pub fn is_empty(&self) -> bool {
         self.gaps.is_empty()
     }
 
+    /// Removes all rows, keeping the storage.
     pub fn clear(&mut self) {
         self.obs.clear();
         self.actions.clear();
@@ -139,6 +150,10 @@ pub struct TepBuffer {
 }
 
 impl TepBuffer {
+    /// An empty buffer holding at most `capacity` transitions; storage grows as they arrive.
+    ///
+    /// # Panics
+    /// If `capacity` is 0.
     pub fn new(capacity: usize, obs_dim: usize, act_dim: usize) -> Self {
         assert!(capacity > 0, "TEP buffer capacity must be positive");
         Self {
@@ -156,14 +171,17 @@ impl TepBuffer {
         }
     }
 
+    /// Transitions stored, at most [`Self::capacity`].
     pub fn len(&self) -> usize {
         self.tasks.len()
     }
 
+    /// Whether no transition has been stored.
     pub fn is_empty(&self) -> bool {
         self.tasks.is_empty()
     }
 
+    /// Most transitions the buffer holds before overwriting the oldest.
     pub fn capacity(&self) -> usize {
         self.capacity
     }

@@ -16,10 +16,15 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct PointMassConfig {
+    /// Number of tasks, each with its own goal on the circle of radius 0.6.
     pub num_tasks: usize,
+    /// Environments per task; environment `i` runs task `i % num_tasks`.
     pub envs_per_task: usize,
+    /// Episode length in steps (truncation).
     pub max_steps: usize,
+    /// Distance moved per step at full action, per axis.
     pub step_size: f32,
+    /// Success distance to the goal.
     pub success_radius: f32,
 }
 
@@ -47,6 +52,9 @@ pub struct PointMass {
 }
 
 impl PointMass {
+    /// The `num_tasks · envs_per_task` environments of `config`, all at the origin until
+    /// [`VecEnvironment::reset_all`] reseeds the generator and draws their starts; call that
+    /// before stepping.
     pub fn new(config: PointMassConfig) -> Self {
         let goals = (0..config.num_tasks)
             .map(|k| {

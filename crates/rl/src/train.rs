@@ -68,23 +68,36 @@ impl Default for TrainConfig {
 pub struct EvalReport {
     /// Mean over tasks of the fraction of episodes with success at any step.
     pub success_rate: f64,
+    /// Per task (in task-index order, tasks without an environment left out), the fraction of
+    /// its episodes with success at any step.
     pub per_task_success: Vec<f64>,
+    /// Mean undiscounted episode return over all evaluation episodes.
     pub mean_return: f64,
+    /// Evaluation episodes run: environments × `episodes_per_env`.
     pub episodes: usize,
 }
 
 /// Where a run is; passed to the progress callback after every evaluation and at the end.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct TrainProgress {
+    /// Environment steps taken so far, over all environments.
     pub env_steps: u64,
+    /// SAC updates applied so far.
     pub updates: u64,
+    /// Training episodes finished so far.
     pub episodes: u64,
+    /// Wall-clock seconds since the run started.
     pub wall_s: f64,
     /// Per task, success fraction over its last `success_window` training episodes.
     pub train_success: Vec<f64>,
+    /// Losses of the most recent successful update (`None` before the first).
     pub last_update: Option<UpdateStats>,
+    /// The most recent evaluation (`None` before the first).
     pub eval: Option<EvalReport>,
+    /// Batches the update rejected for non-finite values ([`Sac::rejected_batches`]).
     pub rejected_batches: u64,
+    /// Updates stopped by a non-finite loss or gradient; the run fails after
+    /// `max_consecutive_failed_updates` of them in a row.
     pub failed_updates: u64,
     /// Steps where the physics went unstable; they are not stored in replay.
     #[serde(default)]
@@ -94,10 +107,14 @@ pub struct TrainProgress {
 /// Summary of a finished run.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct TrainReport {
+    /// Progress at the end of the run (after its final evaluation).
     pub final_progress: TrainProgress,
+    /// Highest [`EvalReport::success_rate`] over the run's evaluations.
     pub best_eval_success: f64,
-    /// Transitions and seconds when `stop_at_eval_success` was first reached.
+    /// Environment steps when an evaluation first reached `stop_at_eval_success` (`None` if
+    /// none did or no target was set).
     pub reached_target_at_env_steps: Option<u64>,
+    /// Wall-clock seconds since the start at that evaluation.
     pub reached_target_at_wall_s: Option<f64>,
 }
 

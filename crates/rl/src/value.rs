@@ -120,10 +120,12 @@ impl ValueEstimator {
         self.policy_version > 0 && self.critic_version > 0
     }
 
+    /// Version of the policy weights last loaded by [`Self::set_policy`]; 0 until the first load.
     pub fn policy_version(&self) -> u64 {
         self.policy_version
     }
 
+    /// Version of the critic weights last loaded by [`Self::set_critics`]; 0 until the first load.
     pub fn critic_version(&self) -> u64 {
         self.critic_version
     }

@@ -3,6 +3,8 @@
 //! `mujoco` is the only module with `unsafe`; everything above it (tasks, vectorised envs, trace
 //! replay) is safe Rust.
 
+#![warn(missing_docs)]
+
 mod error;
 mod ffi;
 pub mod mujoco;

@@ -136,9 +136,13 @@ fn api() -> Result<&'static ffi::MuJoCoLib> {
 /// Object kinds that can be looked up by name.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ObjKind {
+    /// A body (`mjOBJ_BODY`).
     Body,
+    /// A joint (`mjOBJ_JOINT`).
     Joint,
+    /// A geom (`mjOBJ_GEOM`).
     Geom,
+    /// A site (`mjOBJ_SITE`).
     Site,
 }
 
@@ -164,7 +168,9 @@ impl ObjKind {
 /// One active contact: the two geoms and the row of its normal force in `efc_force`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Contact {
+    /// Id of the first geom in contact (`mjContact.geom[0]`).
     pub geom1: i32,
+    /// Id of the second geom in contact (`mjContact.geom[1]`).
     pub geom2: i32,
     /// Address in the constraint arrays, `-1` if the contact is not included.
     pub efc_address: i32,
@@ -632,7 +638,11 @@ impl Simulation {
 
     // ------------------------------------------------------------------ names
 
-    /// Id of a named object.
+    /// Id of a named object (`mj_name2id`).
+    ///
+    /// # Errors
+    /// [`SimError::UnknownName`] if the model has no object of that kind and name (or the name
+    /// contains a NUL byte).
     pub fn id(&self, kind: ObjKind, name: &str) -> Result<usize> {
         let unknown = || SimError::UnknownName {
             kind: kind.label(),
@@ -646,91 +656,130 @@ impl Simulation {
         };
         usize::try_from(id).map_err(|_| unknown())
     }
+    /// Id of the body called `name`: [`Simulation::id`] with [`ObjKind::Body`].
+    ///
+    /// # Errors
+    /// [`SimError::UnknownName`] if the model has no such body.
     pub fn body(&self, name: &str) -> Result<usize> {
         self.id(ObjKind::Body, name)
     }
+    /// Id of the site called `name`: [`Simulation::id`] with [`ObjKind::Site`].
+    ///
+    /// # Errors
+    /// [`SimError::UnknownName`] if the model has no such site.
     pub fn site(&self, name: &str) -> Result<usize> {
         self.id(ObjKind::Site, name)
     }
+    /// Id of the geom called `name`: [`Simulation::id`] with [`ObjKind::Geom`].
+    ///
+    /// # Errors
+    /// [`SimError::UnknownName`] if the model has no such geom.
     pub fn geom(&self, name: &str) -> Result<usize> {
         self.id(ObjKind::Geom, name)
     }
+    /// Id of the joint called `name`: [`Simulation::id`] with [`ObjKind::Joint`].
+    ///
+    /// # Errors
+    /// [`SimError::UnknownName`] if the model has no such joint.
     pub fn joint(&self, name: &str) -> Result<usize> {
         self.id(ObjKind::Joint, name)
     }
 
     // ------------------------------------------------------------------ sizes
 
+    /// Number of generalised coordinates, the length of `qpos` (`mjModel.nq`).
     pub fn nq(&self) -> usize {
         self.m().nq as usize
     }
+    /// Number of degrees of freedom, the length of `qvel` (`mjModel.nv`).
     pub fn nv(&self) -> usize {
         self.m().nv as usize
     }
+    /// Number of actuators, the length of `ctrl` (`mjModel.nu`).
     pub fn nu(&self) -> usize {
         self.m().nu as usize
     }
+    /// Number of actuator activation states, the length of `act` (`mjModel.na`).
     pub fn na(&self) -> usize {
         self.m().na as usize
     }
+    /// Number of bodies, the world body included (`mjModel.nbody`).
     pub fn nbody(&self) -> usize {
         self.m().nbody as usize
     }
+    /// Number of mocap bodies (`mjModel.nmocap`).
     pub fn nmocap(&self) -> usize {
         self.m().nmocap as usize
     }
+    /// Number of sites (`mjModel.nsite`).
     pub fn nsite(&self) -> usize {
         self.m().nsite as usize
     }
+    /// Number of geoms (`mjModel.ngeom`).
     pub fn ngeom(&self) -> usize {
         self.m().ngeom as usize
     }
+    /// Number of joints (`mjModel.njnt`).
     pub fn njnt(&self) -> usize {
         self.m().njnt as usize
     }
+    /// Number of equality constraints (`mjModel.neq`).
     pub fn neq(&self) -> usize {
         self.m().neq as usize
     }
 
     // ------------------------------------------------------------------ state (mjData)
 
+    /// Generalised positions (`mjData.qpos`, length [`Simulation::nq`]).
     pub fn qpos(&self) -> &[f64] {
         // SAFETY: qpos has nq entries.
         unsafe { slice(self.d().qpos, self.nq()) }
     }
+    /// Mutable generalised positions (`mjData.qpos`, length [`Simulation::nq`]); derived
+    /// quantities are stale until the next [`Simulation::forward`] or [`Simulation::kinematics`].
     pub fn qpos_mut(&mut self) -> &mut [f64] {
         let n = self.nq();
         // SAFETY: qpos has nq entries; &mut self guarantees exclusivity.
         unsafe { slice_mut(self.data.as_ref().qpos, n) }
     }
+    /// Generalised velocities (`mjData.qvel`, length [`Simulation::nv`]).
     pub fn qvel(&self) -> &[f64] {
         // SAFETY: qvel has nv entries.
         unsafe { slice(self.d().qvel, self.nv()) }
     }
+    /// Mutable generalised velocities (`mjData.qvel`, length [`Simulation::nv`]).
     pub fn qvel_mut(&mut self) -> &mut [f64] {
         let n = self.nv();
         // SAFETY: qvel has nv entries; exclusive.
         unsafe { slice_mut(self.data.as_ref().qvel, n) }
     }
+    /// Mutable actuator activations (`mjData.act`, length [`Simulation::na`]).
     pub fn act_mut(&mut self) -> &mut [f64] {
         let n = self.na();
         // SAFETY: act has na entries; exclusive.
         unsafe { slice_mut(self.data.as_ref().act, n) }
     }
+    /// Mutable actuator controls (`mjData.ctrl`, length [`Simulation::nu`]), read by the next
+    /// `mj_step`.
     pub fn ctrl_mut(&mut self) -> &mut [f64] {
         let n = self.nu();
         // SAFETY: ctrl has nu entries; exclusive.
         unsafe { slice_mut(self.data.as_ref().ctrl, n) }
     }
+    /// Mocap body positions in world coordinates, metres (`mjData.mocap_pos`, `[nmocap, 3]`
+    /// row-major).
     pub fn mocap_pos(&self) -> &[f64] {
         // SAFETY: mocap_pos has 3*nmocap entries.
         unsafe { slice(self.d().mocap_pos, 3 * self.nmocap()) }
     }
+    /// Mutable mocap body positions, metres (`mjData.mocap_pos`, `[nmocap, 3]` row-major).
     pub fn mocap_pos_mut(&mut self) -> &mut [f64] {
         let n = 3 * self.nmocap();
         // SAFETY: mocap_pos has 3*nmocap entries; exclusive.
         unsafe { slice_mut(self.data.as_ref().mocap_pos, n) }
     }
+    /// Mutable mocap body orientations as (w, x, y, z) quaternions (`mjData.mocap_quat`,
+    /// `[nmocap, 4]` row-major; MuJoCo normalises them).
     pub fn mocap_quat_mut(&mut self) -> &mut [f64] {
         let n = 4 * self.nmocap();
         // SAFETY: mocap_quat has 4*nmocap entries; exclusive.
@@ -813,6 +862,9 @@ impl Simulation {
         // SAFETY: body_pos has 3*nbody entries.
         vec3(unsafe { slice(self.m().body_pos, 3 * self.nbody()) }, body)
     }
+    /// Sets a body's position relative to its parent in this simulation's own copy of
+    /// `model.body_pos` (other simulations of the shared model are unaffected); takes effect at
+    /// the next kinematics pass.
     pub fn set_body_pos(&mut self, body: usize, pos: [f64; 3]) {
         let n = 3 * self.nbody();
         // SAFETY: body_pos has 3*nbody entries; exclusive.
@@ -830,6 +882,9 @@ impl Simulation {
         // SAFETY: site_pos has 3*nsite entries.
         vec3(unsafe { slice(self.m().site_pos, 3 * self.nsite()) }, site)
     }
+    /// Sets a site's position relative to its body in this simulation's own copy of
+    /// `model.site_pos` (other simulations of the shared model are unaffected); takes effect at
+    /// the next kinematics pass.
     pub fn set_site_pos(&mut self, site: usize, pos: [f64; 3]) {
         let n = 3 * self.nsite();
         // SAFETY: site_pos has 3*nsite entries; exclusive.

@@ -17,14 +17,20 @@ use crate::metaworld::{Env, ACTION_DIM, OBS_DIM};
 /// One step line (the reset line has no action, reward, success or truncated).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TraceStep {
+    /// Step index: 0 for the reset line, then 1, 2, ... (steps taken so far).
     pub t: u32,
+    /// The 4 action values applied at this step (absent on the reset line).
     #[serde(skip_serializing_if = "Option::is_none", default)]
     pub action: Option<Vec<f32>>,
+    /// The 39-value observation after the step (or the reset).
     pub obs: Vec<f64>,
+    /// Reward of the step.
     #[serde(skip_serializing_if = "Option::is_none", default)]
     pub reward: Option<f64>,
+    /// Meta-World's `info["success"]` as written by Python (1.0 or 0.0; > 0.5 counts as success).
     #[serde(skip_serializing_if = "Option::is_none", default)]
     pub success: Option<f64>,
+    /// Whether the step hit the time limit.
     #[serde(skip_serializing_if = "Option::is_none", default)]
     pub truncated: Option<bool>,
 }
@@ -34,8 +40,11 @@ pub struct TraceStep {
 pub struct Trace {
     /// All header keys (unknown ones are kept and written back).
     pub header: Map<String, Value>,
+    /// Meta-World v3 task name, from the header.
     pub task: String,
+    /// The episode's `rand_vec`, from the header.
     pub rand_vec: Vec<f64>,
+    /// The reset line then one line per step, in file order.
     pub steps: Vec<TraceStep>,
 }
 
@@ -186,24 +195,36 @@ impl Trace {
 /// Per-field maximum errors between two traces of the same episode.
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]
 pub struct Comparison {
+    /// Task of trace `a`.
     pub task: String,
+    /// Lines of trace `a` (reset line included).
     pub steps_a: usize,
+    /// Lines of trace `b`.
     pub steps_b: usize,
+    /// Largest absolute observation difference (infinite if one side is NaN).
     pub obs_max_abs: f64,
     /// (step, obs index) of the largest observation error.
     pub obs_worst: (u32, usize),
+    /// Largest absolute reward difference (infinite if one side is NaN).
     pub reward_max_abs: f64,
+    /// Step of the largest reward difference.
     pub reward_worst_step: u32,
+    /// Steps whose success flags disagree.
     pub success_mismatches: usize,
+    /// First step whose success flags disagree.
     pub first_success_mismatch: Option<u32>,
+    /// Steps whose truncation flags disagree.
     pub truncated_mismatches: usize,
+    /// Steps whose actions are not identical.
     pub action_mismatches: usize,
 }
 
 /// Tolerances of the parity checks.
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct Tolerance {
+    /// Largest allowed absolute observation difference (default 1e-4).
     pub obs: f64,
+    /// Largest allowed absolute reward difference (default 1e-3).
     pub reward: f64,
 }
 

@@ -18,7 +18,9 @@ pub struct EpisodeEnd {
     pub env: usize,
     /// Index of its task in [`VecEnv::tasks`].
     pub task: usize,
+    /// Sum of the episode's rewards.
     pub episode_return: f64,
+    /// Steps of the episode, env steps.
     pub length: u32,
     /// Success at any step of the episode (Meta-World's evaluation rule).
     pub success: bool,
@@ -215,6 +217,7 @@ impl VecEnv {
         &mut self.envs[i]
     }
 
+    /// Number of environments.
     pub fn num_envs(&self) -> usize {
         self.envs.len()
     }
@@ -234,9 +237,11 @@ impl VecEnv {
     pub fn final_obs(&self) -> &[f32] {
         &self.final_obs
     }
+    /// Rewards of the last step, one per environment.
     pub fn rewards(&self) -> &[f32] {
         &self.rewards
     }
+    /// Success flags of the last step, one per environment.
     pub fn success(&self) -> &[bool] {
         &self.success
     }

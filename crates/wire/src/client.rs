@@ -22,24 +22,37 @@ use crate::DEFAULT_MAX_MESSAGE_BYTES;
 /// Why a connection could not be made.
 #[derive(Debug, thiserror::Error)]
 pub enum ConnectError {
+    /// The address is neither `host:port` nor a valid URI.
     #[error("invalid server address {addr:?}: {source}")]
     Address {
+        /// The address as given.
         addr: String,
+        /// tonic's parse error.
         source: tonic::transport::Error,
     },
+    /// The TCP (or TLS) connection could not be established.
     #[error("cannot connect to {addr}: {source}")]
     Connect {
+        /// The address as given.
         addr: String,
+        /// tonic's transport error.
         source: tonic::transport::Error,
     },
+    /// A TLS CA is configured but the address is a plaintext `http://` URI.
     #[error(
         "{addr}: TLS is configured (cluster.tls_ca), so the address must be host:port or an \
          https:// URI, not plaintext http://"
     )]
-    PlaintextWithTls { addr: String },
+    PlaintextWithTls {
+        /// The address as given.
+        addr: String,
+    },
+    /// tonic rejected the TLS configuration for this endpoint.
     #[error("TLS settings for {addr}: {source}")]
     Tls {
+        /// The address as given.
         addr: String,
+        /// tonic's error.
         source: tonic::transport::Error,
     },
 }
@@ -63,6 +76,7 @@ pub struct ClientOptions {
 /// address beside its stats (`terl status`).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Watcher {
+    /// The actor's id (`terl-actor --actor-id`).
     pub actor_id: u32,
     /// At most `MAX_HOST_BYTES` (`status.rs`) bytes (longer names are cut).
     pub host: String,
@@ -183,12 +197,18 @@ pub const SELECTOR_SERVICE: &str = "terl.v1.Selector";
 /// Why a health check gave no answer.
 #[derive(Debug, thiserror::Error)]
 pub enum HealthError {
+    /// No connection to the server.
     #[error(transparent)]
     Connect(#[from] ConnectError),
+    /// The `Health/Check` call failed (e.g. `NOT_FOUND` for an unknown service, `UNAUTHENTICATED`
+    /// for a missing token).
     #[error("health check of {service:?} at {addr}: {status}")]
     Rpc {
+        /// The server's address as given.
         addr: String,
+        /// The service asked about.
         service: String,
+        /// The gRPC status of the failed call.
         status: Status,
     },
 }
@@ -233,6 +253,10 @@ pub struct LearnerClient {
 }
 
 impl LearnerClient {
+    /// The learner's status (`Learner/GetStatus`), validated into the domain type.
+    ///
+    /// # Errors
+    /// The call's gRPC status, or `INVALID_ARGUMENT` if the response fails validation.
     pub async fn status(&mut self) -> Result<LearnerStatus, Status> {
         let response = self.raw.get_status(pb::GetLearnerStatusRequest {}).await?;
         LearnerStatus::try_from(response.into_inner())
@@ -294,11 +318,16 @@ pub struct SelectorClient {
 }
 
 impl SelectorClient {
+    /// The selector's status (`Selector/GetStatus`), validated into the domain type.
+    ///
+    /// # Errors
+    /// The call's gRPC status, or `INVALID_ARGUMENT` if the response fails validation.
     pub async fn status(&mut self) -> Result<SelectorStatus, Status> {
         let response = self.raw.get_status(pb::GetSelectorStatusRequest {}).await?;
         SelectorStatus::try_from(response.into_inner())
     }
 
+    /// The generated client, for calls that have no domain wrapper.
     pub fn raw(&mut self) -> &mut RawSelectorClient<SecuredChannel> {
         &mut self.raw
     }

@@ -15,14 +15,22 @@ pub use terl_sim::{ACTION_DIM, OBS_DIM};
 /// One transition selected for the TEP dataset.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TepSample {
+    /// Meta-World v3 task name, e.g. `"pick-place-v3"` (never empty).
     pub task: String,
+    /// Identifies the trajectory within a run; hindsight goals are drawn from later steps of the
+    /// same trajectory.
     pub trajectory_id: u64,
+    /// Step index within the trajectory, from 0.
     pub step: u32,
+    /// PTR priority `P` of the batch the sample was ranked in (finite).
     pub priority: f64,
+    /// Observation `s_t` (Meta-World's 39 values, finite).
     pub obs: [f32; OBS_DIM],
+    /// Observation `s_{t+1}` reached by `action`.
     pub next_obs: [f32; OBS_DIM],
     /// `None` when the sample was recorded without a goal state.
     pub goal_obs: Option<[f32; OBS_DIM]>,
+    /// Action `a_t`, each entry in `[-1, 1]`.
     pub action: [f32; ACTION_DIM],
     /// Meta-World's success flag after this step (`false` when not recorded).
     pub success: bool,
@@ -122,13 +130,22 @@ impl From<&TepSample> for pb::TepSample {
 /// One finished episode.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct EpisodeSummary {
+    /// Meta-World v3 task name (never empty).
     pub task: String,
+    /// Id of the actor that ran the episode.
     pub actor_id: u32,
+    /// The episode's index among the actor's episodes; a gap shows up as `missed_before`.
     pub episode_index: u64,
+    /// Sum of the episode's rewards (finite).
     pub episode_return: f64,
+    /// Success at any step (Meta-World's rule).
     pub success: bool,
+    /// Steps of the episode, env steps (Meta-World truncates at 500).
     pub length: u32,
+    /// Version of the policy the episode began with.
     pub policy_version: u64,
+    /// Steps executed with the Action Network instead of the policy (TERL guidance); at most
+    /// `length`.
     pub guided_steps: u32,
     /// Episodes of this actor the log's writer never received just before this one (a gap in
     /// `episode_index`); 0 normally.
@@ -186,9 +203,13 @@ impl From<EpisodeSummary> for pb::EpisodeSummary {
 /// One scalar metric sample (`losses/qf1_loss`, `charts/SPS`, ...).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Metric {
+    /// Metric name, cleanrl style (`losses/qf1_loss`, `charts/SPS`; never empty).
     pub name: String,
+    /// The sample's value; may be non-finite (a diverging loss is recorded as it is).
     pub value: f64,
+    /// Learner update count (or env steps, for actor-side metrics) the value belongs to.
     pub step: u64,
+    /// Wall-clock time, nanoseconds since the Unix epoch.
     pub unix_time_nanos: u64,
 }
 

@@ -20,21 +20,31 @@ use crate::DEFAULT_MAX_MESSAGE_BYTES;
 /// Why a version was not published.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum PublishError {
+    /// Versions of a kind must strictly increase; the hub keeps the one it has.
     #[error("{kind} weights version {version} is not newer than the published version {latest}")]
     NotNewer {
+        /// Kind of the rejected weights.
         kind: WeightsKind,
+        /// Their version.
         version: u64,
+        /// The version of that kind already published.
         latest: u64,
     },
+    /// The encoded `WeightsUpdate` is larger than the hub's gRPC message limit
+    /// ([`WeightHub::max_message_bytes`]); no subscriber could decode it.
     #[error(
         "{kind} weights version {version} encode to {bytes} bytes, over the {limit}-byte gRPC \
          message limit; raise ServeOptions::max_message_bytes (and the clients' limit) or send \
          fewer parameters"
     )]
     TooLarge {
+        /// Kind of the rejected weights.
         kind: WeightsKind,
+        /// Their version.
         version: u64,
+        /// Size of the encoded message, bytes.
         bytes: usize,
+        /// The message limit, bytes.
         limit: usize,
     },
 }
@@ -136,6 +146,9 @@ impl WeightHub {
         self.sender.receiver_count()
     }
 
+    /// Largest encoded `WeightsUpdate` the hub publishes, bytes ([`DEFAULT_MAX_MESSAGE_BYTES`]
+    /// unless built with [`Self::with_max_message_bytes`]); should match the server's
+    /// [`crate::ServeOptions::max_message_bytes`].
     pub fn max_message_bytes(&self) -> usize {
         self.max_message_bytes
     }

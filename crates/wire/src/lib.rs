@@ -10,6 +10,8 @@
 //! control plane's access control ([`ServerSecurity`], [`ClientSecurity`]: a token on every RPC,
 //! optional TLS). The benchmarks' gRPC service is not part of this contract (crate `terl-bench`).
 
+#![warn(missing_docs)]
+
 mod client;
 mod dataset;
 mod hub;

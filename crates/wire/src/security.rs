@@ -46,33 +46,57 @@ const STATUS_PATHS: [&str; 4] = [
 /// Why a security setting could not be used.
 #[derive(Debug, thiserror::Error)]
 pub enum SecurityError {
+    /// A server would listen on a non-loopback address without a token.
     #[error(
         "refusing to serve the control plane on {addr} without a token: anyone who can reach \
          that address could read status, take checkpoints and download the weights. Set the \
          {TOKEN_ENV} environment variable or `token_file` in the run file's [cluster] section \
          (cluster.token_file), or bind a loopback address (127.0.0.1)"
     )]
-    TokenRequired { addr: SocketAddr },
+    TokenRequired {
+        /// The listen address.
+        addr: SocketAddr,
+    },
+    /// A token is shorter than [`MIN_TOKEN_BYTES`], longer than [`MAX_TOKEN_BYTES`], holds
+    /// characters other than visible ASCII, or (read from a file) is not UTF-8.
     #[error("invalid token ({source_name}): {reason}")]
     InvalidToken {
+        /// Where the token came from (e.g. [`TOKEN_ENV`] or the token file's path); never the
+        /// value.
         source_name: String,
+        /// Which rule it breaks.
         reason: &'static str,
     },
+    /// A token, certificate or key file could not be read.
     #[error("cannot read {what} {path}: {source}")]
     Read {
+        /// The file's role, e.g. `"TLS key"`.
         what: &'static str,
+        /// The file.
         path: PathBuf,
+        /// The OS error.
         source: std::io::Error,
     },
+    /// A token, certificate or key file is larger than such a file can be.
     #[error("{what} {path} is {len} bytes; at most {max} expected")]
     TooLarge {
+        /// The file's role, e.g. `"TLS certificate"`.
         what: &'static str,
+        /// The file.
         path: PathBuf,
+        /// Its size, bytes.
         len: u64,
+        /// The limit, bytes.
         max: u64,
     },
+    /// A certificate or key file holds no `-----BEGIN ` line.
     #[error("{what} {path} holds no PEM block (-----BEGIN ...)")]
-    NotPem { what: &'static str, path: PathBuf },
+    NotPem {
+        /// The file's role, e.g. `"TLS CA certificate"`.
+        what: &'static str,
+        /// The file.
+        path: PathBuf,
+    },
 }
 
 /// The shared secret of a cluster's control plane: 16 to 1024 visible ASCII characters (no

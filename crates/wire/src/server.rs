@@ -35,12 +35,17 @@ use crate::{DEFAULT_MAX_MESSAGE_BYTES, FILE_DESCRIPTOR_SET};
 /// Why a server could not start or stopped with an error.
 #[derive(Debug, thiserror::Error)]
 pub enum ServeError {
+    /// Binding or accepting on the TCP listener failed.
     #[error("listener: {0}")]
     Io(#[from] std::io::Error),
+    /// tonic's HTTP/2 server failed, or rejected the TLS configuration.
     #[error("gRPC transport: {0}")]
     Transport(#[from] tonic::transport::Error),
+    /// The reflection service could not be built from [`FILE_DESCRIPTOR_SET`].
     #[error("reflection service: {0}")]
     Reflection(#[from] tonic_reflection::server::Error),
+    /// The security settings refuse this listener (no token on a non-loopback address) or
+    /// could not be loaded.
     #[error(transparent)]
     Security(#[from] SecurityError),
 }
@@ -56,6 +61,8 @@ pub struct ServeOptions {
     /// HTTP/2 flow-control windows (stream, connection). Large enough that one policy version
     /// (≈ 1.4 MB) goes out without waiting for window updates.
     pub stream_window_bytes: u32,
+    /// Connection-level HTTP/2 flow-control window, bytes (shared by all streams of a
+    /// connection; default 16 MiB against the stream window's 4 MiB).
     pub connection_window_bytes: u32,
     /// After the shutdown future completes, how long to wait for open calls to finish before
     /// returning anyway. `WatchWeights` streams end at once; this bounds streams we do not
@@ -111,6 +118,7 @@ pub trait LearnerBackend: Send + Sync + 'static {
 
 /// What the selector process provides to its gRPC service.
 pub trait SelectorBackend: Send + Sync + 'static {
+    /// A fresh status snapshot (answers `Selector/GetStatus`).
     fn status(&self) -> impl Future<Output = Result<SelectorStatus, Status>> + Send;
 }
 
@@ -151,8 +159,11 @@ impl From<CheckpointRequest> for pb::SaveCheckpointRequest {
 /// Where a checkpoint was written.
 #[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
 pub struct CheckpointSaved {
+    /// Path of the written checkpoint (safetensors) as the learner sees it (never empty).
     pub path: String,
+    /// SAC updates the learner had applied when it wrote the checkpoint.
     pub learner_update: u64,
+    /// Version of the policy weights in the checkpoint.
     pub policy_version: u64,
 }
 

@@ -12,6 +12,7 @@ use crate::pb;
 /// Rolling success rate of one task.
 #[derive(Debug, Clone, PartialEq, Default, Serialize)]
 pub struct TaskSuccess {
+    /// Meta-World v3 task name.
     pub task: String,
     /// In [0, 1].
     pub success_rate: f64,
@@ -35,16 +36,21 @@ pub struct TaskSuccess {
 /// What one actor has delivered, as the learner sees it.
 #[derive(Debug, Clone, PartialEq, Default, Serialize)]
 pub struct ActorStats {
+    /// The actor's id.
     pub actor_id: u32,
+    /// Environment steps the learner has received from this actor.
     pub env_steps: u64,
+    /// Its environment steps per second, last reporting window.
     pub env_steps_per_second: f64,
     /// Policy version of the actor's latest transitions.
     pub policy_version: u64,
+    /// Seconds since the learner last heard from this actor.
     pub seconds_since_seen: f64,
     /// Transition batches (and transitions in them) that never reached the learner: the
     /// actor's send gave up on a full learner after `block_timeout_secs`. Cumulative over the
     /// actor's restarts; reported by the actor on its next delivered batch.
     pub transition_batches_dropped: u64,
+    /// Transitions in those batches.
     pub transitions_dropped: u64,
     /// Finished episodes the actor could not deliver to every receiver (selector, learner).
     pub episodes_dropped: u64,
@@ -57,24 +63,36 @@ pub struct ActorStats {
 /// One task's planner check (the guidance gate); see `PlannerTask` in `status.proto`.
 #[derive(Debug, Clone, PartialEq, Default, Serialize)]
 pub struct PlannerTask {
+    /// Meta-World v3 task name.
     pub task: String,
     /// Spearman ρ of F on the task's held-out selected trajectories; `None` before a check.
     pub spearman: Option<f64>,
+    /// Whether the task passed the check; guidance acts on it from then on (latched).
     pub validated: bool,
+    /// TEP update count when it passed (0 while not validated).
     pub validated_at_tep_update: u64,
+    /// Transitions of the task in the TEP buffer.
     pub tep_transitions: u64,
+    /// Selected trajectories of the task held out for the check.
     pub held_out_trajectories: u64,
+    /// Transitions in those trajectories.
     pub held_out_transitions: u64,
 }
 
 /// The planner side of the learner status, last window (`algorithm = "terl"`).
 #[derive(Debug, Clone, PartialEq, Default, Serialize)]
 pub struct PlannerStatus {
+    /// Mean of F's step term `(F(s_t, s_{t+1}, a_t) − 1)²`.
     pub step_loss: f64,
+    /// Mean of F's hindsight term `(F(s_t, s', a_t) − z)²`.
     pub goal_loss: f64,
+    /// Mean of F's symmetry term `(F(s_t, s_{t+1}, a_t) − F(s_{t+1}, s_t, −a_t))²`.
     pub symmetry_loss: f64,
+    /// Mean of AN's behaviour-cloning term `‖AN(s_t, s') − a_t‖²`.
     pub an_bc_loss: f64,
+    /// Mean hindsight gap `k` of the minibatches, env steps.
     pub gap_mean: f64,
+    /// The guidance gate, one entry per task of the run.
     pub tasks: Vec<PlannerTask>,
 }
 
@@ -131,28 +149,45 @@ fn planner_to_pb(d: PlannerStatus) -> pb::PlannerStatus {
 /// Training progress of the learner (`Learner.GetStatus`).
 #[derive(Debug, Clone, PartialEq, Default, Serialize)]
 pub struct LearnerStatus {
+    /// Run id (names the run folder and the shared-memory services).
     pub run_id: String,
+    /// Seconds since the learner started.
     pub uptime_seconds: f64,
+    /// MTSAC gradient updates done (TEP updates are counted in `tep_updates`).
     pub updates: u64,
+    /// Updates per second over the last reporting window.
     pub updates_per_second: f64,
+    /// Environment steps received from all actors.
     pub env_steps_total: u64,
+    /// Per actor: what it has delivered.
     pub actors: Vec<ActorStats>,
+    /// Transitions held in replay, over all tasks.
     pub replay_size: u64,
+    /// Replay capacity, over all tasks.
     pub replay_capacity: u64,
+    /// Per task: the rolling training success window.
     pub task_success: Vec<TaskSuccess>,
     /// Updates between the policy that produced trained-on transitions and the current one.
     pub staleness_mean: f64,
+    /// Largest staleness over the last window, updates.
     pub staleness_max: u64,
+    /// Transition batches refused (bad shape, non-finite values, unknown task, too stale).
     pub rejected_batches: u64,
+    /// Latest published policy version (0 = none yet).
     pub policy_version: u64,
+    /// Latest published planner version (0 = none yet).
     pub planner_version: u64,
+    /// TEP updates done (0 when `algorithm = "mtsac"`).
     pub tep_updates: u64,
     /// `mtsac` or `terl`.
     pub algorithm: String,
+    /// Selected transitions held in the TEP buffer.
     pub tep_buffer_size: u64,
+    /// TEP buffer capacity, transitions.
     pub tep_buffer_capacity: u64,
-    /// Mean TEP losses over the last window (0 before the first TEP update).
+    /// Mean F loss over the last window (0 before the first TEP update).
     pub tep_f_loss: f64,
+    /// Mean AN loss over the last window (0 before the first TEP update).
     pub tep_an_loss: f64,
     /// Selected transitions received (from the selector or a loaded dataset).
     pub selected_samples: u64,
@@ -164,13 +199,16 @@ pub struct LearnerStatus {
     /// Mean predicted distance `F(s_t, s', a_t)` to the hindsight goal over the last window, in
     /// env steps (≥ 0).
     pub tep_goal_distance_mean: f64,
-    /// Sums over [`ActorStats`]: transition batches / transitions that never reached the
-    /// learner, episodes not delivered to every receiver.
+    /// Transition batches that never reached the learner (an actor's send gave up on a full
+    /// learner), summed over [`ActorStats`].
     pub transition_batches_dropped: u64,
+    /// Transitions in those batches, summed over actors.
     pub transitions_dropped: u64,
+    /// Finished episodes not delivered to every receiver, summed over actors.
     pub episodes_dropped: u64,
-    /// Selected batches / samples the selector could not deliver (learner stayed full).
+    /// Selected batches the selector could not deliver (the learner stayed full).
     pub selected_batches_dropped: u64,
+    /// Samples in those batches.
     pub selected_samples_dropped: u64,
     /// The checkpoint a resumed learner continued from (empty: a fresh start).
     pub resumed_from: String,
@@ -195,10 +233,15 @@ pub struct LearnerStatus {
 /// Statistics of PTR priorities.
 #[derive(Debug, Clone, PartialEq, Default, Serialize)]
 pub struct PriorityStats {
+    /// Transitions scored.
     pub scored: u64,
+    /// Mean priority of the scored transitions.
     pub mean: f64,
+    /// Smallest priority.
     pub min: f64,
+    /// Largest priority.
     pub max: f64,
+    /// Priority of the lowest-ranked transition that was still selected.
     pub selection_threshold: f64,
     /// Mean over the scored transitions of the GAE part `α · mean(GAE)` of the priority.
     pub gae_part_mean: f64,
@@ -210,12 +253,19 @@ pub struct PriorityStats {
 /// Episode and selection statistics of the selector (`Selector.GetStatus`).
 #[derive(Debug, Clone, PartialEq, Default, Serialize)]
 pub struct SelectorStatus {
+    /// Run id (names the run folder and the shared-memory services).
     pub run_id: String,
+    /// Seconds since the selector started.
     pub uptime_seconds: f64,
+    /// Finished episodes received from the actors.
     pub episodes_seen: u64,
+    /// Per task: the rolling success window the selection gate looks at.
     pub task_success: Vec<TaskSuccess>,
+    /// Transitions sent to the learner's TEP buffer.
     pub selected_samples: u64,
+    /// PTR priorities of the scored transitions (all zero before any scoring).
     pub priority: PriorityStats,
+    /// Critic version the priorities were last computed with (0 = none).
     pub critic_version: u64,
     /// The latest in-run evaluation (None before the first one or with evaluation off).
     pub last_eval: Option<EvalResult>,
@@ -230,12 +280,15 @@ pub struct SelectorStatus {
 /// One task's part of an [`EvalResult`].
 #[derive(Debug, Clone, PartialEq, Default, Serialize)]
 pub struct TaskEval {
+    /// Meta-World v3 task name.
     pub task: String,
     /// Episodes with success at any step / episodes, in [0, 1].
     pub success_rate: f64,
+    /// Mean undiscounted episode return.
     pub mean_return: f64,
     /// Mean 1-based first-success step over successful episodes (None: none succeeded).
     pub mean_first_success_step: Option<f64>,
+    /// Episodes run on the task.
     pub episodes: u32,
 }
 
@@ -248,14 +301,19 @@ pub struct EvalResult {
     pub policy_version: u64,
     /// Env steps the learner had received when the evaluation started.
     pub env_steps: u64,
+    /// Episodes per task (episode `k` runs on goal variation `k mod 50`).
     pub episodes_per_task: u32,
     /// Unweighted mean of the per-task success rates, in [0, 1].
     pub mean_success_rate: f64,
+    /// Unweighted mean over tasks of [`TaskEval::mean_return`].
     pub mean_return: f64,
+    /// Per task results, in the run's task order.
     pub tasks: Vec<TaskEval>,
-    /// Cost of the evaluation: wall-clock and CPU seconds.
+    /// Wall-clock seconds the evaluation took (its cost to the run).
     pub wall_seconds: f64,
+    /// CPU seconds the evaluation took.
     pub cpu_seconds: f64,
+    /// When the evaluation finished, nanoseconds since the Unix epoch.
     pub unix_time_nanos: u64,
 }
 

@@ -87,25 +87,38 @@ impl TryFrom<i32> for WeightsKind {
 /// Why a tensor or weight set could not be built.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum WeightsError {
+    /// A tensor has an empty name.
     #[error("tensor name is empty")]
     EmptyName,
+    /// A tensor's shape does not multiply out to its number of values.
     #[error("tensor '{name}': shape {shape:?} has {expected} elements, got {actual} values")]
     ShapeMismatch {
+        /// The tensor's name.
         name: String,
+        /// Its declared shape.
         shape: Vec<usize>,
+        /// Elements the shape implies (`usize::MAX` if the product overflows).
         expected: usize,
+        /// Values given.
         actual: usize,
     },
+    /// A tensor holds NaN or an infinity.
     #[error("tensor '{name}': value {index} is not finite ({value})")]
     NotFinite {
+        /// The tensor's name.
         name: String,
+        /// Row-major index of the first non-finite value.
         index: usize,
+        /// That value as text (`NaN`, `inf`, `-inf`).
         value: String,
     },
+    /// Two tensors of one weight set share a name.
     #[error("tensor name '{0}' appears twice")]
     DuplicateName(String),
+    /// A weight set without tensors.
     #[error("weights have no tensors")]
     Empty,
+    /// A weight set of version 0, which means "no weights yet".
     #[error("weights version must be at least 1 (0 means 'no weights yet')")]
     ZeroVersion,
 }
@@ -166,14 +179,17 @@ impl Tensor {
         })
     }
 
+    /// The tensor's name, e.g. `policy.0.weight` (see `terl_rl::names`; never empty).
     pub fn name(&self) -> &str {
         &self.name
     }
 
+    /// Its shape, outermost dimension first (empty for a scalar).
     pub fn shape(&self) -> &[usize] {
         &self.shape
     }
 
+    /// Its values, row-major, all finite; as many as the shape's product.
     pub fn values(&self) -> &[f32] {
         &self.values
     }
@@ -232,18 +248,23 @@ impl Weights {
         })
     }
 
+    /// Which network set these are (policy, planner or critics).
     pub fn kind(&self) -> WeightsKind {
         self.kind
     }
 
+    /// The version, ≥ 1 and strictly increasing per kind; actors stamp it on every transition
+    /// they produce.
     pub fn version(&self) -> u64 {
         self.version
     }
 
+    /// Learner update count at which these weights were taken.
     pub fn learner_update(&self) -> u64 {
         self.learner_update
     }
 
+    /// The tensors, in message order, names unique.
     pub fn tensors(&self) -> &[Tensor] {
         &self.tensors
     }
@@ -253,6 +274,7 @@ impl Weights {
         self.tensors.iter().find(|t| t.name == name)
     }
 
+    /// Takes the tensors out, in message order.
     pub fn into_tensors(self) -> Vec<Tensor> {
         self.tensors
     }

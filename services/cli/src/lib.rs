@@ -2,6 +2,8 @@
 //! the subcommands live in this library so that tests can parse the command lines written in
 //! the documentation with the binary's own parser ([`Cli`]).
 
+#![warn(missing_docs)]
+
 mod bench;
 mod bench_netns;
 mod bench_tep;

@@ -1,5 +1,7 @@
 //! `terl`: the command line of the terl system (the parser and subcommands are in the library).
 
+#![warn(missing_docs)]
+
 use clap::Parser;
 use terl_cli::Cli;
 

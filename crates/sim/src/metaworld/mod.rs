@@ -41,7 +41,9 @@ const HAND_SPACE_HIGH: [f64; 3] = [0.525, 1.025, 0.7];
 /// The outcome of one step's reward computation.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Eval {
+    /// The task's shaped reward for this step (v2-style).
     pub reward: f64,
+    /// The task's success criterion (Meta-World's `info["success"]`).
     pub success: bool,
 }
 
@@ -70,8 +72,11 @@ pub trait Task: Send + std::fmt::Debug {
 /// What [`Env::step`] returns.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Step {
+    /// The observation after the step, clipped to Meta-World's observation space.
     pub obs: [f64; OBS_DIM],
+    /// The task's shaped reward for the step (0 on an unstable step).
     pub reward: f64,
+    /// The task's success criterion after the step (Meta-World's `info["success"]`).
     pub success: bool,
     /// The 500-step time limit was reached (or the physics went unstable).
     pub truncated: bool,
@@ -190,9 +195,11 @@ impl Env {
         })
     }
 
+    /// The task's static description (model file, bounds, randomisation ranges).
     pub fn spec(&self) -> &'static TaskSpec {
         self.spec
     }
+    /// The task's Meta-World v3 name, e.g. `"reach-v3"`.
     pub fn name(&self) -> &'static str {
         self.spec.name
     }
@@ -208,6 +215,7 @@ impl Env {
     pub fn instability_events(&self) -> u64 {
         self.instability_events
     }
+    /// The shared scene state (hand, gripper, goal, object start), read-only.
     pub fn scene(&self) -> &Scene {
         &self.scene
     }

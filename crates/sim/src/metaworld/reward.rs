@@ -7,7 +7,11 @@ pub const DEFAULT_VALUE_AT_MARGIN: f64 = 0.1;
 /// The sigmoid used outside the bounds.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Sigmoid {
+    /// `_sigmoids(x, value_at_1, "gaussian")`: `exp(−(x·s)²/2)` with
+    /// `s = sqrt(−2 ln value_at_1)`.
     Gaussian,
+    /// `_sigmoids(x, value_at_1, "long_tail")`: `1 / ((x·s)² + 1)` with
+    /// `s = sqrt(1/value_at_1 − 1)`.
     LongTail,
 }
 
@@ -86,12 +90,15 @@ pub fn rect_prism_tolerance(curr: [f64; 3], zero: [f64; 3], one: [f64; 3]) -> f6
 pub fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
     norm(sub(a, b))
 }
+/// Component-wise `a − b`.
 pub fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
+/// Component-wise `a + b`.
 pub fn add(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
 }
+/// Euclidean norm.
 pub fn norm(a: [f64; 3]) -> f64 {
     (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt()
 }

@@ -43,6 +43,7 @@ pub const TARGET_RADIUS: f64 = 0.05;
 /// Shared per-environment state, the Rust counterpart of `SawyerXYZEnv`'s attributes.
 #[derive(Debug)]
 pub struct Scene {
+    /// The MuJoCo simulation of this env (its own `mjData` over the shared model).
     pub sim: Simulation,
     hand: usize,
     right_claw: usize,
@@ -60,7 +61,9 @@ pub struct Scene {
     pub obj_init_pos: [f64; 3],
     /// Goal of the current episode (`_target_pos`, obs[36..39]).
     pub target_pos: [f64; 3],
+    /// Lower corner of the box the mocap (hand target) is clipped to, metres.
     pub mocap_low: [f64; 3],
+    /// Upper corner of the mocap box, metres.
     pub mocap_high: [f64; 3],
     /// Identifies the model in cache keys.
     pub(crate) model_id: u64,
@@ -149,9 +152,11 @@ impl Scene {
         );
         (d / 0.1).clamp(0.0, 1.0)
     }
+    /// World position of the left finger pad body (`leftpad`).
     pub fn left_pad_pos(&self) -> [f64; 3] {
         self.sim.body_xpos(self.left_pad)
     }
+    /// World position of the right finger pad body (`rightpad`).
     pub fn right_pad_pos(&self) -> [f64; 3] {
         self.sim.body_xpos(self.right_pad)
     }
@@ -187,6 +192,9 @@ impl Scene {
         self.reset_hand_steps(50);
     }
 
+    /// [`Self::reset_hand`] with `steps` env steps of [`FRAME_SKIP`] physics steps each, served
+    /// from the process-wide hand-reset cache when the same model, state and target were reset
+    /// before.
     pub fn reset_hand_steps(&mut self, steps: usize) {
         if self.physics {
             let key = self.hand_reset_cache.then(|| {
@@ -361,7 +369,10 @@ impl Scene {
 /// Density option of the caging reward (`high_density` / `medium_density` flags).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Density {
+    /// Neither flag: caging times gripping only.
     Normal,
+    /// `high_density`: the mean of that product and the caging reward.
     High,
+    /// `medium_density`: also mixes in a reach reward toward the object.
     Medium,
 }

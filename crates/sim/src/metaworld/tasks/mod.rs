@@ -67,25 +67,32 @@ pub struct TaskSpec {
     pub xml: &'static str,
     /// `hand_low` / `hand_high`: also the mocap bounds unless `mocap_*` are given.
     pub hand_low: [f64; 3],
+    /// Upper hand bound (see `hand_low`).
     pub hand_high: [f64; 3],
+    /// Lower mocap bound when it differs from `hand_low` (`mocap_low`).
     pub mocap_low: Option<[f64; 3]>,
+    /// Upper mocap bound when it differs from `hand_high` (`mocap_high`).
     pub mocap_high: Option<[f64; 3]>,
     /// Where `_reset_hand` drives the hand.
     pub hand_init_pos: [f64; 3],
     /// `_random_reset_space`: bounds of `rand_vec`.
     pub rand_low: &'static [f64],
+    /// Upper bounds of `rand_vec` (see `rand_low`).
     pub rand_high: &'static [f64],
     /// `goal_space`: the goal part of the observation is clipped to it.
     pub goal_low: [f64; 3],
+    /// Upper goal bound (see `goal_low`).
     pub goal_high: [f64; 3],
     /// The reset's rejection rule on `rand_vec` (Python re-draws while it fails).
     pub rand_vec_ok: fn(&[f64]) -> bool,
 }
 
 impl TaskSpec {
+    /// The mocap box's lower corner: `mocap_low` if given, else `hand_low`.
     pub fn mocap_low(&self) -> [f64; 3] {
         self.mocap_low.unwrap_or(self.hand_low)
     }
+    /// The mocap box's upper corner: `mocap_high` if given, else `hand_high`.
     pub fn mocap_high(&self) -> [f64; 3] {
         self.mocap_high.unwrap_or(self.hand_high)
     }
@@ -105,7 +112,9 @@ pub fn obj_goal_apart<const CM: u32>(rv: &[f64]) -> bool {
 /// How to build one task.
 #[derive(Debug, Clone, Copy)]
 pub struct Constructor {
+    /// The task's static description.
     pub spec: &'static TaskSpec,
+    /// Builds the task's behaviour on a freshly made scene of its model.
     pub build: fn(&Scene) -> Result<Box<dyn Task>>,
 }
 
