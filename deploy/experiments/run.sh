@@ -48,6 +48,13 @@
 #   --last-stage 1|2|3               terl-pipeline: stop after this stage (default 3)
 #   --stage1-steps N                 terl-pipeline: the env-step cap of each stage-1 run only
 #                                    (--steps sets every run's budget, stage 3's included)
+#   --planner-from-seed K            terl-pipeline: stage 3 only, for every seed of --seeds, from the
+#                                    planner (and stage-1 datasets) of seed K's stages 1 and 2,
+#                                    which must be done: MT10 seeds that share one planner
+#   --mode reproducible|asynchronous MTSAC runs with [cluster] reproducible = true (the default:
+#                                    the same seed gives the same run bit for bit, at about 3 %
+#                                    more wall time on MT10 workstation) or asynchronous; TERL
+#                                    runs are asynchronous (docs/cluster.md#reproducible-runs)
 # A run whose eval-final.json exists is skipped, so an interrupted experiment resumes where it
 # stopped (a run stopped mid-way starts again from scratch). A run whose id is held by running
 # processes is not touched. A failed run does not stop the others; the script then exits 1.
@@ -55,7 +62,7 @@ set -euo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 cd "$ROOT"
 
-usage() { sed -n 2,30p "$0"; }
+usage() { sed -n '2,/^set -euo pipefail/{/^set -euo/!p}' "$0"; }
 [ $# -ge 1 ] || { usage >&2; exit 2; }
 experiment=$1
 shift
@@ -73,6 +80,8 @@ stage1_samples=""
 planner_updates=""
 last_stage=3
 stage1_steps=""
+planner_from=""
+mode=reproducible
 while [ $# -gt 0 ]; do
     case "$1" in
         --no-build|-h|--help) ;;
@@ -92,11 +101,14 @@ while [ $# -gt 0 ]; do
         --planner-updates) planner_updates=$2; shift 2 ;;
         --last-stage) last_stage=$2; shift 2 ;;
         --stage1-steps) stage1_steps=$2; shift 2 ;;
+        --mode) mode=$2; shift 2 ;;
+        --planner-from-seed) planner_from=$2; shift 2 ;;
         -h|--help) usage; exit 0 ;;
         *) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
     esac
 done
 case "$scale" in workstation|paper|smoke) ;; *) echo "--scale must be workstation, paper or smoke" >&2; exit 2 ;; esac
+case "$mode" in reproducible|asynchronous) ;; *) echo "--mode must be reproducible or asynchronous" >&2; exit 2 ;; esac
 for a in $algorithms; do
     case "$a" in mtsac|terl) ;; *) echo "unknown algorithm $a (mtsac or terl)" >&2; exit 2 ;; esac
 done
@@ -115,9 +127,11 @@ for v in "$stage1_samples" "$planner_updates" "$stage1_steps"; do
     [ -z "$v" ] || [[ "$v" =~ ^[1-9][0-9]{0,14}$ ]] \
         || { echo "--stage1-samples, --stage1-steps and --planner-updates take positive integers (at most 15 digits)" >&2; exit 2; }
 done
+[ -z "$planner_from" ] || [[ "$planner_from" =~ ^[0-9]{1,15}$ ]] \
+    || { echo "--planner-from-seed takes a seed (a non-negative integer)" >&2; exit 2; }
 if [ "$experiment" != terl-pipeline ] \
-    && { [ -n "$stage1_samples$planner_updates$stage1_steps" ] || [ "$last_stage" != 3 ]; }; then
-    echo "--stage1-samples, --stage1-steps, --planner-updates and --last-stage apply to terl-pipeline only" >&2
+    && { [ -n "$stage1_samples$planner_updates$stage1_steps$planner_from" ] || [ "$last_stage" != 3 ]; }; then
+    echo "--stage1-samples, --stage1-steps, --planner-updates, --planner-from-seed and --last-stage apply to terl-pipeline only" >&2
     exit 2
 fi
 
@@ -161,6 +175,17 @@ run_config() {
     [ -z "$variant" ] || echo "variant = \"$variant\""
     local edits=(-e '/^(experiment|tasks|algorithm|variant) *=/d' -e "s/^seed *=.*/seed = $seed/")
     [ -z "$steps" ] || edits+=(-e "s/^total_env_steps *=.*/total_env_steps = $steps/")
+    if [ "$alg" = mtsac ] && [ "$mode" = reproducible ]; then
+        edits+=(-e '/^reproducible *=/d')
+        if grep -q '^\[cluster\]$' "$base"; then
+            edits+=(-e 's/^\[cluster\]$/[cluster]\nreproducible = true/')
+            sed -E "${edits[@]}" "$base"
+        else
+            sed -E "${edits[@]}" "$base"
+            printf '\n[cluster]\nreproducible = true\n'
+        fi
+        return
+    fi
     sed -E "${edits[@]}" "$base"
 }
 
@@ -301,6 +326,46 @@ import json, sys
 spec, info = sys.argv[1], json.load(sys.stdin)
 names = info["task_sets"].get(spec) or spec.split(",")
 print(" ".join(names))' "$stage3_tasks")
+        if [ -n "$planner_from" ]; then
+            # Stage 3 only, every seed from seed K's planner and stage-1 datasets.
+            planner_dir="$runs/pipeline-planner-s$planner_from$tag"
+            [ -f "$planner_dir/planner.safetensors" ] && [ -f "$planner_dir/eval.json" ] || {
+                say "$planner_dir has no finished planner: run terl-pipeline --seeds $planner_from first"
+                exit 1
+            }
+            planner="$(cd "$planner_dir" && pwd)/planner.safetensors"
+            planner_sum=$(md5sum < "$planner")
+            stage3_datasets=()
+            for task in $s1_tasks; do
+                f="$runs/pipeline-stage1-${task%-v3}-s$planner_from$tag/tep-dataset.mcap"
+                if [ -s "$f" ]; then
+                    case " $stage3_names " in *" $task "*) stage3_datasets+=(--tep-dataset "$f") ;; esac
+                fi
+            done
+            for seed in $seeds; do
+                id3="mt10-terl-pipeline-s$seed$tag"
+                if [ -f "$runs/$id3/eval-final.json" ] && [ -f "$runs/$id3/planner.md5" ] \
+                    && [ "$(cat "$runs/$id3/planner.md5")" != "$planner_sum" ]; then
+                    say "$id3: done with another planner; not touched (remove $runs/$id3 to train it again)"
+                    continue
+                fi
+                cfg3=$(mktemp "${TMPDIR:-/tmp}/terl-stage3-s$seed.XXXXXX.toml")
+                run_config "$base3" mt10 "$stage3_tasks" terl pipeline "$seed" \
+                    | sed -E -e '/^init_planner *=/d' \
+                        -e "s|^\[tep\]\$|[tep]\ninit_planner = \"$(sed_replacement "$planner")\"|" > "$cfg3"
+                grep -q '^init_planner' "$cfg3" || printf '\n[tep]\ninit_planner = "%s"\n' "$planner" >> "$cfg3"
+                [ "$scale" != smoke ] || grep -q '^\[guidance\]' "$cfg3" \
+                    || printf '\n[guidance]\nmin_spearman = -1.0\nvalidation_trajectories = 1\n' >> "$cfg3"
+                if train_run "$id3" "$base3" "${stage3_datasets[@]}" < "$cfg3"; then
+                    [ -f "$runs/$id3/planner.md5" ] || printf '%s\n' "$planner_sum" > "$runs/$id3/planner.md5"
+                    echo "planner_from_seed=$planner_from" >> "$runs/$id3/cluster.txt"
+                else
+                    failed+=("$id3")
+                fi
+                rm -f "$cfg3"
+            done
+            seeds=""
+        fi
         for seed in $seeds; do
             # Stage 1: each task alone until its planner data is usable.
             datasets=()

@@ -49,7 +49,12 @@ pub struct SacConfig {
     pub target_entropy: Option<f64>,
     /// Transitions per update, drawn evenly across tasks.
     pub batch_size: usize,
-    /// Threads of the update (faer GEMMs and the twin critics run on a private rayon pool).
+    /// Threads of the update (faer GEMMs and the twin critics run on a private rayon pool),
+    /// 1 to [`MAX_THREADS`]. A run file may write `threads = "auto"`: the cores this process may
+    /// use ([`auto_threads`]), resolved when the file is read, so the resolved run file and the
+    /// checkpoints record the count that ran (a thread count changes the GEMMs' summation
+    /// order, so a reproducible run is reproduced with the same count).
+    #[serde(deserialize_with = "threads_or_auto")]
     pub threads: usize,
     /// Seed of network initialisation and of the update's sampling noise.
     pub seed: u64,
@@ -71,6 +76,53 @@ pub struct SacConfig {
     /// Bound of each critic's output layer under `init = "he_uniform"`. Default 3e-3
     /// (reference: `uniform(3e-3)` Q head).
     pub critic_head_init: f64,
+}
+
+/// Most update threads [`SacConfig::threads`] accepts.
+pub const MAX_THREADS: usize = 256;
+
+/// Most threads `threads = "auto"` gives an update: beyond this, the GEMMs of Meta-World-sized
+/// networks (3×400, batch 1280 at most) stop getting faster.
+pub const MAX_AUTO_THREADS: usize = 8;
+
+/// The update threads `threads = "auto"` means: the cores this process may run on
+/// (`std::thread::available_parallelism`, which honours CPU affinity and cgroup quotas), at
+/// most [`MAX_AUTO_THREADS`]. The actors and the selector share those cores: actors are paced
+/// by the learner's update-to-data ratio (at MT10's 0.1 updates per transition an actor needs
+/// about a tenth of a core), so the learner takes them all and the scheduler shares them.
+pub fn auto_threads() -> usize {
+    std::thread::available_parallelism()
+        .map_or(1, std::num::NonZeroUsize::get)
+        .min(MAX_AUTO_THREADS)
+}
+
+/// Reads `threads` as a count or the string `"auto"` ([`auto_threads`]).
+fn threads_or_auto<'de, D: serde::Deserializer<'de>>(d: D) -> Result<usize, D::Error> {
+    struct Visitor;
+    impl serde::de::Visitor<'_> for Visitor {
+        type Value = usize;
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            f.write_str("a thread count (1 to 256) or \"auto\"")
+        }
+        fn visit_u64<E: serde::de::Error>(self, n: u64) -> Result<usize, E> {
+            usize::try_from(n).map_err(|_| E::custom(format!("threads {n} is too large")))
+        }
+        fn visit_i64<E: serde::de::Error>(self, n: i64) -> Result<usize, E> {
+            u64::try_from(n)
+                .map_err(|_| E::custom(format!("threads {n} must be at least 1")))
+                .and_then(|n| self.visit_u64(n))
+        }
+        fn visit_str<E: serde::de::Error>(self, w: &str) -> Result<usize, E> {
+            if w == "auto" {
+                Ok(auto_threads())
+            } else {
+                Err(E::custom(format!(
+                    "threads must be a count or \"auto\", not \"{w}\""
+                )))
+            }
+        }
+    }
+    d.deserialize_any(Visitor)
 }
 
 /// How [`SacConfig::init`] initialises the networks.
@@ -179,8 +231,11 @@ impl SacConfig {
                 self.gamma, self.tau
             ));
         }
-        if self.threads == 0 {
-            return bad("threads must be at least 1".into());
+        if !(1..=MAX_THREADS).contains(&self.threads) {
+            return bad(format!(
+                "threads {} must be 1 to {MAX_THREADS} (or \"auto\" in a run file)",
+                self.threads
+            ));
         }
         if !(self.adam_eps.is_finite() && self.adam_eps > 0.0) {
             return bad(format!("adam_eps {} must be > 0", self.adam_eps));
@@ -200,5 +255,37 @@ impl SacConfig {
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn threads_of(toml_text: &str) -> Result<usize, String> {
+        let c: SacConfig = toml::from_str(toml_text).map_err(|e| e.to_string())?;
+        c.validate().map_err(|e| e.to_string())?;
+        Ok(c.threads)
+    }
+
+    #[test]
+    fn threads_are_a_count_or_auto() {
+        assert_eq!(threads_of("threads = 3"), Ok(3));
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        assert_eq!(
+            threads_of("threads = \"auto\""),
+            Ok(cores.min(MAX_AUTO_THREADS))
+        );
+        assert_eq!(threads_of(""), Ok(1), "the library default is one thread");
+        for (bad, says) in [
+            ("threads = 0", "must be 1 to 256"),
+            ("threads = 257", "must be 1 to 256"),
+            ("threads = -1", "must be at least 1"),
+            ("threads = \"many\"", "not \"many\""),
+            ("threads = 1.5", "a thread count"),
+        ] {
+            let e = threads_of(bad).unwrap_err();
+            assert!(e.contains(says), "{bad}: {e}");
+        }
     }
 }

@@ -44,7 +44,7 @@ pub mod train;
 pub mod value;
 
 pub use batch::Batch;
-pub use config::{NetInit, SacConfig};
+pub use config::{auto_threads, NetInit, SacConfig};
 pub use error::SacError;
 pub use policy::{Policy, PolicySpec};
 pub use sac::{Sac, UpdateStats};

@@ -222,164 +222,333 @@ pub(crate) fn run<T: Transport>(
     hub: &WeightHub,
     checkpoint_jobs: &mpsc::Receiver<CheckpointJob>,
 ) -> anyhow::Result<()> {
-    let run = &config.run;
-    let tasks = terl_runtime::resolve_tasks(&run.tasks)?;
-    let nt = tasks.len();
-    let sac_config = sac_config(config)?;
-    let mut sac = Sac::new(sac_config.clone())?;
-
-    let mut transitions: Box<dyn MessageSource<TransitionBatch>> =
-        transport.source::<TransitionBatch>()?;
-    let mut staging = Staging::new(config.num_actors * run.cluster.buffer_batches);
-    let mut episodes = transport.source::<EpisodeSummary>()?;
-    let mut selected = transport.source::<SelectedBatch>()?;
-    let mut episode = EpisodeSummary::empty();
-    let mut selected_batch = SelectedBatch::empty();
-    let terl = run.algorithm == Algorithm::Terl;
-    let checkpoint_dir = config.run_dir.join("checkpoints");
-    let resume_from = resume_point(config, &checkpoint_dir)?;
-    anyhow::ensure!(
-        !(run.cluster.reproducible && config.resume),
-        "cluster.reproducible = true: a resumed run would not be the same run bit for bit \
-         (the replay buffer is not in the checkpoint); start it again without --resume"
-    );
-    let mut lockstep = run
-        .cluster
-        .reproducible
-        .then(|| LockstepStaging::new(Lockstep::new(run, config.num_actors)));
-    let mut planner = if terl {
-        Some(open_planner(config, &tasks, resume_from.is_some())?)
-    } else {
-        None
-    };
-
-    let spi = run.samples_per_insert();
-    let mut limiter = RateLimiter::new(
-        spi,
-        run.train.warmup_env_steps,
-        run.rate_error_buffer(TRANSITIONS_PER_BATCH),
-    )?;
-    let capacity = run.train.replay_capacity_per_task;
-    let mut replay = MultiTaskReplay::new(nt, capacity, OBS_DIM, ACTION_DIM);
-    let mut batch = Batch::with_capacity(sac_config.batch_size, OBS_DIM, ACTION_DIM);
-    let mut rng = ChaCha8Rng::seed_from_u64(run.train.seed ^ 0x1ea7_7e55);
-    let mut metrics = MetricsLog::create(&config.run_dir)?;
-    let mut checkpoints = Checkpoints::open(checkpoint_dir, &run.cluster)?;
-    let mut publisher = Publisher::new(
-        run.cluster.publish_every_updates,
-        run.cluster.critic_publish_every_updates,
-        terl,
-    );
-
-    let start = Instant::now();
-    let mut c = Counters::new(nt, run.train.success_window, start);
-    c.standalone_updates_per_second = shared.standalone_updates_per_second;
-    if let Some(found) = resume_from {
-        check_compatible(&found, &tasks, run.algorithm)?;
-        restore(
-            found,
-            &mut sac,
-            planner.as_mut(),
-            &mut rng,
-            &mut c,
-            &mut publisher,
-        )?;
-        // Actors and the selector get the restored networks at once (updates only continue
-        // once the replay buffer holds `warmup_env_steps` fresh transitions).
-        publisher.publish_all(hub, &sac, planner.as_mut())?;
+    let mut trainer = Trainer::open(config, transport, shared, hub)?;
+    while !shared.stop.load(Ordering::Relaxed) && !trainer.finished() {
+        if !trainer.round(hub, checkpoint_jobs, shared)? {
+            std::thread::sleep(Duration::from_micros(500));
+        }
     }
-    let mut board = StatusBoard::new(start);
-    tracing::info!(
-        tasks = nt,
-        samples_per_insert = spi,
-        warmup = run.train.warmup_env_steps,
-        publish_every = run.cluster.publish_every_updates,
-        algorithm = run.algorithm.as_str(),
-        "trainer started"
-    );
+    trainer.finish()
+}
 
-    let budget = run.train.total_env_steps;
-    while !shared.stop.load(Ordering::Relaxed) {
-        let between_rounds = lockstep
+/// What a checkpoint holds: the networks, the planner, the sampler and the counters.
+struct Model {
+    tasks: Vec<&'static str>,
+    algorithm: Algorithm,
+    sac: Sac<f32>,
+    planner: Option<PlannerTrainer>,
+    rng: ChaCha8Rng,
+    publisher: Publisher,
+    c: Counters,
+}
+
+impl Model {
+    /// The learner checkpoint of this moment.
+    fn snapshot(&self) -> anyhow::Result<Snapshot> {
+        let state = learner_state(
+            &self.tasks,
+            self.algorithm,
+            &self.c,
+            &self.publisher,
+            &self.rng,
+            self.planner.as_ref(),
+        );
+        Snapshot::new(
+            &self.sac,
+            self.planner
+                .as_ref()
+                .map(PlannerTrainer::checkpoint_tensors),
+            &state,
+        )
+    }
+
+    /// The planner's tool file (for `terl planner eval` and the actors), with TERL.
+    fn tool_file(&self) -> anyhow::Result<Option<crate::checkpointing::ToolFile>> {
+        self.planner
+            .as_ref()
+            .map(PlannerTrainer::tool_file)
+            .transpose()
+    }
+}
+
+/// Where transitions, episodes and selected samples come in.
+struct Inbound {
+    transitions: Box<dyn MessageSource<TransitionBatch>>,
+    staging: Staging,
+    limiter: RateLimiter,
+    /// The reproducible schedule (`cluster.reproducible`), instead of the rate limiter.
+    lockstep: Option<LockstepStaging>,
+    episodes: Box<dyn MessageSource<EpisodeSummary>>,
+    episode: Box<EpisodeSummary>,
+    selected: Box<dyn MessageSource<SelectedBatch>>,
+    selected_batch: Box<SelectedBatch>,
+}
+
+/// The learner as a state: [`Trainer::open`] builds (or resumes) it, [`Trainer::round`] runs one
+/// round of the loop, [`Trainer::finish`] writes the final checkpoint.
+struct Trainer<'a> {
+    config: &'a LearnerConfig,
+    m: Model,
+    inbound: Inbound,
+    replay: MultiTaskReplay,
+    batch: Batch,
+    metrics: MetricsLog,
+    checkpoints: Checkpoints,
+    board: StatusBoard,
+}
+
+impl<'a> Trainer<'a> {
+    /// Opens the transport's streams, builds the networks and replay, and restores the newest
+    /// checkpoint with `--resume` (publishing the restored networks at once).
+    fn open<T: Transport>(
+        config: &'a LearnerConfig,
+        transport: &T,
+        shared: &Shared,
+        hub: &WeightHub,
+    ) -> anyhow::Result<Self> {
+        let run = &config.run;
+        let tasks = terl_runtime::resolve_tasks(&run.tasks)?;
+        let nt = tasks.len();
+        let sac_config = sac_config(config)?;
+        let terl = run.algorithm == Algorithm::Terl;
+        let checkpoint_dir = config.run_dir.join("checkpoints");
+        let resume_from = resume_point(config, &checkpoint_dir)?;
+        anyhow::ensure!(
+            !(run.cluster.reproducible && config.resume),
+            "cluster.reproducible = true: a resumed run would not be the same run bit for bit \
+             (the replay buffer is not in the checkpoint); start it again without --resume"
+        );
+        let planner = if terl {
+            Some(open_planner(config, &tasks, resume_from.is_some())?)
+        } else {
+            None
+        };
+        let spi = run.samples_per_insert();
+        let inbound = Inbound {
+            transitions: transport.source::<TransitionBatch>()?,
+            staging: Staging::new(config.num_actors * run.cluster.buffer_batches),
+            limiter: RateLimiter::new(
+                spi,
+                run.train.warmup_env_steps,
+                run.rate_error_buffer(TRANSITIONS_PER_BATCH),
+            )?,
+            lockstep: run
+                .cluster
+                .reproducible
+                .then(|| LockstepStaging::new(Lockstep::new(run, config.num_actors))),
+            episodes: transport.source::<EpisodeSummary>()?,
+            episode: EpisodeSummary::empty(),
+            selected: transport.source::<SelectedBatch>()?,
+            selected_batch: SelectedBatch::empty(),
+        };
+        let start = Instant::now();
+        let mut c = Counters::new(nt, run.train.success_window, start);
+        c.standalone_updates_per_second = shared.standalone_updates_per_second;
+        let mut m = Model {
+            tasks,
+            algorithm: run.algorithm,
+            sac: Sac::new(sac_config.clone())?,
+            planner,
+            rng: ChaCha8Rng::seed_from_u64(run.train.seed ^ 0x1ea7_7e55),
+            publisher: Publisher::new(
+                run.cluster.publish_every_updates,
+                run.cluster.critic_publish_every_updates,
+                terl,
+            ),
+            c,
+        };
+        let trainer = Self {
+            config,
+            inbound,
+            replay: MultiTaskReplay::new(
+                nt,
+                run.train.replay_capacity_per_task,
+                OBS_DIM,
+                ACTION_DIM,
+            ),
+            batch: Batch::with_capacity(sac_config.batch_size, OBS_DIM, ACTION_DIM),
+            metrics: MetricsLog::create(&config.run_dir)?,
+            checkpoints: Checkpoints::open(checkpoint_dir, &run.cluster)?,
+            board: StatusBoard::new(start),
+            m: {
+                if let Some(found) = resume_from {
+                    check_compatible(&found, &m.tasks, run.algorithm)?;
+                    restore(
+                        found,
+                        &mut m.sac,
+                        m.planner.as_mut(),
+                        &mut m.rng,
+                        &mut m.c,
+                        &mut m.publisher,
+                    )?;
+                    // Actors and the selector get the restored networks at once (updates only
+                    // continue once the replay buffer holds `warmup_env_steps` fresh
+                    // transitions).
+                    m.publisher.publish_all(hub, &m.sac, m.planner.as_mut())?;
+                }
+                m
+            },
+        };
+        tracing::info!(
+            tasks = nt,
+            samples_per_insert = spi,
+            warmup = run.train.warmup_env_steps,
+            publish_every = run.cluster.publish_every_updates,
+            algorithm = run.algorithm.as_str(),
+            "trainer started"
+        );
+        Ok(trainer)
+    }
+
+    /// True (and logged) when the run is done: its env-step budget is reached (between
+    /// reproducible rounds), or stage 1 of the pipeline has the planner samples it wanted.
+    fn finished(&self) -> bool {
+        let run = &self.config.run;
+        let m = &self.m;
+        let between_rounds = self
+            .inbound
+            .lockstep
             .as_ref()
             .is_none_or(LockstepStaging::between_rounds);
-        if budget > 0 && c.env_steps >= budget && between_rounds {
+        let budget = run.train.total_env_steps;
+        if budget > 0 && m.c.env_steps >= budget && between_rounds {
             tracing::info!(
-                env_steps = c.env_steps,
-                updates = sac.updates(),
+                env_steps = m.c.env_steps,
+                updates = m.sac.updates(),
                 "training budget reached (train.total_env_steps); stopping"
             );
-            break;
+            return true;
         }
         let wanted = run.cluster.stop_at_planner_samples_per_task;
-        if wanted > 0 && planner.as_ref().is_some_and(|p| p.ready(wanted)) {
+        if wanted > 0 && m.planner.as_ref().is_some_and(|p| p.ready(wanted)) {
             tracing::info!(
-                env_steps = c.env_steps,
-                updates = sac.updates(),
+                env_steps = m.c.env_steps,
+                updates = m.sac.updates(),
                 samples_per_task = wanted,
                 "planner ready: every task validated with its selected samples \
                  (cluster.stop_at_planner_samples_per_task); stopping"
             );
-            break;
+            return true;
         }
+        false
+    }
+
+    /// One round of the loop: intake, updates, publication, checkpoints, status. True if
+    /// anything happened (the caller sleeps briefly otherwise).
+    fn round(
+        &mut self,
+        hub: &WeightHub,
+        checkpoint_jobs: &mpsc::Receiver<CheckpointJob>,
+        shared: &Shared,
+    ) -> anyhow::Result<bool> {
+        let mut busy = self.stage()?;
+        busy |= self.drain_inbound()?;
+        busy |= self.learn()?;
+        self.publish(hub)?;
+        self.checkpoint(checkpoint_jobs)?;
+        let m = &mut self.m;
+        self.board.tick(
+            Sources {
+                run_id: &self.config.run_id,
+                algorithm: m.algorithm,
+                tasks: &m.tasks,
+                sac: &m.sac,
+                replay: &self.replay,
+                capacity: self.config.run.train.replay_capacity_per_task,
+                shown: Shown {
+                    policy_version: m.publisher.policy_version,
+                    checkpoint_failures: self.checkpoints.failures,
+                },
+            },
+            &mut m.c,
+            m.planner.as_mut(),
+            &mut self.metrics,
+            shared,
+        )?;
+        Ok(busy)
+    }
+
+    /// Transition batches into replay: by the rate limiter, or round by round under the
+    /// reproducible schedule.
+    fn stage(&mut self) -> anyhow::Result<bool> {
         let began = Instant::now();
-        let mut busy = match lockstep.as_mut() {
+        let nt = self.m.tasks.len();
+        let (m, inb, replay) = (&mut self.m, &mut self.inbound, &mut self.replay);
+        let version = m.publisher.policy_version;
+        let busy = match inb.lockstep.as_mut() {
             Some(l) => {
-                let got = l.fill(transitions.as_mut())?;
-                let version = publisher.policy_version;
-                got | l.load_round(&mut c, |b, c| {
-                    crate::staging::ingest(b, nt, &mut replay, c, version)
+                let got = l.fill(inb.transitions.as_mut())?;
+                got | l.load_round(&mut m.c, |b, c| {
+                    crate::staging::ingest(b, nt, replay, c, version)
                 })
             }
-            None => staging.round(
-                transitions.as_mut(),
-                &mut limiter,
+            None => inb.staging.round(
+                inb.transitions.as_mut(),
+                &mut inb.limiter,
                 nt,
-                &mut replay,
-                &mut c,
-                publisher.policy_version,
+                replay,
+                &mut m.c,
+                version,
             )?,
         };
-        c.staging_round(began.elapsed());
-        while episodes.try_receive_into(&mut episode)? {
-            let e = &*episode;
-            c.inbound.episode(e);
+        m.c.staging_round(began.elapsed());
+        Ok(busy)
+    }
+
+    /// Finished episodes (success windows) and PTR-selected samples (the planner's buffer).
+    fn drain_inbound(&mut self) -> anyhow::Result<bool> {
+        let (m, inb) = (&mut self.m, &mut self.inbound);
+        let mut busy = false;
+        while inb.episodes.try_receive_into(&mut inb.episode)? {
+            let e = &*inb.episode;
+            m.c.inbound.episode(e);
             // A reproducible run keeps its success windows from the transitions, in round order.
-            if lockstep.is_none() {
-                c.episode(e.task as usize, e.succeeded());
+            if inb.lockstep.is_none() {
+                m.c.episode(e.task as usize, e.succeeded());
             }
             busy = true;
         }
-        while selected.try_receive_into(&mut selected_batch)? {
-            let s = &*selected_batch;
-            c.inbound.selected(s);
-            c.selected_samples += match planner.as_mut() {
+        while inb.selected.try_receive_into(&mut inb.selected_batch)? {
+            let s = &*inb.selected_batch;
+            m.c.inbound.selected(s);
+            m.c.selected_samples += match m.planner.as_mut() {
                 Some(p) => p.ingest_batch(s),
                 None => s.as_slice().len() as u64,
             };
             busy = true;
         }
+        Ok(busy)
+    }
 
+    /// The SAC updates that are due, then the planner's.
+    fn learn(&mut self) -> anyhow::Result<bool> {
+        let m = &mut self.m;
         let mut learning = Learning {
-            sac: &mut sac,
-            replay: &mut replay,
-            rng: &mut rng,
-            batch: &mut batch,
-            metrics: &mut metrics,
-            c: &mut c,
-            max_failed_in_a_row: run.train.max_consecutive_failed_updates,
+            sac: &mut m.sac,
+            replay: &mut self.replay,
+            rng: &mut m.rng,
+            batch: &mut self.batch,
+            metrics: &mut self.metrics,
+            c: &mut m.c,
+            max_failed_in_a_row: self.config.run.train.max_consecutive_failed_updates,
         };
-        busy |= match lockstep.as_mut() {
+        let mut busy = match self.inbound.lockstep.as_mut() {
             Some(l) => learning.scheduled(l)?,
-            None => learning.rate_limited(&mut limiter)?,
+            None => learning.rate_limited(&mut self.inbound.limiter)?,
         };
-        if let Some(p) = planner.as_mut() {
-            if p.train(sac.updates())? > 0 {
-                busy = true;
-            }
+        if let Some(p) = m.planner.as_mut() {
+            busy |= p.train(m.sac.updates())? > 0;
         }
-        match lockstep.as_mut() {
+        Ok(busy)
+    }
+
+    /// Publishes the weights that are due (under the reproducible schedule: makes the round's
+    /// version and releases what every actor is ready for).
+    fn publish(&mut self, hub: &WeightHub) -> anyhow::Result<()> {
+        let m = &mut self.m;
+        match self.inbound.lockstep.as_mut() {
             Some(l) => {
+                let sac = &m.sac;
                 let made = l.finish_round(|version| {
                     crate::to_weights(
                         terl_wire::WeightsKind::Policy,
@@ -390,83 +559,35 @@ pub(crate) fn run<T: Transport>(
                 })?;
                 if let Some(version) = made {
                     // The newest version made (what a checkpoint records), released or not.
-                    publisher.policy_version = version;
+                    m.publisher.policy_version = version;
                 }
                 l.release(hub)?;
             }
             None => {
-                publisher.publish_due(hub, &sac, planner.as_mut())?;
+                m.publisher.publish_due(hub, &m.sac, m.planner.as_mut())?;
             }
         }
-
-        let snapshot = || {
-            let state = learner_state(
-                &tasks,
-                run.algorithm,
-                &c,
-                &publisher,
-                &rng,
-                planner.as_ref(),
-            );
-            Snapshot::new(
-                &sac,
-                planner.as_ref().map(PlannerTrainer::checkpoint_tensors),
-                &state,
-            )
-        };
-        checkpoints.answer_requests(
-            checkpoint_jobs,
-            sac.updates(),
-            publisher.policy_version,
-            snapshot,
-        );
-        checkpoints.periodic(sac.updates(), snapshot, || {
-            planner.as_ref().map(PlannerTrainer::tool_file).transpose()
-        })?;
-
-        board.tick(
-            Sources {
-                run_id: &config.run_id,
-                algorithm: run.algorithm,
-                tasks: &tasks,
-                sac: &sac,
-                replay: &replay,
-                capacity,
-                shown: Shown {
-                    policy_version: publisher.policy_version,
-                    checkpoint_failures: checkpoints.failures,
-                },
-            },
-            &mut c,
-            planner.as_mut(),
-            &mut metrics,
-            shared,
-        )?;
-        if !busy {
-            std::thread::sleep(Duration::from_micros(500));
-        }
+        Ok(())
     }
 
-    metrics.finish()?;
-    let snapshot = Snapshot::new(
-        &sac,
-        planner.as_ref().map(PlannerTrainer::checkpoint_tensors),
-        &learner_state(
-            &tasks,
-            run.algorithm,
-            &c,
-            &publisher,
-            &rng,
-            planner.as_ref(),
-        ),
-    )?;
-    let tool_file = planner
-        .as_ref()
-        .map(PlannerTrainer::tool_file)
-        .transpose()?;
-    let path = checkpoints.last(&snapshot, tool_file)?;
-    tracing::info!(path = %path.display(), updates = sac.updates(), env_steps = c.env_steps, selected_samples = c.selected_samples, "trainer stopped; final checkpoint written");
-    Ok(())
+    /// Answers `SaveCheckpoint` requests and writes the periodic checkpoint when due.
+    fn checkpoint(&mut self, jobs: &mpsc::Receiver<CheckpointJob>) -> anyhow::Result<()> {
+        let m = &self.m;
+        let updates = m.sac.updates();
+        self.checkpoints
+            .answer_requests(jobs, updates, m.publisher.policy_version, || m.snapshot());
+        self.checkpoints
+            .periodic(updates, || m.snapshot(), || m.tool_file())
+    }
+
+    /// Closes the metrics log and writes the final checkpoint.
+    fn finish(self) -> anyhow::Result<()> {
+        self.metrics.finish()?;
+        let m = &self.m;
+        let path = self.checkpoints.last(&m.snapshot()?, m.tool_file()?)?;
+        tracing::info!(path = %path.display(), updates = m.sac.updates(), env_steps = m.c.env_steps, selected_samples = m.c.selected_samples, "trainer stopped; final checkpoint written");
+        Ok(())
+    }
 }
 
 /// The learner's counters for a checkpoint.
