@@ -207,30 +207,43 @@ impl<T: Float> Mlp<T> {
     /// Forward pass over the first `rows` rows of `cache`'s input (written by the caller with
     /// [`MlpCache::input_mut`]); the result is [`MlpCache::output`].
     pub fn forward(&self, cache: &mut MlpCache<T>, rows: usize, par: Par) {
+        self.forward_rows(cache, 0..rows, par);
+    }
+
+    /// Forward pass over the cache rows `rows` only (the others keep what they hold), so two
+    /// parts of one batch can be computed at different times, e.g. while another network runs.
+    /// Each row's result is the same as from [`Mlp::forward`] over all rows (rows are
+    /// independent; up to the GEMM's summation order).
+    ///
+    /// # Panics
+    /// `rows` reaches past the cache's capacity, or the cache is of another network shape.
+    pub fn forward_rows(&self, cache: &mut MlpCache<T>, rows: Range<usize>, par: Par) {
         assert_eq!(
             cache.sizes, self.sizes,
             "cache was built for another network shape"
         );
         assert!(
-            rows <= cache.capacity,
-            "batch of {rows} rows exceeds cache capacity {}",
+            rows.end <= cache.capacity,
+            "rows up to {} exceed cache capacity {}",
+            rows.end,
             cache.capacity
         );
-        if rows == 0 {
+        if rows.is_empty() {
             return;
         }
+        let n = rows.len();
         for l in 0..self.num_layers() {
             let (n_in, n_out) = (self.sizes[l], self.sizes[l + 1]);
             let (before, rest) = cache.outs.split_at_mut(l);
             let x: &[T] = if l == 0 {
-                &cache.input[..rows * n_in]
+                &cache.input[rows.start * n_in..rows.end * n_in]
             } else {
-                &before[l - 1][..rows * n_in]
+                &before[l - 1][rows.start * n_in..rows.end * n_in]
             };
-            let y = &mut rest[0][..rows * n_out];
+            let y = &mut rest[0][rows.start * n_out..rows.end * n_out];
             gemm(
-                MatMut::from_row_major_slice_mut(y, rows, n_out),
-                MatRef::from_row_major_slice(x, rows, n_in),
+                MatMut::from_row_major_slice_mut(y, n, n_out),
+                MatRef::from_row_major_slice(x, n, n_in),
                 self.weight(l).transpose(),
                 par,
             );
@@ -286,32 +299,32 @@ impl<T: Float> Mlp<T> {
             } else {
                 &cache.outs[l - 1][in_rows.clone()]
             };
-            match param_grads.as_deref_mut() {
+            let weight_grad = match param_grads.as_deref_mut() {
                 Some(grads) => {
                     let (gw, gb) =
                         grads[self.offsets[l]..self.bias_range(l).end].split_at_mut(n_out * n_in);
                     activation_grad_with_bias(dz, y, gb, self.activations[l]);
-                    gemm(
-                        MatMut::from_row_major_slice_mut(gw, n_out, n_in),
-                        MatRef::from_row_major_slice(dz, n, n_out).transpose(),
-                        MatRef::from_row_major_slice(x, n, n_in),
-                        par,
-                    );
+                    Some(gw)
                 }
-                None => activation_grad(dz, y, self.activations[l]),
-            }
+                None => {
+                    activation_grad(dz, y, self.activations[l]);
+                    None
+                }
+            };
             let dz = MatRef::from_row_major_slice(&*dz, n, n_out);
-            if l > 0 {
-                let dx = &mut g_before[l - 1][in_rows];
-                gemm(
-                    MatMut::from_row_major_slice_mut(dx, n, n_in),
-                    dz,
-                    self.weight(l),
-                    par,
-                );
+            // dX = dZ · W (all columns, or the asked ones of the input layer).
+            let (dx, cols) = if l > 0 {
+                (
+                    Some(MatMut::from_row_major_slice_mut(
+                        &mut g_before[l - 1][in_rows.clone()],
+                        n,
+                        n_in,
+                    )),
+                    0..n_in,
+                )
             } else {
                 let cols = match &input_grad {
-                    InputGrad::None => continue,
+                    InputGrad::None => 0..0,
                     InputGrad::All => 0..n_in,
                     InputGrad::Cols(c) => c.clone(),
                 };
@@ -319,13 +332,58 @@ impl<T: Float> Mlp<T> {
                     cols.end <= n_in,
                     "input gradient columns {cols:?} out of range"
                 );
-                let dx = MatMut::from_row_major_slice_mut(&mut cache.grad_input[in_rows], n, n_in);
+                let dx = (!cols.is_empty()).then(|| {
+                    MatMut::from_row_major_slice_mut(&mut cache.grad_input[in_rows.clone()], n, n_in)
+                });
+                (dx, cols)
+            };
+            let weight = self.weight(l);
+            let x = MatRef::from_row_major_slice(x, n, n_in);
+            let input_grad_gemm = |dx: MatMut<'_, T>, par: Par| {
                 gemm(
                     dx.subcols_mut(cols.start, cols.len()),
                     dz,
-                    self.weight(0).subcols(cols.start, cols.len()),
+                    weight.subcols(cols.start, cols.len()),
                     par,
                 );
+            };
+            let weight_grad_gemm = |gw: &mut [T], par: Par| {
+                gemm(
+                    MatMut::from_row_major_slice_mut(gw, n_out, n_in),
+                    dz.transpose(),
+                    x,
+                    par,
+                );
+            };
+            match (weight_grad, dx) {
+                // Both GEMMs of the layer are independent: with threads to spare, each gets half
+                // of them (on two threads, one each: better than splitting small GEMMs).
+                (Some(gw), Some(dx)) => match par {
+                    Par::Rayon(threads) if threads.get() >= 2 => {
+                        let half = threads.get() / 2;
+                        let (pw, px) = (
+                            crate::par_for_threads(threads.get() - half),
+                            crate::par_for_threads(half),
+                        );
+                        rayon::join(
+                            || {
+                                clear_upper_state();
+                                weight_grad_gemm(gw, pw);
+                            },
+                            || {
+                                clear_upper_state();
+                                input_grad_gemm(dx, px);
+                            },
+                        );
+                    }
+                    _ => {
+                        weight_grad_gemm(gw, par);
+                        input_grad_gemm(dx, par);
+                    }
+                },
+                (Some(gw), None) => weight_grad_gemm(gw, par),
+                (None, Some(dx)) => input_grad_gemm(dx, par),
+                (None, None) => {}
             }
         }
     }

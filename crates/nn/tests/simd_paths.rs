@@ -113,3 +113,33 @@ fn f32_gemms_of_this_instruction_set_match_an_f64_reference() {
         }
     }
 }
+
+/// `forward_rows` over two parts of a batch, at different times, gives each row what one
+/// `forward` over all rows gives, within the GEMM's rounding (rows are independent), and leaves
+/// the other rows alone.
+#[test]
+fn forward_over_row_ranges_matches_one_forward() {
+    let spec = MlpSpec {
+        input: 53,
+        hidden: vec![64, 64],
+        output: 1,
+        hidden_activation: Activation::Relu,
+        output_activation: Activation::Identity,
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let net: Mlp<f32> = Mlp::new(&spec, &mut rng);
+    let rows = 40;
+    let x: Vec<f32> = (0..rows * 53).map(|_| rng.gen_range(-1.0..1.0)).collect();
+    let mut whole = MlpCache::new(&net, rows);
+    whole.input_mut(0..rows).copy_from_slice(&x);
+    net.forward(&mut whole, rows, Par::Seq);
+    let mut parts = MlpCache::new(&net, rows);
+    parts.input_mut(0..rows).copy_from_slice(&x);
+    net.forward_rows(&mut parts, 0..17, Par::Seq);
+    let untouched = parts.output(17..rows).to_vec();
+    assert!(untouched.iter().all(|&v| v == 0.0), "rows 17.. not computed yet");
+    net.forward_rows(&mut parts, 17..rows, Par::Seq);
+    for (i, (a, b)) in parts.output(0..rows).iter().zip(whole.output(0..rows)).enumerate() {
+        assert!((a - b).abs() <= 1e-5 * (1.0 + b.abs()), "row {i}: {a} vs {b}");
+    }
+}

@@ -51,9 +51,9 @@ pub struct SacConfig {
     pub batch_size: usize,
     /// Threads of the update (faer GEMMs and the twin critics run on a private rayon pool),
     /// 1 to [`MAX_THREADS`]. A run file may write `threads = "auto"`: the cores this process may
-    /// use ([`auto_threads`]), resolved when the file is read, so the resolved run file and the
-    /// checkpoints record the count that ran (a thread count changes the GEMMs' summation
-    /// order, so a reproducible run is reproduced with the same count).
+    /// use ([`auto_threads`]), counted when the file is read, so checkpoints record the count
+    /// that ran (a thread count changes the GEMMs' summation order: a reproducible run is
+    /// reproduced with the same count).
     #[serde(deserialize_with = "threads_or_auto")]
     pub threads: usize,
     /// Seed of network initialisation and of the update's sampling noise.

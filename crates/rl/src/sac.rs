@@ -154,8 +154,29 @@ impl<T: Float> Critic<T> {
         }
     }
 
-    /// Fills inputs and runs the target on `(s', a')` and the critic on `(s, a)`, `(s, ã)`.
-    fn forward(&mut self, cfg: &SacConfig, batch: &Batch, pi_actions: &[T], par: Par) {
+    /// Fills rows `0..B` with `(s, a)` of the batch and runs the critic on them (needs no
+    /// policy output, so it can run while the policy does).
+    fn forward_replay(&mut self, cfg: &SacConfig, batch: &Batch, par: Par) {
+        let (b, od, a, nt) = (batch.len(), cfg.obs_dim, cfg.act_dim, cfg.num_tasks);
+        let w = cfg.critic_input();
+        let cin = self.cache.input_mut(0..b);
+        for i in 0..b {
+            let task = batch.task_ids[i] as usize;
+            let row = &mut cin[i * w..(i + 1) * w];
+            write_input(row, &batch.obs[i * od..(i + 1) * od], task, nt, None);
+            for (d, &s) in row[od + nt..]
+                .iter_mut()
+                .zip(&batch.actions[i * a..(i + 1) * a])
+            {
+                *d = T::of_f32(s);
+            }
+        }
+        self.net.forward_rows(&mut self.cache, 0..b, par);
+    }
+
+    /// Fills inputs and runs the target on `(s', a')` and the critic on `(s, ã)` (rows
+    /// `B..2B`), with `a'` and `ã` the policy's samples `pi_actions` (rows `0..B` and `B..2B`).
+    fn forward_policy(&mut self, cfg: &SacConfig, batch: &Batch, pi_actions: &[T], par: Par) {
         let (b, od, a, nt) = (batch.len(), cfg.obs_dim, cfg.act_dim, cfg.num_tasks);
         let w = cfg.critic_input();
         let tin = self.target_cache.input_mut(0..b);
@@ -171,28 +192,18 @@ impl<T: Float> Critic<T> {
             );
         }
         self.target.forward(&mut self.target_cache, b, par);
-        let cin = self.cache.input_mut(0..2 * b);
+        let cin = self.cache.input_mut(b..2 * b);
         for i in 0..b {
             let task = batch.task_ids[i] as usize;
-            let obs = &batch.obs[i * od..(i + 1) * od];
-            let row = &mut cin[i * w..(i + 1) * w];
-            write_input(row, obs, task, nt, None);
-            for (d, &s) in row[od + nt..]
-                .iter_mut()
-                .zip(&batch.actions[i * a..(i + 1) * a])
-            {
-                *d = T::of_f32(s);
-            }
-            let new_action = &pi_actions[(b + i) * a..(b + i + 1) * a];
             write_input(
-                &mut cin[(b + i) * w..(b + i + 1) * w],
-                obs,
+                &mut cin[i * w..(i + 1) * w],
+                &batch.obs[i * od..(i + 1) * od],
                 task,
                 nt,
-                Some(new_action),
+                Some(&pi_actions[(b + i) * a..(b + i + 1) * a]),
             );
         }
-        self.net.forward(&mut self.cache, 2 * b, par);
+        self.net.forward_rows(&mut self.cache, b..2 * b, par);
     }
 
     /// Critic-loss parameter gradients from rows `0..B` and the actor's action gradients from
@@ -459,7 +470,26 @@ impl<T: Float> Sac<T> {
                 None,
             );
         }
-        self.policy.forward(&mut self.policy_cache, 2 * b, par);
+        // The policy on s' and s while the critics run on (s, a) of the batch (on one thread
+        // each with a pool: the three are independent).
+        let critic_par = if parallel { Par::Seq } else { par };
+        if parallel {
+            let (policy, policy_cache, critics) =
+                (&self.policy, &mut self.policy_cache, &mut self.critics);
+            rayon::join(
+                || {
+                    clear_upper_state();
+                    policy.forward(policy_cache, 2 * b, Par::Seq);
+                },
+                || {
+                    clear_upper_state();
+                    both(critics, false, |c| c.forward_replay(cfg, batch, Par::Seq));
+                },
+            );
+        } else {
+            self.policy.forward(&mut self.policy_cache, 2 * b, par);
+            both(&mut self.critics, false, |c| c.forward_replay(cfg, batch, par));
+        }
         let (eps, pi_actions, log_prob) = (
             &self.eps[..2 * b * a],
             &mut self.pi_actions[..2 * b * a],
@@ -476,11 +506,10 @@ impl<T: Float> Sac<T> {
             self.alpha_rows[i] = self.log_alpha[batch.task_ids[i] as usize].exp();
         }
 
-        // Both critics: targets on (s', a'), critics on (s, a) and (s, ã).
+        // Both critics: targets on (s', a'), critics on (s, ã).
         let pi_actions = &self.pi_actions[..2 * b * a];
-        let critic_par = if parallel { Par::Seq } else { par };
         both(&mut self.critics, parallel, |c| {
-            c.forward(cfg, batch, pi_actions, critic_par)
+            c.forward_policy(cfg, batch, pi_actions, critic_par)
         });
 
         // Targets and the gradients of all losses w.r.t. the critic outputs.

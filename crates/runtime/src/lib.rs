@@ -12,6 +12,7 @@
 mod config;
 pub mod eval;
 pub mod lockstep;
+pub mod process;
 mod metaworld_vec;
 pub mod service;
 

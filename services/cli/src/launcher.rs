@@ -104,6 +104,18 @@ fn valid_run_id(id: &str) -> bool {
         && id != ".."
 }
 
+/// Local actors per core the launcher starts at most (`--actors`).
+pub const MAX_ACTORS_PER_CORE: usize = 4;
+/// Local actors the launcher starts at most on any machine (`--actors`).
+pub const MAX_LOCAL_ACTORS: usize = 256;
+
+/// The most local actors `--actors` accepts here: [`MAX_ACTORS_PER_CORE`] per core, at most
+/// [`MAX_LOCAL_ACTORS`]. An actor steps its environments on one core; more than a few per core
+/// only share the cores and add memory.
+pub fn max_local_actors() -> usize {
+    (MAX_ACTORS_PER_CORE * terl_runtime::process::available_cores()).min(MAX_LOCAL_ACTORS)
+}
+
 fn all_digits(s: &str, nonzero_first: bool) -> bool {
     !s.is_empty() && s.chars().all(|c| c.is_ascii_digit()) && !(nonzero_first && s.starts_with('0'))
 }
@@ -290,6 +302,14 @@ fn plan(args: UpArgs) -> std::result::Result<Plan, Result<ExitCode>> {
     let Ok(actors) = actors.parse::<usize>() else {
         return Err(usage("--actors must be a positive integer"));
     };
+    let most = max_local_actors();
+    if actors > most {
+        return Err(usage(format!(
+            "--actors {actors} is more than this machine can run: at most {most} local actors \
+             ({MAX_ACTORS_PER_CORE} per core, at most {MAX_LOCAL_ACTORS}; each holds its \
+             environments, ~50-150 MB); actors on other hosts join over Zenoh (docs/cluster.md)"
+        )));
+    }
     let run_id = run_id.unwrap_or_else(|| {
         let name = config
             .file_name()

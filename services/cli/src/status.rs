@@ -48,6 +48,10 @@ struct Process {
     role: String,
     pid: u32,
     alive: bool,
+    /// CPU use over the half second `terl status` watched it, in cores (all its threads).
+    cpu_cores: Option<f64>,
+    /// Resident set size, in MB (10^6 bytes).
+    rss_mb: Option<f64>,
 }
 
 /// What the launcher's files say about a run's processes.
@@ -72,6 +76,8 @@ fn read_launcher(run: &std::path::Path) -> Launcher {
                 role: role.to_string(),
                 pid,
                 alive,
+                cpu_cores: None,
+                rss_mb: None,
             })
         })
         .collect();
@@ -89,13 +95,84 @@ fn read_launcher(run: &std::path::Path) -> Launcher {
     }
 }
 
+/// How long `terl status` watches the run's processes to tell their CPU use.
+const USAGE_WINDOW: Duration = Duration::from_millis(500);
+
+/// Fills in the CPU use and memory of the launcher's live processes (on this host).
+fn measure(l: &mut Launcher) {
+    let live: Vec<&mut Process> = l.processes.iter_mut().filter(|p| p.alive).collect();
+    let pids: Vec<u32> = live.iter().map(|p| p.pid).collect();
+    for (p, got) in live
+        .into_iter()
+        .zip(terl_runtime::process::sample(&pids, USAGE_WINDOW))
+    {
+        if let Some((cores, rss)) = got {
+            p.cpu_cores = Some(cores);
+            p.rss_mb = Some(rss as f64 / 1e6);
+        }
+    }
+}
+
+/// Which side limits the run, from the share of its wall time the learner spends in updates
+/// (`updates_per_second / busy_updates_per_second`): near 1 the learner is always updating and
+/// the actors wait on the update-to-data ratio; well below, the learner waits for transitions.
+fn bound_by(update_share: f64) -> &'static str {
+    if update_share >= 0.9 {
+        "learner-bound: more actors would only wait; more learner threads ([sac] threads) or \
+         a lower update-to-data ratio would speed the run"
+    } else if update_share >= 0.6 {
+        "balanced: the learner updates most of the time and the actors keep up"
+    } else {
+        "actor-bound: the learner waits for transitions; more actors (--actors N) would \
+         feed it"
+    }
+}
+
+/// The machine line: cores, what the cluster's processes use of them, and which side limits
+/// the run.
+fn print_machine(learner: &LearnerStatus, launcher: Option<&Launcher>) {
+    let cores = terl_runtime::process::available_cores();
+    let mut used = String::new();
+    if let Some(l) = launcher {
+        let parts: Vec<(String, f64)> = l
+            .processes
+            .iter()
+            .filter_map(|p| Some((p.role.clone(), p.cpu_cores?)))
+            .collect();
+        if !parts.is_empty() {
+            let total: f64 = parts.iter().map(|(_, c)| c).sum();
+            let each: Vec<String> = parts.iter().map(|(r, c)| format!("{r} {c:.2}")).collect();
+            used = format!(
+                "; the cluster uses {total:.2} of them ({:.0} %: {})",
+                100.0 * total / cores as f64,
+                each.join(", ")
+            );
+        }
+    }
+    let verdict = if learner.busy_updates_per_second > 0.0 {
+        let share = (learner.updates_per_second / learner.busy_updates_per_second).min(1.0);
+        format!(
+            "; the learner updates {:.0} % of the time: {}",
+            100.0 * share,
+            bound_by(share)
+        )
+    } else {
+        String::new()
+    };
+    println!("machine   {cores} cores{used}{verdict}");
+}
+
 fn print_launcher(l: &Launcher) {
     let procs: Vec<String> = l
         .processes
         .iter()
         .map(|p| {
+            let usage = match (p.cpu_cores, p.rss_mb) {
+                (Some(c), Some(m)) => format!(", {:.0} % CPU, {m:.0} MB", 100.0 * c),
+                _ => String::new(),
+            };
             format!(
-                "{} {} ({})",
+                "{} {} ({}{usage})",
                 p.role,
                 p.pid,
                 if p.alive { "alive" } else { "gone" }
@@ -411,7 +488,11 @@ pub fn run(args: StatusArgs) -> Result<ExitCode> {
             args.selector_addr
                 .clone()
                 .map_or_else(|| read(dir, "selector"), Ok)?,
-            Some(read_launcher(dir)),
+            Some({
+                let mut l = read_launcher(dir);
+                measure(&mut l);
+                l
+            }),
         ),
         None => (
             args.addr
@@ -463,6 +544,7 @@ pub fn run(args: StatusArgs) -> Result<ExitCode> {
             println!("{}", serde_json::to_string(&value)?);
         } else {
             print_table(&learner, selector.as_ref());
+            print_machine(&learner, launcher.as_ref());
             if let Some(l) = &launcher {
                 print_launcher(l);
             }

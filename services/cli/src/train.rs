@@ -128,11 +128,18 @@ pub fn run(args: TrainArgs) -> Result<std::process::ExitCode> {
         out.join("report.json"),
         serde_json::to_string_pretty(&report)?,
     )?;
-    eprintln!(
-        "done: best eval success {:.1}% (target reached at {:?} env steps / {:?} s); report in {}",
-        100.0 * report.best_eval_success,
+    let target = match (
         report.reached_target_at_env_steps,
-        report.reached_target_at_wall_s.map(|s| s.round()),
+        report.reached_target_at_wall_s,
+    ) {
+        (Some(steps), Some(s)) => format!("target reached at {steps} env steps, {s:.0} s"),
+        (Some(steps), None) => format!("target reached at {steps} env steps"),
+        _ if cfg.train.stop_at_eval_success.is_some() => "target not reached".to_string(),
+        _ => "no target set".to_string(),
+    };
+    eprintln!(
+        "done: best eval success {:.1}% ({target}); report in {}",
+        100.0 * report.best_eval_success,
         out.join("report.json").display()
     );
     Ok(std::process::ExitCode::SUCCESS)

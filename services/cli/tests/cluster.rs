@@ -965,6 +965,24 @@ fn killed_learner_is_restarted_and_runs_resume_past_a_damaged_checkpoint() {
     let procs = v["launcher"]["processes"].as_array().unwrap();
     assert_eq!(procs.len(), 3);
     assert!(procs.iter().all(|p| p["alive"] == true), "{v}");
+    // Each live process with its CPU use (in cores, between none and every core a process may
+    // use) and resident memory (a learner holds at least its networks and the MuJoCo-free
+    // runtime: well over 1 MB; an actor's environments well under 1 GB here).
+    for p in procs {
+        let cores = p["cpu_cores"].as_f64().unwrap_or(-1.0);
+        let rss = p["rss_mb"].as_f64().unwrap_or(-1.0);
+        assert!((0.0..=64.0).contains(&cores), "{p}");
+        assert!((1.0..1000.0).contains(&rss), "{p}");
+    }
+    let text = Command::new(env!("CARGO_BIN_EXE_terl"))
+        .args(["status", "--run", run_dir.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&text.stdout);
+    assert!(
+        text.contains("machine   ") && text.contains("the cluster uses") && text.contains("% CPU"),
+        "{text}"
+    );
     // Updates continue past the checkpoint once the replay buffer has refilled.
     wait_until("updates past the resume point", limit, || {
         status(&learner_addr, &selector_addr)
@@ -1118,6 +1136,14 @@ fn launcher_refuses_bad_or_locked_run_ids_and_reports_a_start_up_failure_with_it
         let (code, err) = run(&["--run-id", bad]);
         assert_eq!(code, Some(2), "{bad:?}: {err}");
         assert!(err.contains("--run-id must be"), "{bad:?}: {err}");
+    }
+    // More actors than the machine can hold: refused before anything starts.
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    for too_many in [(4 * cores + 1).to_string(), "100000".to_string()] {
+        let (code, err) = run(&["--actors", &too_many, "--run-id", "it-too-many"]);
+        assert_eq!(code, Some(2), "--actors {too_many}: {err}");
+        assert!(err.contains("local actors"), "--actors {too_many}: {err}");
+        assert!(!runs.join("it-too-many").exists(), "nothing was started");
     }
 
     // Another launcher of this run id holds its lock.

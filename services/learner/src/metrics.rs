@@ -6,6 +6,9 @@
 //! `transport/transitions_dropped`, `transport/episodes_dropped`,
 //! `transport/selected_samples_dropped`, and per actor
 //! `transport/transitions_dropped/actor-<id>` and `transport/episodes_dropped/actor-<id>`.
+//! The machine: `charts/update_share` (share of the window's wall time spent in updates: near 1
+//! the run is learner-bound), `process/cpu_cores` (the learner process's CPU use over the
+//! window, in cores) and `process/rss_mb` (its resident memory, MB).
 //! TERL runs add `tep/target_mean` (mean
 //! target of the hindsight term), `tep/goal_distance_mean` (mean `F(s_t, s', a_t)`), F's three
 //! loss terms (`tep/step_loss`, `tep/goal_loss`, `tep/symmetry_loss`), `tep/an_bc_loss`,
@@ -35,6 +38,8 @@ struct LossSums {
 pub(crate) struct MetricsLog {
     writer: MetricsWriter,
     sums: LossSums,
+    /// The learner process's CPU counters at the previous window (for `process/cpu_cores`).
+    usage: Option<terl_runtime::process::Usage>,
 }
 
 impl MetricsLog {
@@ -45,6 +50,7 @@ impl MetricsLog {
         Ok(Self {
             writer,
             sums: LossSums::default(),
+            usage: terl_runtime::process::usage(None).ok(),
         })
     }
 
@@ -112,6 +118,22 @@ impl MetricsLog {
                 format!("transport/episodes_dropped/actor-{}", a.actor_id),
                 a.episodes_dropped as f64,
             ));
+        }
+        if status.busy_updates_per_second > 0.0 {
+            out.push((
+                "charts/update_share".into(),
+                (status.updates_per_second / status.busy_updates_per_second).min(1.0),
+            ));
+        }
+        if let Ok(now) = terl_runtime::process::usage(None) {
+            if let Some(before) = &self.usage {
+                out.push((
+                    "process/cpu_cores".into(),
+                    terl_runtime::process::cores_between(before, &now),
+                ));
+            }
+            out.push(("process/rss_mb".into(), now.rss_bytes as f64 / 1e6));
+            self.usage = Some(now);
         }
         let s = std::mem::take(&mut self.sums);
         if s.n > 0 {
