@@ -8,6 +8,14 @@
 #   mujoco 3.3.0; its code runs on the 3.3.7 this project pins), for metaworld_python.py.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
+only_metaworld=0
+while [ $# -gt 0 ]; do
+    case "$1" in
+        --metaworld) only_metaworld=1; shift ;;
+        -h|--help) sed -n '2,8p' "$0"; exit 0 ;;
+        *) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
+    esac
+done
 venv() {
     [ -x "$1/bin/python" ] || python3 -m venv "$1"
     "$1/bin/pip" install -q --upgrade pip
@@ -17,7 +25,7 @@ venv "$MW"
 "$MW/bin/pip" install -q mujoco==3.3.7 "gymnasium>=1.1" numpy scipy imageio packaging
 "$MW/bin/pip" install -q --no-deps metaworld==3.1.1
 "$MW/bin/python" -c 'import metaworld, mujoco; print("metaworld ok, mujoco", mujoco.__version__)'
-[ "${1:-}" = --metaworld ] && exit 0
+[ "$only_metaworld" = 0 ] || exit 0
 VENV=.deps/bench-venv
 venv "$VENV"
 "$VENV/bin/pip" install -q torch numpy

@@ -52,7 +52,7 @@
 #                                    planner (and stage-1 datasets) of seed K's stages 1 and 2,
 #                                    which must be done: MT10 seeds that share one planner
 #   --mode reproducible|asynchronous MTSAC runs with [cluster] reproducible = true (the default:
-#                                    the same seed gives the same run bit for bit, at about 3 %
+#                                    the same seed gives the same run bit for bit, at about 10 %
 #                                    more wall time on MT10 workstation) or asynchronous; TERL
 #                                    runs are asynchronous (docs/cluster.md#reproducible-runs)
 # A run whose eval-final.json exists is skipped, so an interrupted experiment resumes where it

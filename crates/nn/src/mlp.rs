@@ -333,7 +333,11 @@ impl<T: Float> Mlp<T> {
                     "input gradient columns {cols:?} out of range"
                 );
                 let dx = (!cols.is_empty()).then(|| {
-                    MatMut::from_row_major_slice_mut(&mut cache.grad_input[in_rows.clone()], n, n_in)
+                    MatMut::from_row_major_slice_mut(
+                        &mut cache.grad_input[in_rows.clone()],
+                        n,
+                        n_in,
+                    )
                 });
                 (dx, cols)
             };

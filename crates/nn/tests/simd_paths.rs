@@ -137,9 +137,20 @@ fn forward_over_row_ranges_matches_one_forward() {
     parts.input_mut(0..rows).copy_from_slice(&x);
     net.forward_rows(&mut parts, 0..17, Par::Seq);
     let untouched = parts.output(17..rows).to_vec();
-    assert!(untouched.iter().all(|&v| v == 0.0), "rows 17.. not computed yet");
+    assert!(
+        untouched.iter().all(|&v| v == 0.0),
+        "rows 17.. not computed yet"
+    );
     net.forward_rows(&mut parts, 17..rows, Par::Seq);
-    for (i, (a, b)) in parts.output(0..rows).iter().zip(whole.output(0..rows)).enumerate() {
-        assert!((a - b).abs() <= 1e-5 * (1.0 + b.abs()), "row {i}: {a} vs {b}");
+    for (i, (a, b)) in parts
+        .output(0..rows)
+        .iter()
+        .zip(whole.output(0..rows))
+        .enumerate()
+    {
+        assert!(
+            (a - b).abs() <= 1e-5 * (1.0 + b.abs()),
+            "row {i}: {a} vs {b}"
+        );
     }
 }

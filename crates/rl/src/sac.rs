@@ -488,7 +488,9 @@ impl<T: Float> Sac<T> {
             );
         } else {
             self.policy.forward(&mut self.policy_cache, 2 * b, par);
-            both(&mut self.critics, false, |c| c.forward_replay(cfg, batch, par));
+            both(&mut self.critics, false, |c| {
+                c.forward_replay(cfg, batch, par)
+            });
         }
         let (eps, pi_actions, log_prob) = (
             &self.eps[..2 * b * a],

@@ -12,8 +12,8 @@
 mod config;
 pub mod eval;
 pub mod lockstep;
-pub mod process;
 mod metaworld_vec;
+pub mod process;
 pub mod service;
 
 pub use config::{

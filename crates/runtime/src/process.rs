@@ -86,26 +86,45 @@ pub fn available_cores() -> usize {
 mod tests {
     use super::*;
 
-    /// A busy thread shows as about one core; RSS grows by what the test touches; both checked
-    /// against the second path of `/proc/self/statm` and the thread's own clock.
+    /// The thread's own CPU clock in seconds (`/proc/thread-self/schedstat`, nanoseconds on
+    /// CPU): the second path the process's CPU time is checked against.
+    fn thread_cpu_seconds() -> f64 {
+        let text = std::fs::read_to_string("/proc/thread-self/schedstat").unwrap();
+        text.split_whitespace()
+            .next()
+            .unwrap()
+            .parse::<f64>()
+            .unwrap()
+            / 1e9
+    }
+
+    /// A thread that spins for 0.3 s of its own CPU time adds that much to the process's CPU
+    /// time (whatever the machine's load: both count CPU time, not wall time); RSS grows by what
+    /// the test touches, checked against `/proc/self/statm`.
     #[test]
     fn a_busy_thread_is_one_core_and_touched_memory_is_resident() {
         let before = usage(None).unwrap();
-        let spin = std::thread::spawn(|| {
-            let t = Instant::now();
+        let spent = std::thread::spawn(|| {
+            let start = thread_cpu_seconds();
             let mut x = 0u64;
-            while t.elapsed() < Duration::from_millis(400) {
-                x = std::hint::black_box(x.wrapping_mul(6364136223846793005).wrapping_add(1));
+            while thread_cpu_seconds() - start < 0.3 {
+                for _ in 0..10_000 {
+                    x = std::hint::black_box(x.wrapping_mul(6364136223846793005).wrapping_add(1));
+                }
             }
-            x
-        });
-        spin.join().unwrap();
+            thread_cpu_seconds() - start
+        })
+        .join()
+        .unwrap();
         let after = usage(None).unwrap();
-        let cores = cores_between(&before, &after);
+        let cpu = after.cpu_seconds - before.cpu_seconds;
+        // Clock ticks are 10 ms; the waiting main thread adds next to nothing.
         assert!(
-            (0.5..=1.6).contains(&cores),
-            "one spinning thread over its own lifetime: {cores} cores"
+            cpu >= spent - 0.03 && cpu <= spent + 0.15,
+            "process CPU {cpu} s for a thread that spent {spent} s"
         );
+        let cores = cores_between(&before, &after);
+        assert!(cores > 0.0 && cores.is_finite(), "{cores}");
         // 64 MB touched page by page must show as resident.
         let big = vec![1u8; 64 << 20];
         let with = usage(None).unwrap();
@@ -113,9 +132,16 @@ mod tests {
         let statm = std::fs::read_to_string("/proc/self/statm").unwrap();
         let resident_pages: u64 = statm.split_whitespace().nth(1).unwrap().parse().unwrap();
         let statm_bytes = resident_pages * procfs::page_size();
-        assert!(with.rss_bytes >= after.rss_bytes + (60 << 20), "{with:?} after {after:?}");
+        assert!(
+            with.rss_bytes >= after.rss_bytes + (60 << 20),
+            "{with:?} after {after:?}"
+        );
         let diff = statm_bytes.abs_diff(with.rss_bytes);
-        assert!(diff < (8 << 20), "procfs {} vs statm {statm_bytes}", with.rss_bytes);
+        assert!(
+            diff < (8 << 20),
+            "procfs {} vs statm {statm_bytes}",
+            with.rss_bytes
+        );
         assert!(with.threads >= 1);
         assert!(usage(Some(u32::MAX)).is_err(), "no such process");
     }
