@@ -10,6 +10,9 @@
 #
 # Needs the release binaries (./deploy/local-cluster.sh or cargo build --release builds them).
 # Run on an otherwise idle machine: every cluster shares its cores with whatever else runs.
+# Ctrl-C or SIGTERM stops the cluster being measured; after a kill -9 of this script its cluster
+# keeps running (it trains until stopped): `terl cluster down scaling-<set>-a<N> --runs-root
+# <the /tmp/terl-scaling.* folder>` stops it.
 set -euo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 cd "$ROOT"
@@ -18,6 +21,7 @@ actor_counts="1 2 4"
 seconds=120
 out=docs/results/scaling/clusters.jsonl
 while [ $# -gt 0 ]; do
+    case "$1" in --sets|--actors|--seconds|--out) [ $# -ge 2 ] || { echo "$1 needs a value" >&2; exit 2; } ;; esac
     case "$1" in
         --sets) sets=$2; shift 2 ;;
         --actors) actor_counts=$2; shift 2 ;;
@@ -27,9 +31,13 @@ while [ $# -gt 0 ]; do
         *) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
     esac
 done
-[[ "$seconds" =~ ^[0-9]{2,5}$ ]] && [ "$seconds" -ge 30 ] || { echo "--seconds takes 30 to 99999" >&2; exit 2; }
+[[ "$seconds" =~ ^[1-9][0-9]{1,4}$ ]] && [ "$seconds" -ge 30 ] || { echo "--seconds takes 30 to 99999" >&2; exit 2; }
+[ -n "${sets// /}" ] || { echo "--sets needs at least one task set" >&2; exit 2; }
+[ -n "${actor_counts// /}" ] || { echo "--actors needs at least one count" >&2; exit 2; }
+most=$((4 * $(nproc)))
 for n in $actor_counts; do
-    [[ "$n" =~ ^[1-9][0-9]?$ ]] || { echo "--actors takes counts from 1 to 99" >&2; exit 2; }
+    [[ "$n" =~ ^[1-9][0-9]{0,3}$ ]] && [ "$n" -le "$most" ] \
+        || { echo "--actors takes counts from 1 to $most (4 per core, as the launcher)" >&2; exit 2; }
 done
 for s in $sets; do
     [ -f "deploy/configs/$s-workstation.toml" ] || { echo "no deploy/configs/$s-workstation.toml" >&2; exit 2; }
@@ -38,12 +46,15 @@ bin=${CARGO_TARGET_DIR:-target}/release
 [ -x "$bin/terl" ] || { echo "$bin/terl is missing: build the release binaries first" >&2; exit 1; }
 root=$(mktemp -d "${TMPDIR:-/tmp}/terl-scaling.XXXXXX")
 launcher=""
+# SIGTERM stops a launcher (SIGINT is ignored by background jobs of a script).
 cleanup() {
-    [ -z "$launcher" ] || kill -INT "$launcher" 2>/dev/null || true
+    [ -z "$launcher" ] || kill -TERM "$launcher" 2>/dev/null || true
     [ -z "$launcher" ] || wait "$launcher" 2>/dev/null || true
     rm -rf "$root"
 }
 trap cleanup EXIT
+trap 'exit 130' INT
+trap 'exit 143' TERM
 mkdir -p "$(dirname "$out")"
 cores=$(nproc)
 for set in $sets; do
@@ -58,13 +69,18 @@ for set in $sets; do
             --learner-addr 127.0.0.1:0 --selector-addr 127.0.0.1:0 > "$root/$id.log" 2>&1 &
         launcher=$!
         sleep $((seconds / 3))
+        if ! kill -0 "$launcher" 2>/dev/null; then
+            echo "[scaling] the cluster did not start:" >&2
+            tail -5 "$root/$id.log" >&2
+            exit 1
+        fi
         end=$((SECONDS + seconds - seconds / 3))
         : > "$root/$id.status"
         while [ $SECONDS -lt $end ]; do
             "$bin/terl" status --json --run "$root/$id" >> "$root/$id.status" 2>/dev/null || true
             sleep 5
         done
-        kill -INT "$launcher" 2>/dev/null || true
+        kill -TERM "$launcher" 2>/dev/null || true
         wait "$launcher" || true
         launcher=""
         python3 - "$set" "$n" "$cores" "$seconds" "$root/$id.status" >> "$out" <<'PY'

@@ -81,6 +81,7 @@ planner_updates=""
 last_stage=3
 stage1_steps=""
 planner_from=""
+planner_from_set=0
 mode=reproducible
 while [ $# -gt 0 ]; do
     case "$1" in
@@ -102,7 +103,7 @@ while [ $# -gt 0 ]; do
         --last-stage) last_stage=$2; shift 2 ;;
         --stage1-steps) stage1_steps=$2; shift 2 ;;
         --mode) mode=$2; shift 2 ;;
-        --planner-from-seed) planner_from=$2; shift 2 ;;
+        --planner-from-seed) planner_from=$2; planner_from_set=1; shift 2 ;;
         -h|--help) usage; exit 0 ;;
         *) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
     esac
@@ -127,8 +128,10 @@ for v in "$stage1_samples" "$planner_updates" "$stage1_steps"; do
     [ -z "$v" ] || [[ "$v" =~ ^[1-9][0-9]{0,14}$ ]] \
         || { echo "--stage1-samples, --stage1-steps and --planner-updates take positive integers (at most 15 digits)" >&2; exit 2; }
 done
-[ -z "$planner_from" ] || [[ "$planner_from" =~ ^[0-9]{1,15}$ ]] \
-    || { echo "--planner-from-seed takes a seed (a non-negative integer)" >&2; exit 2; }
+[ "$planner_from_set" = 0 ] || [[ "$planner_from" =~ ^[0-9]{1,15}$ ]] \
+    || { echo "--planner-from-seed takes a seed (a non-negative integer of at most 15 digits)" >&2; exit 2; }
+[ "$planner_from_set" = 0 ] || [ "$last_stage" = 3 ] \
+    || { echo "--planner-from-seed runs stage 3 only: it does not go with --last-stage" >&2; exit 2; }
 if [ "$experiment" != terl-pipeline ] \
     && { [ -n "$stage1_samples$planner_updates$stage1_steps$planner_from" ] || [ "$last_stage" != 3 ]; }; then
     echo "--stage1-samples, --stage1-steps, --planner-updates, --planner-from-seed and --last-stage apply to terl-pipeline only" >&2
@@ -141,6 +144,12 @@ if [ "$build" = 1 ]; then
     cargo build --release -q -p terl-cli -p terl-learner -p terl-actor -p terl-selector
 fi
 say() { printf '[experiment] %s\n' "$*" >&2; }
+# Temporary run files go with the script, however it ends.
+current_tmp=""
+cfg3=""
+trap 'rm -f "$current_tmp" "$cfg3"' EXIT
+trap 'exit 130' INT
+trap 'exit 143' TERM
 
 # One instance per experiment and tag in a runs root: a second one would delete the first one's
 # run folders as unfinished.
@@ -209,14 +218,22 @@ train_run() {
     mkdir -p "$runs"
     local cfg
     cfg=$(mktemp "${TMPDIR:-/tmp}/terl-$id.XXXXXX.toml") || return 1
+    current_tmp=$cfg
     cat > "$cfg" || return 1
     say "$id: training (log: $dir/cluster.log)"
     mkdir -p "$dir"
     local start=$SECONDS
-    if ! ./deploy/local-cluster.sh --config "$cfg" --run-id "$id" --actors "$actors" --no-build \
+    local rc=0
+    ./deploy/local-cluster.sh --config "$cfg" --run-id "$id" --actors "$actors" --no-build \
         --learner-addr 127.0.0.1:0 --selector-addr 127.0.0.1:0 --runs-root "$runs" "$@" \
-        > "$dir/cluster.log" 2>&1; then
+        > "$dir/cluster.log" 2>&1 || rc=$?
+    if [ "$rc" != 0 ]; then
         rm -f "$cfg"
+        # Stopped by Ctrl-C or SIGTERM (the launcher exits 130 or 143): the whole experiment stops.
+        if [ "$rc" = 130 ] || [ "$rc" = 143 ]; then
+            say "$id: interrupted; stopping the experiment (run it again to continue)"
+            exit "$rc"
+        fi
         say "$id: the cluster failed; see $dir/cluster.log"
         return 1
     fi
@@ -344,9 +361,12 @@ print(" ".join(names))' "$stage3_tasks")
             done
             for seed in $seeds; do
                 id3="mt10-terl-pipeline-s$seed$tag"
-                if [ -f "$runs/$id3/eval-final.json" ] && [ -f "$runs/$id3/planner.md5" ] \
-                    && [ "$(cat "$runs/$id3/planner.md5")" != "$planner_sum" ]; then
-                    say "$id3: done with another planner; not touched (remove $runs/$id3 to train it again)"
+                if [ -f "$runs/$id3/eval-final.json" ]; then
+                    if [ ! -f "$runs/$id3/planner.md5" ] || [ "$(cat "$runs/$id3/planner.md5")" != "$planner_sum" ]; then
+                        say "$id3: done with another planner; not touched (remove $runs/$id3 to train it again)"
+                    else
+                        say "$id3: done already ($runs/$id3/eval-final.json)"
+                    fi
                     continue
                 fi
                 cfg3=$(mktemp "${TMPDIR:-/tmp}/terl-stage3-s$seed.XXXXXX.toml")
@@ -357,7 +377,7 @@ print(" ".join(names))' "$stage3_tasks")
                 [ "$scale" != smoke ] || grep -q '^\[guidance\]' "$cfg3" \
                     || printf '\n[guidance]\nmin_spearman = -1.0\nvalidation_trajectories = 1\n' >> "$cfg3"
                 if train_run "$id3" "$base3" "${stage3_datasets[@]}" < "$cfg3"; then
-                    [ -f "$runs/$id3/planner.md5" ] || printf '%s\n' "$planner_sum" > "$runs/$id3/planner.md5"
+                    printf '%s\n' "$planner_sum" > "$runs/$id3/planner.md5"
                     echo "planner_from_seed=$planner_from" >> "$runs/$id3/cluster.txt"
                 else
                     failed+=("$id3")

@@ -15,6 +15,8 @@ pub struct Usage {
     pub threads: u64,
     /// When it was read.
     pub at: Instant,
+    /// The process has exited and waits to be reaped (a zombie, state `Z`) or is dead (`X`).
+    pub exited: bool,
 }
 
 /// Why a process could not be read.
@@ -49,6 +51,7 @@ pub fn usage(pid: Option<u32>) -> Result<Usage, UsageError> {
         rss_bytes: stat.rss * procfs::page_size(),
         threads: u64::try_from(stat.num_threads).unwrap_or(0),
         at: Instant::now(),
+        exited: matches!(stat.state, 'Z' | 'X' | 'x'),
     })
 }
 
@@ -80,6 +83,16 @@ pub fn sample(pids: &[u32], window: Duration) -> Vec<Option<(f64, u64)>> {
 /// quotas).
 pub fn available_cores() -> usize {
     std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get)
+}
+
+/// The machine's online CPUs (`/proc/cpuinfo`), whatever this process's own affinity: what a
+/// cluster's processes share. Falls back to [`available_cores`].
+pub fn machine_cores() -> usize {
+    <procfs::CpuInfo as procfs::Current>::current()
+        .map(|c| c.num_cores())
+        .ok()
+        .filter(|&n| n > 0)
+        .unwrap_or_else(available_cores)
 }
 
 #[cfg(test)]

@@ -63,15 +63,26 @@ struct Launcher {
     resumed: Vec<String>,
 }
 
+/// A launcher file's text, if it is a regular file of at most 1 MiB (a FIFO or device in its
+/// place would block or flood the status).
+fn launcher_file(path: &std::path::Path) -> String {
+    let regular = std::fs::metadata(path).is_ok_and(|m| m.is_file() && m.len() <= 1 << 20);
+    if regular {
+        std::fs::read_to_string(path).unwrap_or_default()
+    } else {
+        String::new()
+    }
+}
+
 fn read_launcher(run: &std::path::Path) -> Launcher {
-    let processes = std::fs::read_to_string(run.join("pids"))
-        .unwrap_or_default()
+    let processes = launcher_file(&run.join("pids"))
         .lines()
         .filter_map(|l| {
             let (role, pid) = l.split_once(' ')?;
             let pid: u32 = pid.trim().parse().ok()?;
-            let alive = std::fs::read_to_string(format!("/proc/{pid}/cmdline"))
-                .is_ok_and(|c| c.contains("terl-"));
+            // A learner, selector or actor that has not exited (a zombie has).
+            let alive = crate::launcher::is_service(pid)
+                && terl_runtime::process::usage(Some(pid)).is_ok_and(|u| !u.exited);
             Some(Process {
                 role: role.to_string(),
                 pid,
@@ -81,7 +92,7 @@ fn read_launcher(run: &std::path::Path) -> Launcher {
             })
         })
         .collect();
-    let info = std::fs::read_to_string(run.join("cluster.txt")).unwrap_or_default();
+    let info = launcher_file(&run.join("cluster.txt"));
     let pick = |prefix: &str| -> Vec<String> {
         info.lines()
             .filter_map(|l| l.strip_prefix(prefix))
@@ -100,7 +111,13 @@ const USAGE_WINDOW: Duration = Duration::from_millis(500);
 
 /// Fills in the CPU use and memory of the launcher's live processes (on this host).
 fn measure(l: &mut Launcher) {
-    let live: Vec<&mut Process> = l.processes.iter_mut().filter(|p| p.alive).collect();
+    // A pid listed twice (a damaged file) is measured and counted once.
+    let mut seen = std::collections::HashSet::new();
+    let live: Vec<&mut Process> = l
+        .processes
+        .iter_mut()
+        .filter(|p| p.alive && seen.insert(p.pid))
+        .collect();
     let pids: Vec<u32> = live.iter().map(|p| p.pid).collect();
     for (p, got) in live
         .into_iter()
@@ -131,7 +148,7 @@ fn bound_by(update_share: f64) -> &'static str {
 /// The machine line: cores, what the cluster's processes use of them, and which side limits
 /// the run.
 fn print_machine(learner: &LearnerStatus, launcher: Option<&Launcher>) {
-    let cores = terl_runtime::process::available_cores();
+    let cores = terl_runtime::process::machine_cores();
     let mut used = String::new();
     if let Some(l) = launcher {
         let parts: Vec<(String, f64)> = l
