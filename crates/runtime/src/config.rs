@@ -196,7 +196,8 @@ pub struct ClusterConfig {
     /// each MT1-Ind task trains until its planner data is usable (`deploy/experiments/run.sh
     /// terl-pipeline`). `train.total_env_steps` stays the cap. 0 (default): off.
     pub stop_at_planner_samples_per_task: u64,
-    /// The same run file and seed give the same run bit for bit, whatever the machine's load:
+    /// The same run file, seed and learner thread count (`[sac] threads`; "auto" counts the
+    /// machine's cores) give the same run bit for bit, whatever the machine's load:
     /// transitions enter replay in rounds of one batch per actor, in actor order; updates run at
     /// fixed transition counts; and an actor's policy version is fixed by its transition count,
     /// `policy_lag_rounds` behind (see [`crate::Lockstep`]). Needs `algorithm = "mtsac"` and

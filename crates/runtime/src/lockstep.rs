@@ -1,5 +1,6 @@
 //! The schedule of a reproducible cluster run (`[cluster] reproducible = true`): the same run
-//! file and seed give the same run bit for bit, whatever the machine's load.
+//! file, seed and learner thread count (`[sac] threads = "auto"` counts the machine's cores)
+//! give the same run bit for bit, whatever the machine's load.
 //!
 //! Asynchronous runs are not reproducible: which transitions the learner has when it samples,
 //! how many updates ran when an actor picks up new weights and which policy version acts on

@@ -1,6 +1,7 @@
 //! CPU time and resident memory of a process (Linux `/proc/<pid>/stat` through the `procfs`
-//! crate), for `terl status` and the learner's metrics log: a run is learner-bound when the
-//! learner's CPU use is near its thread count and actor-bound when the learner waits.
+//! crate), for `terl status` and the learner's metrics log. Whether a run is learner- or
+//! actor-bound is judged from the share of the learner's time spent in updates
+//! (`charts/update_share`), not from these counters.
 
 use std::time::{Duration, Instant};
 

@@ -615,7 +615,7 @@ pub(crate) fn run<T: ServiceTransport>(
     });
     anyhow::ensure!(
         !(run.cluster.reproducible && config.auto_id),
-        "cluster.reproducible = true needs actors with fixed ids (--actor-id), not --auto-id"
+        "cluster.reproducible = true needs actors with fixed ids (--actor-id), not --actor-id auto"
     );
     let lockstep = run
         .cluster

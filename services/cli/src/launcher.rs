@@ -64,7 +64,8 @@ pub struct UpArgs {
     /// Selector gRPC address (default 127.0.0.1:0).
     #[arg(long)]
     pub selector_addr: Option<String>,
-    /// Folder of run folders (default runs; `terl cluster down` looks in runs/).
+    /// Folder of run folders (default runs). `terl cluster down` looks in runs/ unless given the
+    /// same `--runs-root`; `terl status` finds the run with `--run DIR/<id>`.
     #[arg(long)]
     pub runs_root: Option<PathBuf>,
     /// Continue the run in RUN_DIR after any stop: its config, run id, TEP datasets, actor

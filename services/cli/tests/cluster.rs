@@ -1079,8 +1079,12 @@ fn killed_learner_is_restarted_and_runs_resume_past_a_damaged_checkpoint() {
         learner_log.contains("damaged") && learner_log.contains(&*damaged.to_string_lossy()),
         "no log line about the damaged checkpoint"
     );
-    let selector_log = std::fs::read_to_string(run_dir.join("selector.log")).unwrap();
-    assert!(selector_log.contains("resumed the success windows"));
+    // The selector writes its address before it has read the episode logs back: wait for the
+    // line rather than reading the log once.
+    wait_until("the selector to resume its success windows", limit, || {
+        std::fs::read_to_string(run_dir.join("selector.log"))
+            .is_ok_and(|log| log.contains("resumed the success windows"))
+    });
     assert!(run_dir.join("metrics.2.mcap").exists() || run_dir.join("metrics.3.mcap").exists());
 
     Command::new("kill")
