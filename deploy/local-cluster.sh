@@ -51,13 +51,19 @@ done
 bin=${CARGO_TARGET_DIR:-target}/release
 if [ "$build" = 1 ]; then
     ./deploy/setup.sh
+    missing=0
     for b in terl terl-learner terl-actor terl-selector; do
-        if [ ! -x "$bin/$b" ]; then
-            echo "[cluster] building release binaries (first time from cold: 12–17 minutes on 2 cores, without output)" >&2
-            break
-        fi
+        [ -x "$bin/$b" ] || missing=1
     done
-    cargo build --release -q -p terl-cli -p terl-learner -p terl-actor -p terl-selector
+    if [ "$missing" = 1 ]; then
+        echo "[cluster] building release binaries (first time from cold: 12–17 minutes on 2 cores)" >&2
+    else
+        echo "[cluster] bringing the release binaries up to date (seconds; minutes after source changes)" >&2
+    fi
+    # Cargo's own progress on a terminal; quiet in logs.
+    quiet=-q
+    [ -t 2 ] && quiet=
+    cargo build --release $quiet -p terl-cli -p terl-learner -p terl-actor -p terl-selector
 fi
 [ -x "$bin/terl" ] || { echo "$bin/terl not found: build it (run without --no-build)" >&2; exit 2; }
 exec "$bin/terl" cluster up "$@"

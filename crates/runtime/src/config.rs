@@ -238,6 +238,28 @@ pub const MAX_LEARNER_CALIBRATE_SECS: f64 = 10.0;
 /// Largest `cluster.max_message_mib`: gRPC frames a message with a 32-bit length.
 pub const MAX_MESSAGE_MIB_LIMIT: usize = 4095;
 
+/// Largest `num_envs` and `cluster.envs_per_actor`: every environment holds a MuJoCo data
+/// arena (~0.4 MB beyond the first of its task), so 1024 per process is ~0.5 GB; MT50 needs 50.
+pub const MAX_NUM_ENVS: usize = 1024;
+
+/// Largest `train.replay_capacity_per_task`: the replay buffer is allocated up front, ~330
+/// bytes per transition, so 10M per task is 3.3 GB per task (the paper uses 1M).
+pub const MAX_REPLAY_CAPACITY_PER_TASK: usize = 10_000_000;
+
+/// Largest `sac.batch_size` (the paper's MT10 batch is 1280, this project's workstation 256).
+pub const MAX_BATCH_SIZE: usize = 65_536;
+
+/// Largest episode, evaluation and window counts (`train.eval_episodes_per_env`,
+/// `train.success_window`, `cluster.eval_episodes_per_task`): each is held or run in full.
+pub const MAX_EPISODE_COUNT: usize = 100_000;
+
+/// Largest `cluster.buffer_batches`: batches of 64 transitions (~21 KB each) queued per actor
+/// in shared memory or a Zenoh credit window.
+pub const MAX_BUFFER_BATCHES: usize = 4096;
+
+/// Largest `cluster.eval_threads`.
+pub const MAX_EVAL_THREADS: usize = 256;
+
 impl Default for ClusterConfig {
     fn default() -> Self {
         Self {
@@ -407,10 +429,65 @@ impl RunConfig {
             .with_context(|| format!("cannot read config {}", path.display()))?;
         let cfg: Self =
             toml::from_str(&text).with_context(|| format!("invalid config {}", path.display()))?;
-        anyhow::ensure!(cfg.num_envs > 0, "num_envs must be at least 1");
         anyhow::ensure!(
-            cfg.eval_envs_per_task > 0,
-            "eval_envs_per_task must be at least 1"
+            (1..=MAX_NUM_ENVS).contains(&cfg.num_envs),
+            "num_envs must be in 1..={MAX_NUM_ENVS} (got {})",
+            cfg.num_envs
+        );
+        anyhow::ensure!(
+            (1..=crate::eval::BATCH).contains(&cfg.eval_envs_per_task),
+            "eval_envs_per_task must be in 1..={} (got {})",
+            crate::eval::BATCH,
+            cfg.eval_envs_per_task
+        );
+        let t = &cfg.train;
+        anyhow::ensure!(
+            (1..=MAX_REPLAY_CAPACITY_PER_TASK).contains(&t.replay_capacity_per_task),
+            "train.replay_capacity_per_task must be in 1..={MAX_REPLAY_CAPACITY_PER_TASK} (got {}): \
+             the replay buffer is allocated up front",
+            t.replay_capacity_per_task
+        );
+        for (key, v) in [
+            ("train.eval_episodes_per_env", t.eval_episodes_per_env),
+            ("train.success_window", t.success_window),
+            (
+                "cluster.eval_episodes_per_task",
+                cfg.cluster.eval_episodes_per_task,
+            ),
+        ] {
+            anyhow::ensure!(
+                v <= MAX_EPISODE_COUNT,
+                "{key} must be at most {MAX_EPISODE_COUNT} (got {v})"
+            );
+        }
+        anyhow::ensure!(
+            t.success_window > 0,
+            "train.success_window must be at least 1"
+        );
+        anyhow::ensure!(
+            t.stop_at_eval_success
+                .is_none_or(|v| v.is_finite() && (0.0..=1.0).contains(&v)),
+            "train.stop_at_eval_success must be in [0, 1]"
+        );
+        anyhow::ensure!(
+            (1..=MAX_BATCH_SIZE).contains(&cfg.sac.batch_size),
+            "sac.batch_size must be in 1..={MAX_BATCH_SIZE} (got {})",
+            cfg.sac.batch_size
+        );
+        anyhow::ensure!(
+            cfg.cluster.envs_per_actor <= MAX_NUM_ENVS,
+            "cluster.envs_per_actor must be at most {MAX_NUM_ENVS} (got {})",
+            cfg.cluster.envs_per_actor
+        );
+        anyhow::ensure!(
+            cfg.cluster.buffer_batches <= MAX_BUFFER_BATCHES,
+            "cluster.buffer_batches must be at most {MAX_BUFFER_BATCHES} (got {})",
+            cfg.cluster.buffer_batches
+        );
+        anyhow::ensure!(
+            cfg.cluster.eval_threads <= MAX_EVAL_THREADS,
+            "cluster.eval_threads must be at most {MAX_EVAL_THREADS} (got {})",
+            cfg.cluster.eval_threads
         );
         let c = &cfg.cluster;
         let ratio = cfg.samples_per_insert();

@@ -18,7 +18,9 @@ pub mod service;
 
 pub use config::{
     parse_seconds, token_from_env, Algorithm, ClusterConfig, OnCheckpointError, RunConfig,
-    MAX_LEARNER_CALIBRATE_SECS, MAX_POLICY_LAG_ROUNDS, MAX_SECONDS,
+    MAX_BATCH_SIZE, MAX_BUFFER_BATCHES, MAX_EPISODE_COUNT, MAX_EVAL_THREADS,
+    MAX_LEARNER_CALIBRATE_SECS, MAX_NUM_ENVS, MAX_POLICY_LAG_ROUNDS, MAX_REPLAY_CAPACITY_PER_TASK,
+    MAX_SECONDS,
 };
 pub use lockstep::Lockstep;
 pub use metaworld_vec::MetaWorldVec;
@@ -51,6 +53,11 @@ pub struct ServiceConfig {
     /// Continue the run in `run_dir` from its newest intact checkpoint (learner), or from its
     /// logs (selector) instead of starting fresh.
     pub resume: bool,
+    /// Learner: once the run is finished (its budget reached, now or by an earlier process of
+    /// the run), keep answering status over gRPC until stopped instead of exiting, and write
+    /// nothing more. For supervisors that restart a process that exits, such as a Kubernetes
+    /// Deployment (`terl-learner --when-finished idle`). Default: false (exit 0).
+    pub idle_when_finished: bool,
 }
 
 impl ServiceConfig {
@@ -74,6 +81,7 @@ impl ServiceConfig {
             server_security: terl_wire::ServerSecurity::default(),
             client_security: terl_wire::ClientSecurity::default(),
             resume: false,
+            idle_when_finished: false,
         }
     }
 }
@@ -183,6 +191,9 @@ pub fn init_tracing_with_default(default_filter: &str) {
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_filter)),
         )
         .with_writer(std::io::stderr)
+        // A log write that fails (a full disk under the run folder's log) is dropped: the
+        // default reports it with `eprint!`, which panics when stderr is that same file.
+        .log_internal_errors(false)
         // Plain text when logs go to a file (the launcher writes runs/<id>/*.log).
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .try_init();

@@ -186,3 +186,134 @@ fn the_kubernetes_run_file_is_mt10_over_zenoh_through_the_router() {
     as_shm.cluster.zenoh = Default::default();
     assert_eq!(format!("{as_shm:?}"), format!("{:?}", load("mt10.toml")));
 }
+
+/// Every numeric key of a run file, each section's.
+const NUMERIC_KEYS: &[(&str, &str)] = &[
+    ("", "num_envs"),
+    ("", "eval_envs_per_task"),
+    ("", "variation_seed"),
+    ("train", "total_env_steps"),
+    ("train", "warmup_env_steps"),
+    ("train", "updates_per_vec_step"),
+    ("train", "replay_capacity_per_task"),
+    ("train", "eval_every_env_steps"),
+    ("train", "eval_episodes_per_env"),
+    ("train", "success_window"),
+    ("train", "stop_at_eval_success"),
+    ("train", "max_consecutive_failed_updates"),
+    ("train", "seed"),
+    ("sac", "batch_size"),
+    ("sac", "threads"),
+    ("sac", "gamma"),
+    ("sac", "tau"),
+    ("cluster", "envs_per_actor"),
+    ("cluster", "samples_per_insert"),
+    ("cluster", "rate_error_buffer"),
+    ("cluster", "publish_every_updates"),
+    ("cluster", "critic_publish_every_updates"),
+    ("cluster", "checkpoint_every_secs"),
+    ("cluster", "learner_calibrate_secs"),
+    ("cluster", "keep_checkpoints"),
+    ("cluster", "block_timeout_secs"),
+    ("cluster", "buffer_batches"),
+    ("cluster", "eval_episodes_per_task"),
+    ("cluster", "eval_threads"),
+    ("cluster", "eval_envs_per_task"),
+    ("cluster", "max_message_mib"),
+    ("cluster", "policy_lag_rounds"),
+];
+
+/// Values that pass a type check and break arithmetic: zeros of both signs, subnormals, huge,
+/// infinite and not-a-number floats, the integer extremes, negatives.
+const EXTREMES: &[&str] = &[
+    "0",
+    "-0",
+    "0.0",
+    "-0.0",
+    "5e-324",
+    "1e-310",
+    "0.5",
+    "1",
+    "3",
+    "1e300",
+    "-1e300",
+    "inf",
+    "-inf",
+    "nan",
+    "-1",
+    "4294967296",
+    "9223372036854775807",
+    "18446744073709551615",
+];
+
+/// What a service derives from an accepted run file before it allocates anything, each of
+/// which must not panic; and what it then allocates must be within the documented ranges.
+fn use_accepted(cfg: &RunConfig) {
+    let _ = cfg.samples_per_insert();
+    let _ = cfg.envs_per_actor();
+    let _ = cfg.rate_error_buffer(cfg.sac.batch_size);
+    let _ = cfg.cluster.max_message_bytes();
+    let _ = cfg.cluster.transport_config("props", 1);
+    let _ = cfg.check_weight_messages(2);
+    for secs in [
+        cfg.cluster.checkpoint_every_secs,
+        cfg.cluster.block_timeout_secs,
+        cfg.cluster.learner_calibrate_secs,
+    ] {
+        let _ = std::time::Duration::from_secs_f64(secs);
+    }
+    assert!((1..=terl_runtime::MAX_NUM_ENVS).contains(&cfg.num_envs));
+    assert!(cfg.envs_per_actor() <= terl_runtime::MAX_NUM_ENVS);
+    assert!((1..=terl_runtime::MAX_REPLAY_CAPACITY_PER_TASK)
+        .contains(&cfg.train.replay_capacity_per_task));
+    assert!((1..=terl_runtime::MAX_BATCH_SIZE).contains(&cfg.sac.batch_size));
+    assert!(cfg.cluster.buffer_batches <= terl_runtime::MAX_BUFFER_BATCHES);
+    assert!(cfg.cluster.eval_episodes_per_task <= terl_runtime::MAX_EPISODE_COUNT);
+    assert!(cfg.train.success_window <= terl_runtime::MAX_EPISODE_COUNT);
+    let ratio = cfg.samples_per_insert();
+    assert!(ratio.is_finite() && ratio > 0.0);
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(256))]
+
+    /// Any numeric key of a run file set to any extreme value, up to three at once: the run file
+    /// is accepted or refused with an error, never a panic, and what is accepted stays in the
+    /// documented ranges (issue: "every input bounded before anything is spent").
+    #[test]
+    fn extreme_values_in_a_run_file_are_refused_or_bounded_never_a_panic(
+        picks in proptest::collection::vec(
+            (0..NUMERIC_KEYS.len(), 0..EXTREMES.len()),
+            1..=3,
+        )
+    ) {
+        let dir = tempfile::tempdir().unwrap();
+        let mut top = String::from("tasks = \"reach-v3,push-v3\"\n");
+        let mut sections: std::collections::BTreeMap<&str, String> = Default::default();
+        let mut seen = std::collections::BTreeSet::new();
+        for (k, v) in &picks {
+            let (section, key) = NUMERIC_KEYS[*k];
+            if !seen.insert((section, key)) {
+                continue;
+            }
+            let line = format!("{key} = {}\n", EXTREMES[*v]);
+            if section.is_empty() {
+                top.push_str(&line);
+            } else {
+                sections.entry(section).or_default().push_str(&line);
+            }
+        }
+        if !top.contains("num_envs") {
+            top.push_str("num_envs = 2\n");
+        }
+        for (section, lines) in &sections {
+            top.push_str(&format!("[{section}]\n{lines}"));
+        }
+        let path = dir.path().join("run.toml");
+        std::fs::write(&path, &top).unwrap();
+        match RunConfig::load(&path) {
+            Ok(cfg) => use_accepted(&cfg),
+            Err(e) => proptest::prop_assert!(!format!("{e:#}").is_empty(), "{top}"),
+        }
+    }
+}

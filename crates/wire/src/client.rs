@@ -30,13 +30,18 @@ pub enum ConnectError {
         /// tonic's parse error.
         source: tonic::transport::Error,
     },
-    /// The TCP (or TLS) connection could not be established.
-    #[error("cannot connect to {addr}: {source}")]
+    /// The TCP (or TLS) connection could not be established. The message gives the error's
+    /// causes once each (tonic and hyper repeat "transport error" and "tcp connect error") and,
+    /// for a plaintext client whose server closed the connection, the likely reason: a server
+    /// with TLS.
+    #[error("cannot connect to {addr}: {}{}", causes(.error), tls_hint(.error, *.plaintext))]
     Connect {
         /// The address as given.
         addr: String,
-        /// tonic's transport error.
-        source: tonic::transport::Error,
+        /// tonic's transport error (its causes are in the message).
+        error: tonic::transport::Error,
+        /// The client spoke plaintext HTTP/2 (no `cluster.tls_ca`).
+        plaintext: bool,
     },
     /// A TLS CA is configured but the address is a plaintext `http://` URI.
     #[error(
@@ -55,6 +60,52 @@ pub enum ConnectError {
         /// tonic's error.
         source: tonic::transport::Error,
     },
+}
+
+/// An error and its sources as `a: b: c`, each distinct message once: tonic's transport
+/// error wraps hyper's, which wraps the connector's, several of them saying the same thing.
+pub fn causes(error: &(dyn std::error::Error + 'static)) -> String {
+    let mut parts: Vec<String> = Vec::new();
+    let mut next = Some(error);
+    while let Some(e) = next {
+        let text = e.to_string();
+        // A message that repeats one already given, or that already contains the next one's
+        // text (some errors print their source), adds nothing.
+        if !text.is_empty() && !parts.iter().any(|p| p == &text) {
+            parts.push(text);
+        }
+        next = e.source();
+    }
+    let mut kept: Vec<&str> = Vec::new();
+    for (i, p) in parts.iter().enumerate() {
+        if !parts[i + 1..]
+            .iter()
+            .any(|later| p.ends_with(later.as_str()) && p != later)
+        {
+            kept.push(p);
+        }
+    }
+    kept.join(": ")
+}
+
+/// The likely reason when a plaintext client's server closed the connection at once.
+fn tls_hint(error: &tonic::transport::Error, plaintext: bool) -> &'static str {
+    let text = causes(error).to_lowercase();
+    let closed = [
+        "connection closed",
+        "connection reset",
+        "broken pipe",
+        "h2 protocol",
+        "eof",
+    ]
+    .iter()
+    .any(|s| text.contains(s));
+    if plaintext && closed {
+        " (the server closed the connection: if it uses TLS, give its CA with cluster.tls_ca \
+         in the run file or --tls-ca)"
+    } else {
+        ""
+    }
 }
 
 /// The transport under every wire client: a channel that adds the token (if any) to each call.
@@ -144,9 +195,10 @@ async fn channel(addr: &str, security: &ClientSecurity) -> Result<SecuredChannel
         .max_frame_size(1 << 20)
         .connect()
         .await
-        .map_err(|source| ConnectError::Connect {
+        .map_err(|error| ConnectError::Connect {
             addr: addr.to_owned(),
-            source,
+            error,
+            plaintext: tls.is_none(),
         })?;
     Ok(InterceptedService::new(
         channel,

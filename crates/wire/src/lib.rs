@@ -45,7 +45,7 @@ pub use security::{
 pub use server::{
     bind, bind_secured, serve_learner, serve_learner_with, serve_selector, serve_selector_with,
     CheckpointRequest, CheckpointSaved, LearnerBackend, LearnerService, SelectorBackend,
-    SelectorService, ServeError, ServeOptions,
+    SelectorService, ServeError, ServeOptions, MAX_WATCHERS,
 };
 pub use status::{
     ActorStats, EvalResult, LearnerStatus, PlannerStatus, PlannerTask, PriorityStats,

@@ -114,6 +114,55 @@ pub trait LearnerBackend: Send + Sync + 'static {
     ) -> impl Future<Output = Result<CheckpointSaved, Status>> + Send;
     /// The hub the learner publishes weights to; `WatchWeights` streams subscribe to it.
     fn weight_hub(&self) -> &WeightHub;
+    /// The run's actor count: a `WatchWeights` call naming an actor id at or above it is
+    /// refused, so the table of named watchers holds at most this many entries. `None`
+    /// (default): ids are not checked, and the table holds at most [`MAX_WATCHERS`].
+    fn actor_slots(&self) -> Option<u32> {
+        None
+    }
+}
+
+/// The most named weight watchers a learner keeps at once when its backend does not give its
+/// actor count ([`LearnerBackend::actor_slots`]).
+pub const MAX_WATCHERS: usize = 4096;
+
+/// A named watcher: where the actor of an id follows the weights from.
+#[derive(Debug)]
+struct WatcherEntry {
+    host: String,
+    address: String,
+    /// Which `WatchWeights` stream named it: only that stream's end removes it.
+    stream: u64,
+}
+
+/// Actor id → the open `WatchWeights` stream that named it last.
+#[derive(Debug, Default)]
+struct Watchers {
+    by_actor: Mutex<HashMap<u32, WatcherEntry>>,
+    next_stream: std::sync::atomic::AtomicU64,
+}
+
+/// Removes its entry from the watcher table when its stream ends (the actor disconnected).
+struct WatcherGuard {
+    watchers: Arc<Watchers>,
+    actor_id: u32,
+    stream: u64,
+}
+
+impl Drop for WatcherGuard {
+    fn drop(&mut self) {
+        let mut table = self
+            .watchers
+            .by_actor
+            .lock()
+            .unwrap_or_else(|e| e.into_inner());
+        if table
+            .get(&self.actor_id)
+            .is_some_and(|e| e.stream == self.stream)
+        {
+            table.remove(&self.actor_id);
+        }
+    }
 }
 
 /// What the selector process provides to its gRPC service.
@@ -198,8 +247,8 @@ impl From<CheckpointSaved> for pb::SaveCheckpointResponse {
 pub struct LearnerService<B> {
     backend: Arc<B>,
     shutdown: watch::Receiver<bool>,
-    /// Actor id → (host name, peer address) of the latest `WatchWeights` call naming that actor.
-    watchers: Mutex<HashMap<u32, (String, String)>>,
+    /// Actor id → host name and peer address of the open `WatchWeights` stream naming it.
+    watchers: Arc<Watchers>,
 }
 
 type WeightsStream = Pin<Box<dyn Stream<Item = Result<pb::WeightsUpdate, Status>> + Send>>;
@@ -211,11 +260,15 @@ impl<B: LearnerBackend> Learner for LearnerService<B> {
         _: Request<pb::GetLearnerStatusRequest>,
     ) -> Result<Response<pb::LearnerStatus>, Status> {
         let mut status = self.backend.status().await?;
-        let watchers = self.watchers.lock().unwrap_or_else(|e| e.into_inner());
+        let watchers = self
+            .watchers
+            .by_actor
+            .lock()
+            .unwrap_or_else(|e| e.into_inner());
         for actor in &mut status.actors {
-            if let Some((host, address)) = watchers.get(&actor.actor_id) {
-                actor.host.clone_from(host);
-                actor.address.clone_from(address);
+            if let Some(w) = watchers.get(&actor.actor_id) {
+                actor.host.clone_from(&w.host);
+                actor.address.clone_from(&w.address);
             }
         }
         drop(watchers);
@@ -233,24 +286,15 @@ impl<B: LearnerBackend> Learner for LearnerService<B> {
             .map(|a| a.to_string())
             .unwrap_or_default();
         let request = request.into_inner();
-        if let Some(actor_id) = request.actor_id {
-            if request.host.len() > crate::status::MAX_HOST_BYTES {
-                return Err(Status::invalid_argument(format!(
-                    "host is {} bytes, the limit is {}",
-                    request.host.len(),
-                    crate::status::MAX_HOST_BYTES
-                )));
-            }
-            self.watchers
-                .lock()
-                .unwrap_or_else(|e| e.into_inner())
-                .insert(actor_id, (request.host, peer));
-        }
         let mut kinds = request
             .kinds
             .into_iter()
             .map(WeightsKind::try_from)
             .collect::<Result<Vec<_>, _>>()?;
+        let guard = match request.actor_id {
+            Some(actor_id) => Some(self.name_watcher(actor_id, request.host, peer)?),
+            None => None,
+        };
         if kinds.is_empty() {
             kinds = WeightsKind::ALL.to_vec();
         }
@@ -261,6 +305,7 @@ impl<B: LearnerBackend> Learner for LearnerService<B> {
             hub,
             self.shutdown.clone(),
             kinds,
+            guard,
         ))))
     }
 
@@ -275,12 +320,69 @@ impl<B: LearnerBackend> Learner for LearnerService<B> {
     }
 }
 
+impl<B: LearnerBackend> LearnerService<B> {
+    /// Records that `actor_id` follows the weights from `host` at `peer`, until the returned
+    /// guard (held by its stream) is dropped. Refuses an oversized host name, an id that is not
+    /// one of the run's actors, and a new id when the table is full.
+    fn name_watcher(
+        &self,
+        actor_id: u32,
+        host: String,
+        peer: String,
+    ) -> Result<WatcherGuard, Status> {
+        if host.len() > crate::status::MAX_HOST_BYTES {
+            return Err(Status::invalid_argument(format!(
+                "host is {} bytes, the limit is {}",
+                host.len(),
+                crate::status::MAX_HOST_BYTES
+            )));
+        }
+        if let Some(slots) = self.backend.actor_slots() {
+            if actor_id >= slots {
+                return Err(Status::invalid_argument(format!(
+                    "actor id {actor_id} is not one of this run's {slots} actors (0 to {})",
+                    slots.saturating_sub(1)
+                )));
+            }
+        }
+        let stream = self
+            .watchers
+            .next_stream
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let mut table = self
+            .watchers
+            .by_actor
+            .lock()
+            .unwrap_or_else(|e| e.into_inner());
+        if table.len() >= MAX_WATCHERS && !table.contains_key(&actor_id) {
+            return Err(Status::resource_exhausted(format!(
+                "{MAX_WATCHERS} named weight watchers are connected; no more are kept"
+            )));
+        }
+        table.insert(
+            actor_id,
+            WatcherEntry {
+                host,
+                address: peer,
+                stream,
+            },
+        );
+        Ok(WatcherGuard {
+            watchers: Arc::clone(&self.watchers),
+            actor_id,
+            stream,
+        })
+    }
+}
+
 struct StreamState {
     hub: watch::Receiver<Latest>,
     shutdown: watch::Receiver<bool>,
     kinds: Vec<WeightsKind>,
     sent: [u64; 3],
     pending: VecDeque<Arc<pb::WeightsUpdate>>,
+    /// The stream's entry in the watcher table, removed when the stream is dropped.
+    _watcher: Option<WatcherGuard>,
 }
 
 /// Latest-wins stream of weight versions: sends what is newer than what this subscriber already
@@ -289,6 +391,7 @@ fn weight_stream(
     hub: watch::Receiver<Latest>,
     shutdown: watch::Receiver<bool>,
     kinds: Vec<WeightsKind>,
+    watcher: Option<WatcherGuard>,
 ) -> impl Stream<Item = Result<pb::WeightsUpdate, Status>> + Send {
     let state = StreamState {
         hub,
@@ -296,6 +399,7 @@ fn weight_stream(
         kinds,
         sent: [0; 3],
         pending: VecDeque::new(),
+        _watcher: watcher,
     };
     futures_util::stream::unfold(state, |mut s| async move {
         loop {
@@ -371,7 +475,7 @@ pub async fn serve_learner_with<B: LearnerBackend>(
     let service = LearnerServer::new(LearnerService {
         backend: Arc::new(backend),
         shutdown: shutdown_rx,
-        watchers: Mutex::default(),
+        watchers: Arc::default(),
     })
     .max_decoding_message_size(options.max_message_bytes)
     .max_encoding_message_size(options.max_message_bytes);

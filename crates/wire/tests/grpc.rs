@@ -128,6 +128,10 @@ impl LearnerBackend for TestLearner {
     fn weight_hub(&self) -> &WeightHub {
         &self.hub
     }
+    /// The status lists actors 0 and 1 of a two-actor run.
+    fn actor_slots(&self) -> Option<u32> {
+        Some(2)
+    }
 }
 
 struct TestSelector;
@@ -324,7 +328,9 @@ async fn weight_stream_delivers_in_order_and_latest_to_late_subscriber() {
 }
 
 /// An actor that names itself when it subscribes to the weights is listed with its host name and
-/// the address its stream comes from; a host name over the limit is refused at the edge.
+/// the address its stream comes from, until its stream ends; a host name over the limit and an
+/// id that is not one of the run's actors are refused at the edge (the table of named watchers
+/// is bounded by the run's actor count and shrinks when actors leave).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn status_lists_the_host_and_address_of_a_watching_actor() {
     let server = start_learner(WeightHub::new()).await;
@@ -368,6 +374,29 @@ async fn status_lists_the_host_and_address_of_a_watching_actor() {
     };
     assert_eq!(err.code(), Code::InvalidArgument);
     assert!(err.message().contains("host"), "{err}");
+    let Err(err) = raw
+        .watch_weights(pb::WatchWeightsRequest {
+            kinds: vec![],
+            actor_id: Some(2),
+            host: "node-8".into(),
+        })
+        .await
+    else {
+        panic!("actor id 2 of a two-actor run is accepted");
+    };
+    assert_eq!(err.code(), Code::InvalidArgument);
+    assert!(
+        err.message().contains("not one of this run's 2 actors"),
+        "{err}"
+    );
+    // The actor leaves: its stream and connection close, and its entry goes with them.
+    drop(_stream);
+    drop(actor);
+    let start = std::time::Instant::now();
+    while !client.status().await.unwrap().actors[0].host.is_empty() {
+        assert!(start.elapsed() < WAIT, "the departed actor is still listed");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
     server.stop().await;
 }
 

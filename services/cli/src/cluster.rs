@@ -71,8 +71,14 @@ fn down(run_id: Option<&str>, runs_root: &Path) -> Result<ExitCode> {
         ),
     };
     let pid_file = pid_file.display().to_string();
-    let pid = std::fs::read_to_string(&pid_file)
-        .with_context(|| format!("no running cluster ({pid_file} not found)"))?;
+    let pid = std::fs::read_to_string(&pid_file).with_context(|| {
+        let hint = if runs_root == Path::new("runs") {
+            " (a cluster started with --runs-root DIR: give `terl cluster down --runs-root DIR`)"
+        } else {
+            ""
+        };
+        format!("no running cluster ({pid_file} not found){hint}")
+    })?;
     let pid = pid.trim();
     anyhow::ensure!(
         !pid.is_empty() && pid.chars().all(|c| c.is_ascii_digit()),

@@ -40,6 +40,9 @@ const START_LIMIT: Duration = Duration::from_secs(30);
 const TICK: Duration = Duration::from_secs(5);
 /// The longest wait before a restart.
 const MAX_BACKOFF_SECS: u64 = 60;
+/// How long a stopping process may take after SIGTERM (the learner writes its final
+/// checkpoint: ~11 MB at 3×256, well under a second) before the launcher sends SIGKILL.
+const STOP_GRACE: Duration = Duration::from_secs(60);
 
 /// The options of `deploy/local-cluster.sh` (see its header for the long version).
 #[derive(Debug, Args)]
@@ -293,6 +296,13 @@ fn plan(args: UpArgs) -> std::result::Result<Plan, Result<ExitCode>> {
     });
     if !config.is_file() {
         return Err(usage(format!("config not found: {}", config.display())));
+    }
+    // The services would refuse a bad run file one by one after the launcher had written the run
+    // folder; refuse it here, before anything is started or written.
+    let checked = terl_runtime::RunConfig::load(&config)
+        .and_then(|run| terl_runtime::resolve_tasks(&run.tasks).map(drop));
+    if let Err(e) = checked {
+        return Err(usage(format!("run file {}: {e:#}", config.display())));
     }
     if let Some(d) = tep_datasets.iter().find(|d| !d.is_file()) {
         return Err(usage(format!("TEP dataset not found: {}", d.display())));
@@ -680,11 +690,18 @@ impl Launcher {
             if self.signals.interrupted().await {
                 return Err(self.interrupted());
             }
-            let exited = self
-                .procs
-                .get_mut(role)
-                .is_none_or(|p| !matches!(p.child.try_wait(), Ok(None)));
-            if exited {
+            let exit = self.procs.get_mut(role).map(|p| p.child.try_wait());
+            if role == "learner" && matches!(exit, Some(Ok(Some(status))) if status.success()) {
+                // A learner resumed on a finished run says so and exits at once.
+                return Err(Ending {
+                    reason: format!(
+                        "the learner exited 0 before serving: the run is finished (see {}/learner.log)",
+                        self.out.display()
+                    ),
+                    code: 0,
+                });
+            }
+            if !matches!(exit, Some(Ok(None))) {
                 break;
             }
             match &addr {
@@ -847,6 +864,19 @@ impl Launcher {
             return Some(Ending { reason, code: 0 });
         }
         let n = self.restarts_of.get(role).copied().unwrap_or(0);
+        // A full disk: the process's own error may not have reached its log (written to the
+        // same filesystem), and a restart would fail the same way.
+        if let Some(free) = free_bytes(&self.out).filter(|&b| b < FULL_DISK_BYTES) {
+            let reason = format!(
+                "{role} (pid {pid}) exited with code {code} and the run folder's filesystem is \
+                 full ({free} bytes free in {}): free space, then continue with --resume {}",
+                self.out.display(),
+                self.out.display()
+            );
+            eprintln!("[cluster] {reason}; stopping the cluster");
+            self.last_error(role);
+            return Some(Ending { reason, code: 1 });
+        }
         // An error exit (not a signal, not a panic) within seconds of a start is a start-up
         // failure that a restart would repeat (a changed config, no checkpoint the run can
         // use, a full disk with on_checkpoint_error = "stop"): stop, and say why.
@@ -902,20 +932,38 @@ impl Launcher {
         None
     }
 
-    /// SIGTERM to every process, then waits for each; removes the launcher's files and prints
-    /// the summary line.
+    /// SIGTERM to every process, then waits for each, [`STOP_GRACE`] at most before SIGKILL;
+    /// removes the launcher's files and prints the summary line.
     fn stop(&mut self, reason: &str) {
         eprintln!("[cluster] stopping {} processes", self.procs.len());
-        for proc in self.procs.values() {
+        let signal = |proc: &Proc, sig| {
             if let Ok(pid) = i32::try_from(proc.child.id()) {
-                let _ = nix::sys::signal::kill(
-                    nix::unistd::Pid::from_raw(pid),
-                    nix::sys::signal::Signal::SIGTERM,
-                );
+                let _ = nix::sys::signal::kill(nix::unistd::Pid::from_raw(pid), sig);
             }
+        };
+        for proc in self.procs.values() {
+            signal(proc, nix::sys::signal::Signal::SIGTERM);
         }
-        for (_, mut proc) in std::mem::take(&mut self.procs) {
-            if let Ok(status) = proc.child.wait() {
+        let deadline = Instant::now() + STOP_GRACE;
+        for (role, mut proc) in std::mem::take(&mut self.procs) {
+            let status = loop {
+                match proc.child.try_wait() {
+                    Ok(Some(status)) => break Some(status),
+                    Ok(None) if Instant::now() < deadline => {
+                        std::thread::sleep(Duration::from_millis(50));
+                    }
+                    Ok(None) => {
+                        eprintln!(
+                            "[cluster] {role} did not stop within {} s of SIGTERM: SIGKILL",
+                            STOP_GRACE.as_secs()
+                        );
+                        signal(&proc, nix::sys::signal::Signal::SIGKILL);
+                        break proc.child.wait().ok();
+                    }
+                    Err(_) => break None,
+                }
+            };
+            if let Some(status) = status {
                 self.worst = self.worst.max(shell_code(status));
             }
         }
@@ -934,6 +982,16 @@ impl Launcher {
             self.out.display()
         );
     }
+}
+
+/// Below this many free bytes the run folder's filesystem counts as full (a checkpoint, a
+/// metrics chunk or a log line would not fit).
+const FULL_DISK_BYTES: u64 = 1 << 20;
+
+/// Bytes an unprivileged process may still write on the filesystem of `dir` (`statvfs`).
+fn free_bytes(dir: &Path) -> Option<u64> {
+    let st = nix::sys::statvfs::statvfs(dir).ok()?;
+    Some(st.blocks_available().saturating_mul(st.fragment_size()))
 }
 
 fn append_line(path: &Path, line: &str) -> Result<()> {

@@ -243,6 +243,33 @@ impl StatusArgs {
     }
 }
 
+/// What a failed status call most likely means: a server that answered and refused the
+/// client's token, or (for a plaintext client) one that closed the connection because it
+/// speaks TLS. `None` when the error says nothing more (nothing listens, a timeout).
+fn diagnosis(e: &anyhow::Error, tls: bool) -> Option<&'static str> {
+    if let Some(status) = e.chain().find_map(|c| c.downcast_ref::<tonic::Status>()) {
+        return match status.code() {
+            tonic::Code::Unauthenticated => Some(
+                "it answers but refused this client's token: give the run's token (TERL_TOKEN \
+                 or --token-file; with --run RUN_DIR the run file's token_file is used)",
+            ),
+            tonic::Code::Unavailable
+            | tonic::Code::Unknown
+            | tonic::Code::Internal
+            | tonic::Code::Cancelled
+                if !tls =>
+            {
+                Some(
+                    "the connection closed: if the server uses TLS, give its CA (--tls-ca, or \
+                     cluster.tls_ca in the run file with --run RUN_DIR)",
+                )
+            }
+            _ => None,
+        };
+    }
+    None
+}
+
 async fn learner_status(addr: &str, options: ClientOptions) -> Result<LearnerStatus> {
     let mut client = terl_wire::connect_learner_with(addr, options).await?;
     Ok(client.status().await?)
@@ -527,31 +554,38 @@ pub fn run(args: StatusArgs) -> Result<ExitCode> {
         .build()?;
     let timeout = Duration::from_secs_f64(args.timeout.max(0.1));
     let options = args.client_options(run_dir.as_deref())?;
+    let tls = options.security.tls.is_some();
     runtime.block_on(async {
         let learner = tokio::time::timeout(timeout, learner_status(&addr, options.clone()))
             .await
-            .unwrap_or_else(|_| Err(anyhow::anyhow!("timed out")))
-            .with_context(|| {
-                if defaulted {
-                    format!(
-                        "no cluster found: there is no runs/.cluster.run here and nothing \
+            .unwrap_or_else(|_| Err(anyhow::anyhow!("timed out")));
+        let why_learner = learner.as_ref().err().and_then(|e| diagnosis(e, tls));
+        let learner = learner.with_context(|| {
+            if let Some(why) = why_learner {
+                format!("learner at {addr}: {why}")
+            } else if defaulted {
+                format!(
+                    "no cluster found: there is no runs/.cluster.run here and nothing \
                          answers at {addr}; start one with ./deploy/local-cluster.sh, or give \
                          --run RUN_DIR or --addr"
-                    )
-                } else if let Some(dir) = &no_launcher {
-                    format!(
-                        "learner at {addr} (no launcher runs in {}: it has no launcher.pid, \
+                )
+            } else if let Some(dir) = &no_launcher {
+                format!(
+                    "learner at {addr} (no launcher runs in {}: it has no launcher.pid, \
                          so this may be a stopped run)",
-                        dir.display()
-                    )
-                } else {
-                    format!("learner at {addr}")
-                }
-            })?;
+                    dir.display()
+                )
+            } else {
+                format!("learner at {addr}")
+            }
+        })?;
         let selector = tokio::time::timeout(timeout, selector_status(&selector_addr, options))
             .await
             .unwrap_or_else(|_| Err(anyhow::anyhow!("timed out")))
-            .with_context(|| format!("selector at {selector_addr}"));
+            .map_err(|e| match diagnosis(&e, tls) {
+                Some(why) => e.context(format!("selector at {selector_addr}: {why}")),
+                None => e.context(format!("selector at {selector_addr}")),
+            });
         if args.json {
             let value = serde_json::json!({
                 "learner": learner,

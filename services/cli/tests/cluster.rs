@@ -1149,6 +1149,49 @@ fn launcher_refuses_bad_or_locked_run_ids_and_reports_a_start_up_failure_with_it
         assert!(err.contains("local actors"), "--actors {too_many}: {err}");
         assert!(!runs.join("it-too-many").exists(), "nothing was started");
     }
+    // A run file the services would refuse (a misspelt key; an unknown task) is refused by the
+    // launcher, naming the problem, before it writes a run folder.
+    let smoke = std::fs::read_to_string(root.join("deploy/configs/cluster-smoke.toml")).unwrap();
+    let misspelt = dir.path().join("misspelt.toml");
+    std::fs::write(
+        &misspelt,
+        smoke.replace("checkpoint_every_secs = 5", "checkpoint_evry_secs = 5"),
+    )
+    .unwrap();
+    let unknown_task = dir.path().join("unknown-task.toml");
+    let tasks_line = smoke
+        .lines()
+        .find(|l| l.starts_with("tasks"))
+        .expect("the smoke run file names its tasks");
+    std::fs::write(
+        &unknown_task,
+        smoke.replace(tasks_line, "tasks = \"reach-v3,no-such-task-v3\""),
+    )
+    .unwrap();
+    for (file, expected) in [
+        (&misspelt, "checkpoint_evry_secs"),
+        (&unknown_task, "no-such-task-v3"),
+    ] {
+        let out = Command::new(root.join("deploy/local-cluster.sh"))
+            .current_dir(&root)
+            .env("TMPDIR", &locks)
+            .args(["--config", file.to_str().unwrap(), "--no-build"])
+            .args([
+                "--runs-root",
+                runs.to_str().unwrap(),
+                "--run-id",
+                "it-bad-file",
+            ])
+            .output()
+            .unwrap();
+        let (code, err) = (out.status.code(), String::from_utf8_lossy(&out.stderr));
+        assert_eq!(code, Some(2), "{}: {err}", file.display());
+        assert!(err.contains(expected), "{}: {err}", file.display());
+        assert!(
+            !runs.join("it-bad-file").exists(),
+            "a refused run file made a run folder"
+        );
+    }
 
     // Another launcher of this run id holds its lock.
     let id = format!("it-lock-{}", std::process::id());

@@ -138,3 +138,65 @@ fn terl_services_refuse_bad_datasets_configs_and_missing_addresses() {
         assert!(e.contains(needle), "{needle}: {e}");
     }
 }
+
+/// A log that cannot be written (stderr on `/dev/full`: every write fails with "No space left
+/// on device", as a run folder's log on a full disk does) does not panic a service: the learner
+/// and the selector start, serve, and stop on SIGTERM with code 0. (tracing reported a failed
+/// log write with `eprint!`, which panicked on the same full stderr.)
+#[test]
+fn services_with_an_unwritable_log_run_and_stop_cleanly() {
+    let bins = service_binaries();
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("run.toml");
+    std::fs::write(
+        &config,
+        "tasks = \"reach-v3\"\nnum_envs = 1\n\
+         [sac]\npolicy_hidden = [16]\ncritic_hidden = [16]\nbatch_size = 16\nthreads = 1\n\
+         [cluster]\nlearner_calibrate_secs = 0\n",
+    )
+    .unwrap();
+    let run_dir = dir.path().join("run");
+    let run_id = format!("full-log-{}", std::process::id());
+    for service in ["terl-learner", "terl-selector"] {
+        let full = std::fs::OpenOptions::new()
+            .write(true)
+            .open("/dev/full")
+            .expect("/dev/full");
+        let mut child = Command::new(bins.join(service))
+            .args(args(
+                config.to_str().unwrap(),
+                &run_id,
+                run_dir.to_str().unwrap(),
+            ))
+            // Every log line at debug level: many failed writes.
+            .env("RUST_LOG", "debug")
+            .stdout(std::process::Stdio::null())
+            .stderr(full)
+            .spawn()
+            .unwrap();
+        let role = service.trim_start_matches("terl-");
+        let addr_file = run_dir.join(format!("{role}.addr"));
+        let start = Instant::now();
+        while !addr_file.exists() {
+            if let Some(status) = child.try_wait().unwrap() {
+                panic!("{service} with a full log exited before serving: {status}");
+            }
+            assert!(
+                start.elapsed() < Duration::from_secs(60),
+                "{service} did not start"
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        std::thread::sleep(Duration::from_millis(500));
+        Command::new("kill")
+            .args(["-TERM", &child.id().to_string()])
+            .status()
+            .unwrap();
+        let status = child.wait().unwrap();
+        assert_eq!(
+            status.code(),
+            Some(0),
+            "{service} with a full log: {status}"
+        );
+    }
+}

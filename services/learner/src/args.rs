@@ -5,6 +5,15 @@ use std::path::PathBuf;
 
 use clap::Parser;
 
+/// What a learner does once its run is finished (`--when-finished`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum WhenFinished {
+    /// Exit with code 0.
+    Exit,
+    /// Keep answering status until stopped.
+    Idle,
+}
+
 /// Arguments of `terl-learner`.
 #[derive(Debug, Parser)]
 #[command(
@@ -39,6 +48,13 @@ pub struct Args {
     /// transitions before updates continue.
     #[arg(long)]
     pub resume: bool,
+    /// What the learner does once the run is finished (its train.total_env_steps reached, now
+    /// or by an earlier process of the run found with --resume): `exit` with code 0 (what the
+    /// local launcher expects), or `idle`: keep answering status (and serving the final weights)
+    /// until SIGTERM, writing nothing more, for supervisors that restart a process that exits
+    /// (a Kubernetes Deployment). A resumed run that is already finished writes no file either way.
+    #[arg(long, value_enum, default_value_t = WhenFinished::Exit)]
+    pub when_finished: WhenFinished,
     /// Stop (as on SIGTERM) when the process with this pid, the launcher, exits or is killed:
     /// no orphans (deploy/local-cluster.sh passes its own pid).
     #[arg(long)]

@@ -63,6 +63,8 @@ struct Backend {
     shared: Arc<Shared>,
     hub: WeightHub,
     checkpoints: Mutex<mpsc::Sender<CheckpointJob>>,
+    /// The run's actor count (`--num-actors`): the ids a weight watcher may name.
+    actors: u32,
 }
 
 impl LearnerBackend for Backend {
@@ -92,6 +94,10 @@ impl LearnerBackend for Backend {
 
     fn weight_hub(&self) -> &WeightHub {
         &self.hub
+    }
+
+    fn actor_slots(&self) -> Option<u32> {
+        Some(self.actors)
     }
 }
 
@@ -165,6 +171,43 @@ async fn run_in_span<T: terl_transport::ServiceTransport>(
         security: config.server_security.clone(),
         ..terl_wire::ServeOptions::default()
     };
+    if let Some(found) = finished_before(&config)? {
+        tracing::info!(
+            checkpoint = %found.path.display(),
+            env_steps = found.state.env_steps,
+            budget = config.run.train.total_env_steps,
+            updates = found.updates,
+            "the run is already finished (train.total_env_steps reached): nothing to train, no \
+             checkpoint, metrics or dataset file written"
+        );
+        if !config.idle_when_finished {
+            return Ok(());
+        }
+        let status = LearnerStatus {
+            run_id: config.run_id.clone(),
+            updates: found.updates,
+            env_steps_total: found.state.env_steps,
+            policy_version: found.state.policy_version,
+            algorithm: found.state.algorithm.clone(),
+            ..LearnerStatus::default()
+        };
+        let shared = Arc::new(Shared {
+            started: Instant::now(),
+            status: Mutex::new(status),
+            stop: AtomicBool::new(true),
+            standalone_updates_per_second: 0.0,
+        });
+        terl_runtime::service::announce(&listener, &config.run_dir, "learner", &config.run_id)?;
+        return serve_finished(
+            &config,
+            listener,
+            shared,
+            WeightHub::new(),
+            shutdown,
+            serve_options,
+        )
+        .await;
+    }
     // Timed before the address appears: a launcher starts the selector and the actors only
     // once it has, so the learner is timed alone.
     let standalone = {
@@ -173,7 +216,8 @@ async fn run_in_span<T: terl_transport::ServiceTransport>(
             .await
             .context("timing the standalone update rate")??
     };
-    terl_runtime::service::announce(&listener, &config.run_dir, "learner", &config.run_id)?;
+    let (announced, _) =
+        terl_runtime::service::announce(&listener, &config.run_dir, "learner", &config.run_id)?;
 
     let shared = Arc::new(Shared {
         started: Instant::now(),
@@ -185,26 +229,76 @@ async fn run_in_span<T: terl_transport::ServiceTransport>(
         standalone_updates_per_second: standalone,
     });
     let hub = WeightHub::with_max_message_bytes(max_message_bytes);
+    let actors = u32::try_from(config.num_actors).unwrap_or(u32::MAX);
     let (checkpoint_tx, checkpoint_rx) = mpsc::channel();
     let mut trainer = {
-        let (shared, hub) = (Arc::clone(&shared), hub.clone());
+        let (shared, hub, config) = (Arc::clone(&shared), hub.clone(), config.clone());
         terl_runtime::service::Worker::spawn("trainer", "trainer thread", span, move || {
             trainer::run(&config, &transport, &shared, &hub, &checkpoint_rx)
         })?
     };
     let backend = Backend {
         shared: Arc::clone(&shared),
-        hub,
+        hub: hub.clone(),
         checkpoints: Mutex::new(checkpoint_tx),
+        actors,
     };
-    let served = terl_runtime::service::serve_until(shutdown, &mut trainer, |stop| {
-        terl_wire::serve_learner_with(listener, backend, stop, serve_options)
+    // Fused: after training ends, `--when-finished idle` waits on the same signal.
+    let mut shutdown = std::pin::pin!(futures_util::FutureExt::fuse(shutdown));
+    let served = terl_runtime::service::serve_until(shutdown.as_mut(), &mut trainer, |stop| {
+        terl_wire::serve_learner_with(listener, backend, stop, serve_options.clone())
     })
     .await;
     shared.stop.store(true, Ordering::Relaxed);
     let trained = trainer.join().await;
     served.context("gRPC server")?;
-    trained
+    trained?;
+    // The trainer ends without an error only when the run is finished or it was told to stop.
+    if config.idle_when_finished && !futures_util::future::FusedFuture::is_terminated(&shutdown) {
+        let listener = terl_wire::bind_secured(announced, &config.server_security)
+            .await
+            .with_context(|| format!("cannot listen on {announced} again"))?;
+        return serve_finished(&config, listener, shared, hub, shutdown, serve_options).await;
+    }
+    Ok(())
+}
+
+/// With `--resume`, the newest intact checkpoint when it has reached the run's budget: the run
+/// is finished and nothing is to be done.
+fn finished_before(config: &LearnerConfig) -> anyhow::Result<Option<checkpoint::Found>> {
+    let budget = config.run.train.total_env_steps;
+    if !config.resume || budget == 0 {
+        return Ok(None);
+    }
+    let found = checkpoint::newest_intact(&config.run_dir.join("checkpoints"))?;
+    Ok(found.filter(|f| f.state.env_steps >= budget))
+}
+
+/// A finished run's learner under `--when-finished idle`: answers status (the final counters)
+/// and streams the last published weights until `shutdown`; trains and writes nothing.
+async fn serve_finished(
+    config: &LearnerConfig,
+    listener: tokio::net::TcpListener,
+    shared: Arc<Shared>,
+    hub: WeightHub,
+    shutdown: impl Future<Output = ()> + Send,
+    serve_options: terl_wire::ServeOptions,
+) -> anyhow::Result<()> {
+    tracing::info!(
+        addr = %listener.local_addr()?,
+        "the run is finished; answering status until stopped (--when-finished idle)"
+    );
+    // No trainer: a checkpoint request is answered "unavailable".
+    let (checkpoint_tx, _) = mpsc::channel();
+    let backend = Backend {
+        shared,
+        hub,
+        checkpoints: Mutex::new(checkpoint_tx),
+        actors: u32::try_from(config.num_actors).unwrap_or(u32::MAX),
+    };
+    terl_wire::serve_learner_with(listener, backend, shutdown, serve_options)
+        .await
+        .context("gRPC server")
 }
 
 #[cfg(test)]

@@ -26,6 +26,7 @@ async fn main() -> anyhow::Result<()> {
         .cluster
         .server_security(terl_runtime::token_from_env())?;
     config.resume = a.resume;
+    config.idle_when_finished = a.when_finished == terl_learner::args::WhenFinished::Idle;
     // Refused before listening: weights that would not fit a gRPC message.
     terl_learner::check_start_up(&config)?;
     let listener = terl_wire::bind_secured(config.addr, &config.server_security)

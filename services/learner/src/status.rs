@@ -334,6 +334,14 @@ impl StatusBoard {
     ///
     /// # Errors
     /// The metrics log cannot be written.
+    /// Makes the next [`StatusBoard::tick`] refresh whatever the time since the last one (the
+    /// final counters of a finished trainer).
+    pub(crate) fn due_now(&mut self) {
+        if let Some(past) = Instant::now().checked_sub(STATUS_EVERY) {
+            self.last_status = past;
+        }
+    }
+
     pub(crate) fn tick(
         &mut self,
         src: Sources<'_>,

@@ -228,7 +228,7 @@ pub(crate) fn run<T: Transport>(
             std::thread::sleep(Duration::from_micros(500));
         }
     }
-    trainer.finish()
+    trainer.finish(shared)
 }
 
 /// What a checkpoint holds: the networks, the planner, the sampler and the counters.
@@ -446,6 +446,12 @@ impl<'a> Trainer<'a> {
         busy |= self.learn()?;
         self.publish(hub)?;
         self.checkpoint(checkpoint_jobs)?;
+        self.show(shared)?;
+        Ok(busy)
+    }
+
+    /// Refreshes the status snapshot and the metrics log when due.
+    fn show(&mut self, shared: &Shared) -> anyhow::Result<()> {
         let m = &mut self.m;
         self.board.tick(
             Sources {
@@ -464,8 +470,7 @@ impl<'a> Trainer<'a> {
             m.planner.as_mut(),
             &mut self.metrics,
             shared,
-        )?;
-        Ok(busy)
+        )
     }
 
     /// Transition batches into replay: by the rate limiter, or round by round under the
@@ -580,8 +585,11 @@ impl<'a> Trainer<'a> {
             .periodic(updates, || m.snapshot(), || m.tool_file())
     }
 
-    /// Closes the metrics log and writes the final checkpoint.
-    fn finish(self) -> anyhow::Result<()> {
+    /// Shows the final counters (status and metrics log), closes the metrics log and writes
+    /// the final checkpoint.
+    fn finish(mut self, shared: &Shared) -> anyhow::Result<()> {
+        self.board.due_now();
+        self.show(shared)?;
         self.metrics.finish()?;
         let m = &self.m;
         let path = self.checkpoints.last(&m.snapshot()?, m.tool_file()?)?;

@@ -1,0 +1,129 @@
+//! `terl status` says what went wrong in words a user can act on, against real sockets on
+//! 127.0.0.1: nothing listening (the cause once, not "transport error: transport error"), a
+//! server that closes the connection at once (what a TLS server does to a plaintext client:
+//! the hint names the CA setting), and a real `terl-learner` with a token asked without one
+//! (refused, not "nothing answers").
+
+use std::net::TcpListener;
+use std::path::Path;
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+mod common;
+
+use common::service_binaries;
+
+fn status(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_terl"))
+        .arg("status")
+        .args(args)
+        .current_dir(dir)
+        .env_remove("TERL_TOKEN")
+        .output()
+        .unwrap()
+}
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// A port nobody listens on: bound, its number read, then closed.
+fn closed_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+#[test]
+fn nothing_listening_names_the_cause_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let addr = format!("127.0.0.1:{}", closed_port());
+    let out = status(
+        &["--addr", &addr, "--selector-addr", &addr, "--timeout", "5"],
+        dir.path(),
+    );
+    let err = stderr(&out);
+    assert!(!out.status.success(), "{err}");
+    assert!(err.contains("Connection refused"), "{err}");
+    for repeated in [
+        "transport error: transport error",
+        "tcp connect error: tcp connect error",
+    ] {
+        assert!(!err.contains(repeated), "{repeated:?} in {err}");
+    }
+}
+
+#[test]
+fn a_server_that_closes_at_once_gets_the_tls_hint() {
+    let dir = tempfile::tempdir().unwrap();
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    // Accepts every connection and closes it without a byte, as a TLS server does when a
+    // plaintext client's first bytes are not a TLS handshake.
+    std::thread::spawn(move || {
+        for stream in listener.incoming() {
+            drop(stream);
+        }
+    });
+    let out = status(
+        &["--addr", &addr, "--selector-addr", &addr, "--timeout", "5"],
+        dir.path(),
+    );
+    let err = stderr(&out);
+    assert!(!out.status.success(), "{err}");
+    assert!(err.contains("--tls-ca"), "{err}");
+}
+
+#[test]
+fn a_learner_with_a_token_asked_without_one_is_refused_by_name() {
+    let bin = service_binaries();
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("run.toml");
+    std::fs::write(
+        &config,
+        "tasks = \"reach-v3\"\nnum_envs = 1\n\
+         [sac]\npolicy_hidden = [16]\ncritic_hidden = [16]\nbatch_size = 16\nthreads = 1\n\
+         [cluster]\nlearner_calibrate_secs = 0\n",
+    )
+    .unwrap();
+    let run_dir = dir.path().join("run");
+    let run_id = format!("status-token-{}", std::process::id());
+    let mut learner = Command::new(bin.join("terl-learner"))
+        .args(["--config", config.to_str().unwrap(), "--run-id", &run_id])
+        .args([
+            "--addr",
+            "127.0.0.1:0",
+            "--run-dir",
+            run_dir.to_str().unwrap(),
+        ])
+        .env("TERL_TOKEN", "a-token-the-client-does-not-have")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let addr_file = run_dir.join("learner.addr");
+    let start = Instant::now();
+    let addr = loop {
+        if let Ok(a) = std::fs::read_to_string(&addr_file) {
+            if !a.trim().is_empty() {
+                break a.trim().to_string();
+            }
+        }
+        if start.elapsed() > Duration::from_secs(60) || learner.try_wait().unwrap().is_some() {
+            let _ = learner.kill();
+            panic!("the learner did not start");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let out = status(&["--addr", &addr, "--timeout", "5"], dir.path());
+    let _ = Command::new("kill")
+        .args(["-TERM", &learner.id().to_string()])
+        .status();
+    let _ = learner.wait();
+    let err = stderr(&out);
+    assert!(!out.status.success(), "{err}");
+    assert!(err.contains("refused this client's token"), "{err}");
+    assert!(!err.contains("nothing answers"), "{err}");
+}
