@@ -124,6 +124,16 @@ impl PtrConfig {
                 "ptr batch_size, pool_trajectories and success_window must be positive".into(),
             );
         }
+        // Each is held in full (windows and pools are allocated at their size).
+        const MAX_COUNT: usize = 100_000;
+        if self.batch_size > MAX_COUNT
+            || self.success_window > MAX_COUNT
+            || self.pool_trajectories > MAX_COUNT
+        {
+            return bad(format!(
+                "ptr batch_size, pool_trajectories and success_window must be at most {MAX_COUNT}"
+            ));
+        }
         if !(self.top_fraction > 0.0 && self.top_fraction <= 1.0) {
             return bad(format!(
                 "ptr top_fraction {} not in (0, 1]",

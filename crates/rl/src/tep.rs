@@ -258,6 +258,21 @@ impl TepConfig {
         if self.buffer_capacity == 0 || self.threads == 0 {
             return bad("tep buffer_capacity and threads must be positive".into());
         }
+        if self.threads > crate::config::MAX_THREADS {
+            return bad(format!(
+                "tep threads {} must be at most {}",
+                self.threads,
+                crate::config::MAX_THREADS
+            ));
+        }
+        // The paper's buffer holds 6M samples; each is ~90 floats.
+        const MAX_BUFFER_CAPACITY: usize = 50_000_000;
+        if self.buffer_capacity > MAX_BUFFER_CAPACITY {
+            return bad(format!(
+                "tep buffer_capacity {} must be at most {MAX_BUFFER_CAPACITY}",
+                self.buffer_capacity
+            ));
+        }
         if !(1e-3..=1e4).contains(&self.f_output_scale) {
             return bad(format!(
                 "tep f_output_scale {} must be in [0.001, 10000] (steps per unit of the network's \

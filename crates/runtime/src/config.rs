@@ -246,6 +246,9 @@ pub const MAX_NUM_ENVS: usize = 1024;
 /// bytes per transition, so 10M per task is 3.3 GB per task (the paper uses 1M).
 pub const MAX_REPLAY_CAPACITY_PER_TASK: usize = 10_000_000;
 
+/// Most replay transitions over all tasks (~16.5 GB): the paper's MT50 (50 tasks × 1M).
+pub const MAX_REPLAY_TRANSITIONS: usize = 50_000_000;
+
 /// Largest `sac.batch_size` (the paper's MT10 batch is 1280, this project's workstation 256).
 pub const MAX_BATCH_SIZE: usize = 65_536;
 
@@ -446,6 +449,13 @@ impl RunConfig {
             "train.replay_capacity_per_task must be in 1..={MAX_REPLAY_CAPACITY_PER_TASK} (got {}): \
              the replay buffer is allocated up front",
             t.replay_capacity_per_task
+        );
+        let num_tasks = crate::resolve_tasks(&cfg.tasks).map_or(1, |t| t.len());
+        let replay = t.replay_capacity_per_task.saturating_mul(num_tasks);
+        anyhow::ensure!(
+            replay <= MAX_REPLAY_TRANSITIONS,
+            "train.replay_capacity_per_task × {num_tasks} tasks is {replay} transitions; at most \
+             {MAX_REPLAY_TRANSITIONS} in all (~330 bytes each, allocated up front)"
         );
         for (key, v) in [
             ("train.eval_episodes_per_env", t.eval_episodes_per_env),

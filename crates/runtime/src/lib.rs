@@ -20,7 +20,7 @@ pub use config::{
     parse_seconds, token_from_env, Algorithm, ClusterConfig, OnCheckpointError, RunConfig,
     MAX_BATCH_SIZE, MAX_BUFFER_BATCHES, MAX_EPISODE_COUNT, MAX_EVAL_THREADS,
     MAX_LEARNER_CALIBRATE_SECS, MAX_NUM_ENVS, MAX_POLICY_LAG_ROUNDS, MAX_REPLAY_CAPACITY_PER_TASK,
-    MAX_SECONDS,
+    MAX_REPLAY_TRANSITIONS, MAX_SECONDS,
 };
 pub use lockstep::Lockstep;
 pub use metaworld_vec::MetaWorldVec;

@@ -221,6 +221,16 @@ const NUMERIC_KEYS: &[(&str, &str)] = &[
     ("cluster", "eval_envs_per_task"),
     ("cluster", "max_message_mib"),
     ("cluster", "policy_lag_rounds"),
+    ("ptr", "batch_size"),
+    ("ptr", "success_window"),
+    ("ptr", "pool_trajectories"),
+    ("ptr", "top_fraction"),
+    ("ptr", "gamma"),
+    ("tep", "buffer_capacity"),
+    ("tep", "threads"),
+    ("tep", "updates_per_sac_update"),
+    ("tep", "f_output_scale"),
+    ("guidance", "sigma"),
 ];
 
 /// Values that pass a type check and break arithmetic: zeros of both signs, subnormals, huge,
@@ -270,6 +280,8 @@ fn use_accepted(cfg: &RunConfig) {
     assert!(cfg.cluster.buffer_batches <= terl_runtime::MAX_BUFFER_BATCHES);
     assert!(cfg.cluster.eval_episodes_per_task <= terl_runtime::MAX_EPISODE_COUNT);
     assert!(cfg.train.success_window <= terl_runtime::MAX_EPISODE_COUNT);
+    assert!(cfg.ptr.success_window <= 100_000 && cfg.ptr.pool_trajectories <= 100_000);
+    assert!(cfg.tep.threads <= 256 && cfg.tep.buffer_capacity <= 50_000_000);
     let ratio = cfg.samples_per_insert();
     assert!(ratio.is_finite() && ratio > 0.0);
 }
@@ -288,7 +300,7 @@ proptest::proptest! {
         )
     ) {
         let dir = tempfile::tempdir().unwrap();
-        let mut top = String::from("tasks = \"reach-v3,push-v3\"\n");
+        let mut top = String::from("tasks = \"reach-v3,push-v3\"\nalgorithm = \"terl\"\n");
         let mut sections: std::collections::BTreeMap<&str, String> = Default::default();
         let mut seen = std::collections::BTreeSet::new();
         for (k, v) in &picks {

@@ -76,12 +76,11 @@ pub fn causes(error: &(dyn std::error::Error + 'static)) -> String {
         }
         next = e.source();
     }
+    // An inner message that an outer one already ends with (it printed its source) is dropped;
+    // the outer, fuller one stays.
     let mut kept: Vec<&str> = Vec::new();
     for (i, p) in parts.iter().enumerate() {
-        if !parts[i + 1..]
-            .iter()
-            .any(|later| p.ends_with(later.as_str()) && p != later)
-        {
+        if !parts[..i].iter().any(|outer| outer.ends_with(p.as_str())) {
             kept.push(p);
         }
     }
@@ -102,7 +101,7 @@ fn tls_hint(error: &tonic::transport::Error, plaintext: bool) -> &'static str {
     .any(|s| text.contains(s));
     if plaintext && closed {
         " (the server closed the connection: if it uses TLS, give its CA with cluster.tls_ca \
-         in the run file or --tls-ca)"
+         in the run file)"
     } else {
         ""
     }

@@ -243,6 +243,10 @@ impl StatusArgs {
     }
 }
 
+/// The hint for a call whose connection the server closed.
+const CLOSED_HINT: &str = "the connection closed: if the server uses TLS, give its CA \
+     (--tls-ca, or cluster.tls_ca in the run file with --run RUN_DIR)";
+
 /// What a failed status call most likely means: a server that answered and refused the
 /// client's token, or (for a plaintext client) one that closed the connection because it
 /// speaks TLS. `None` when the error says nothing more (nothing listens, a timeout).
@@ -253,16 +257,11 @@ fn diagnosis(e: &anyhow::Error, tls: bool) -> Option<&'static str> {
                 "it answers but refused this client's token: give the run's token (TERL_TOKEN \
                  or --token-file; with --run RUN_DIR the run file's token_file is used)",
             ),
-            tonic::Code::Unavailable
-            | tonic::Code::Unknown
-            | tonic::Code::Internal
-            | tonic::Code::Cancelled
-                if !tls =>
-            {
-                Some(
-                    "the connection closed: if the server uses TLS, give its CA (--tls-ca, or \
-                     cluster.tls_ca in the run file with --run RUN_DIR)",
-                )
+            // What a closed connection looks like to a call: cancelled, unavailable, or an
+            // unknown transport error (a broken pipe); not a server's own internal error.
+            tonic::Code::Unavailable | tonic::Code::Cancelled if !tls => Some(CLOSED_HINT),
+            tonic::Code::Unknown if !tls && status.message().contains("transport error") => {
+                Some(CLOSED_HINT)
             }
             _ => None,
         };

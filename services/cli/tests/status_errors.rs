@@ -73,7 +73,7 @@ fn a_server_that_closes_at_once_gets_the_tls_hint() {
     );
     let err = stderr(&out);
     assert!(!out.status.success(), "{err}");
-    assert!(err.contains("--tls-ca"), "{err}");
+    assert!(err.contains("cluster.tls_ca"), "{err}");
 }
 
 #[test]

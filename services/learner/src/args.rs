@@ -50,9 +50,11 @@ pub struct Args {
     pub resume: bool,
     /// What the learner does once the run is finished (its train.total_env_steps reached, now
     /// or by an earlier process of the run found with --resume): `exit` with code 0 (what the
-    /// local launcher expects), or `idle`: keep answering status (and serving the final weights)
-    /// until SIGTERM, writing nothing more, for supervisors that restart a process that exits
-    /// (a Kubernetes Deployment). A resumed run that is already finished writes no file either way.
+    /// local launcher expects), or `idle`: keep answering status until SIGTERM, writing nothing
+    /// more, for supervisors that restart a process that exits (a Kubernetes Deployment); a
+    /// learner that reached the budget itself also keeps streaming its last weights. A resumed
+    /// run that is already finished (its budget; a stage-1 planner-sample stop is not detected)
+    /// writes no file either way.
     #[arg(long, value_enum, default_value_t = WhenFinished::Exit)]
     pub when_finished: WhenFinished,
     /// Stop (as on SIGTERM) when the process with this pid, the launcher, exits or is killed:

@@ -275,7 +275,9 @@ fn finished_before(config: &LearnerConfig) -> anyhow::Result<Option<checkpoint::
 }
 
 /// A finished run's learner under `--when-finished idle`: answers status (the final counters)
-/// and streams the last published weights until `shutdown`; trains and writes nothing.
+/// until `shutdown`, and streams what `hub` holds (the last published weights when the trainer
+/// of this process reached the budget; nothing for a run found finished at start); trains and
+/// writes nothing.
 async fn serve_finished(
     config: &LearnerConfig,
     listener: tokio::net::TcpListener,

@@ -330,10 +330,6 @@ impl StatusBoard {
         }
     }
 
-    /// Refreshes `shared`'s status when due.
-    ///
-    /// # Errors
-    /// The metrics log cannot be written.
     /// Makes the next [`StatusBoard::tick`] refresh whatever the time since the last one (the
     /// final counters of a finished trainer).
     pub(crate) fn due_now(&mut self) {
@@ -342,6 +338,10 @@ impl StatusBoard {
         }
     }
 
+    /// Refreshes `shared`'s status when due.
+    ///
+    /// # Errors
+    /// The metrics log cannot be written.
     pub(crate) fn tick(
         &mut self,
         src: Sources<'_>,
