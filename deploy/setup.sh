@@ -7,9 +7,10 @@
 #   XML/STL assets into assets/metaworld;
 # - records what it did in .deps/setup.done so a re-run is instant and works offline.
 #
+# - installs what `terl render` needs: EGL and Mesa's OpenGL (headless rendering), ffmpeg;
 # - creates the Python environments the tests use (.deps/grpc-venv, .deps/mcap-venv,
-#   .deps/k8s-venv, .deps/rliable-venv); `--no-test-tools` skips them (the container image's
-#   build stage).
+#   .deps/k8s-venv, .deps/rliable-venv, .deps/render-venv, .deps/tensorboard-venv);
+#   `--no-test-tools` skips them (the container image's build stage).
 #
 # Nothing else is needed: the sim crate bakes the absolute path of .deps/mujoco/lib into every
 # binary it builds (override at run time with TERL_MUJOCO_LIB=/path/to/libmujoco.so).
@@ -74,6 +75,13 @@ font_found=0
 for f in /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf /usr/share/fonts/dejavu/DejaVuSans.ttf \
     /usr/share/fonts/TTF/DejaVuSans.ttf; do [ -f "$f" ] && font_found=1; done
 [ "$font_found" = 1 ] || need+=(fonts-dejavu-core)
+# `terl render`: a headless OpenGL context (EGL on Mesa's software rasteriser, no display) and
+# ffmpeg for the MP4 videos (and ffprobe for their test).
+have_deb() { dpkg-query -W -f='${Status}' "$1" 2>/dev/null | grep -q 'ok installed'; }
+if command -v dpkg-query >/dev/null; then
+    for p in libegl1 libegl-mesa0 libgl1-mesa-dri; do have_deb "$p" || need+=("$p"); done
+fi
+command -v ffmpeg >/dev/null && command -v ffprobe >/dev/null || need+=(ffmpeg)
 [ ${#need[@]} -eq 0 ] || apt_install "${need[@]}"
 command -v cargo >/dev/null || die "cargo not found" "install the stable Rust toolchain (rustup), then re-run"
 
@@ -104,6 +112,20 @@ setup_rliable_venv() {
         || die "creating .deps/rliable-venv failed" "re-run crates/stats/tests/python/setup-venv.sh and read its output"
 }
 
+# Python MuJoCo's own renderer (the second path of crates/sim/tests/render.rs).
+setup_render_venv() {
+    python3 -c "import ensurepip, venv" 2>/dev/null || apt_install python3-venv
+    "$ROOT/crates/sim/tests/python/setup-venv.sh" >&2 \
+        || die "creating .deps/render-venv failed" "re-run crates/sim/tests/python/setup-venv.sh and read its output"
+}
+
+# TensorBoard's own reader of the event files terl writes (crates/telemetry/tests, cluster tests).
+setup_tensorboard_venv() {
+    python3 -c "import ensurepip, venv" 2>/dev/null || apt_install python3-venv
+    "$ROOT/crates/telemetry/tests/python/setup-tensorboard-venv.sh" >&2 \
+        || die "creating .deps/tensorboard-venv failed" "re-run crates/telemetry/tests/python/setup-tensorboard-venv.sh and read its output"
+}
+
 setup_k8s_venv() {
     python3 -c "import ensurepip, venv" 2>/dev/null || apt_install python3-venv
     "$ROOT/deploy/k8s/setup-validator.sh" >&2 \
@@ -116,6 +138,8 @@ setup_test_tools() {
     setup_mcap_venv
     setup_k8s_venv
     setup_rliable_venv
+    setup_render_venv
+    setup_tensorboard_venv
 }
 
 [ "$have_all" = 1 ] && { say "already set up ($STAMP_CONTENT)"; setup_test_tools; exit 0; }

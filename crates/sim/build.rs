@@ -35,7 +35,7 @@ fn main() {
     let bindings = bindgen::Builder::default()
         .header(header.to_string_lossy())
         .clang_arg(format!("-I{}", include.display()))
-        .allowlist_function("mj_.*|mju_.*|mjs_getError")
+        .allowlist_function("mj_.*|mju_.*|mjs_getError|mjv_.*|mjr_.*")
         .allowlist_type("mj.*")
         .allowlist_var("mj.*")
         .blocklist_function("mju_user_.*")

@@ -51,6 +51,9 @@
 #   --planner-from-seed K            terl-pipeline: stage 3 only, for every seed of --seeds, from the
 #                                    planner (and stage-1 datasets) of seed K's stages 1 and 2,
 #                                    which must be done: MT10 seeds that share one planner
+#   --learner-threads N|auto         every run's [sac] threads (the learner's cores; default: the
+#                                    base run file's, "auto" at workstation and paper scale); use
+#                                    it with --tag, the run id does not name it
 #   --mode reproducible|asynchronous MTSAC runs with [cluster] reproducible = true (the default:
 #                                    the same seed gives the same run bit for bit, at about 10 %
 #                                    more wall time on MT10 workstation) or asynchronous; TERL
@@ -83,6 +86,7 @@ stage1_steps=""
 planner_from=""
 planner_from_set=0
 mode=reproducible
+learner_threads=""
 while [ $# -gt 0 ]; do
     case "$1" in
         --no-build|-h|--help) ;;
@@ -103,6 +107,7 @@ while [ $# -gt 0 ]; do
         --last-stage) last_stage=$2; shift 2 ;;
         --stage1-steps) stage1_steps=$2; shift 2 ;;
         --mode) mode=$2; shift 2 ;;
+        --learner-threads) learner_threads=$2; shift 2 ;;
         --planner-from-seed) planner_from=$2; planner_from_set=1; shift 2 ;;
         -h|--help) usage; exit 0 ;;
         *) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
@@ -118,6 +123,8 @@ done
 for s in $seeds; do
     [[ "$s" =~ ^[0-9]+$ ]] || { echo "seeds must be non-negative integers, got $s" >&2; exit 2; }
 done
+[ -z "$learner_threads" ] || [ "$learner_threads" = auto ] || [[ "$learner_threads" =~ ^[1-9][0-9]{0,2}$ ]] \
+    || { echo "--learner-threads takes auto or a positive integer" >&2; exit 2; }
 [[ "$actors" =~ ^[1-9][0-9]*$ ]] || { echo "--actors must be a positive integer" >&2; exit 2; }
 [[ "$tag" =~ ^(-[A-Za-z0-9_]+)?$ ]] || { echo "--tag takes letters, digits and _" >&2; exit 2; }
 [ -z "$tasks_override" ] || [ "$experiment" = mt1-ind ] \
@@ -184,6 +191,15 @@ run_config() {
     [ -z "$variant" ] || echo "variant = \"$variant\""
     local edits=(-e '/^(experiment|tasks|algorithm|variant) *=/d' -e "s/^seed *=.*/seed = $seed/")
     [ -z "$steps" ] || edits+=(-e "s/^total_env_steps *=.*/total_env_steps = $steps/")
+    if [ -n "$learner_threads" ]; then
+        local t=$learner_threads
+        [ "$t" = auto ] && t='"auto"'
+        if sed -n '/^\[sac\]$/,/^\[/p' "$base" | grep -q '^threads *='; then
+            edits+=(-e "/^\\[sac\\]\$/,/^\\[/s/^threads *=.*/threads = $t/")
+        else
+            edits+=(-e "s/^\\[sac\\]\$/[sac]\\nthreads = $t/")
+        fi
+    fi
     if [ "$alg" = mtsac ] && [ "$mode" = reproducible ]; then
         edits+=(-e '/^reproducible *=/d')
         if grep -q '^\[cluster\]$' "$base"; then

@@ -152,8 +152,9 @@ pub struct ClusterConfig {
     /// In-run evaluation: worker threads of the evaluator (each steps its own environments).
     pub eval_threads: usize,
     /// In-run evaluation: environments the evaluator keeps per task and thread, episodes of a
-    /// task stepped in lockstep (1..=10, default 10). Each holds about 27 MB for the whole run,
-    /// so MT50 at 10 keeps 13.5 GB; lower it there (`deploy/configs/mt50*.toml`). Results do not
+    /// task stepped in lockstep (1..=10, default 10). They share their task's compiled model
+    /// (~9 MB per task) and each adds ~0.4 MB for the whole run (`docs/results/env-memory/`);
+    /// the MT50 run files keep 2 (`deploy/configs/mt50*.toml`). Results do not
     /// depend on it.
     pub eval_envs_per_task: usize,
     /// File holding the control-plane token (16 to 1024 visible ASCII characters; trailing

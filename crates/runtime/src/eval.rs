@@ -43,7 +43,7 @@ use rand::SeedableRng;
 use serde::{Deserialize, Serialize};
 use terl_rl::{Policy, SacError};
 use terl_sim::metaworld::{goal_variations, MAX_PATH_LENGTH, NUM_VARIATIONS};
-use terl_sim::{Env, SimError, ACTION_DIM, OBS_DIM};
+use terl_sim::{Env, SimError, Step, ACTION_DIM, OBS_DIM};
 
 /// Episodes of one task stepped together in one worker (one policy call per step for all).
 pub const BATCH: usize = 10;
@@ -75,6 +75,9 @@ pub enum EvalError {
     /// the shapes its config states.
     #[error(transparent)]
     Policy(#[from] SacError),
+    /// The observer of [`observe_episode`] failed (e.g. the renderer or the video encoder).
+    #[error("{0}")]
+    Observer(String),
 }
 
 /// What a task outside the trained list gets as its task vector (see the module docs).
@@ -189,9 +192,9 @@ pub struct EvalSettings {
     pub threads: usize,
     /// Episodes of one task stepped in lockstep by a worker, i.e. environments kept per task
     /// and worker (1..=[`BATCH`]; default [`BATCH`]). Results do not depend on it; memory does:
-    /// a Meta-World environment holds about 27 MB (its own copy of the model with the robot's
-    /// meshes), so an evaluator keeps `threads × tasks × batch × 27 MB`, 2.7 GB for MT10 at the
-    /// default and 13.5 GB for MT50, against 1.35 GB for MT50 with `batch = 1`.
+    /// the environments of a task share its compiled model (about 9 MB, once per process), and
+    /// each adds about 0.4 MB (its `mjData` and task state; `docs/results/env-memory/`), so an
+    /// evaluator keeps about `tasks × 9 MB + threads × tasks × batch × 0.4 MB`.
     pub batch: usize,
 }
 
@@ -254,12 +257,17 @@ pub struct EvalSummary {
     pub cpu_seconds: Option<f64>,
 }
 
-#[derive(Debug, Clone, Copy, Default)]
-struct Episode {
-    ret: f64,
-    first_success: Option<u32>,
-    unstable: bool,
-    steps: u32,
+/// What one evaluation episode did.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Episode {
+    /// Undiscounted episode return (the sum of the f32-rounded rewards, as the evaluation sums).
+    pub ret: f64,
+    /// 1-based step of the first success (`None`: no success).
+    pub first_success: Option<u32>,
+    /// Cut short by a physics instability.
+    pub unstable: bool,
+    /// Steps taken (500 unless unstable).
+    pub steps: u32,
 }
 
 /// CPU time of the calling thread, seconds.
@@ -419,16 +427,29 @@ pub fn evaluate_policy_with(
             let task = &tasks[t];
             let pool = set.entry(task.name).or_default();
             let had = pool.len();
-            let got = run_chunk(
-                &mut pol,
-                pool,
-                task,
-                &variations[t],
-                range.clone(),
-                &mut rng,
-                cancel,
-            );
+            let mut got = Ok(());
+            while pool.len() < range.len() {
+                match Env::new(task.name) {
+                    Ok(env) => pool.push(env),
+                    Err(e) => {
+                        got = Err(EvalError::from(e));
+                        break;
+                    }
+                }
+            }
             envs.built.fetch_add(pool.len() - had, Ordering::Relaxed);
+            let got = got.and_then(|()| {
+                run_chunk(
+                    &mut pol,
+                    &mut pool[..range.len()],
+                    task,
+                    &variations[t],
+                    range.clone(),
+                    &mut rng,
+                    cancel,
+                    &mut |_, _, _| Ok(()),
+                )
+            });
             match got {
                 Ok(eps) => {
                     on_episodes(eps.len());
@@ -503,26 +524,87 @@ pub fn evaluate_policy_with(
     })
 }
 
-/// Episodes `range` of one task, stepped in lockstep (episode `k` on variation `k mod 50`).
+/// Calls of an episode observer: `(environment index in the chunk, the environment, the step
+/// just taken or `None` right after the reset)`.
+type Observer<'a> = dyn FnMut(usize, &Env, Option<&Step>) -> Result<(), EvalError> + 'a;
+
+/// What [`observe_episode`] calls: the environment right after the reset (`None`) and after
+/// every step (`Some(step)`).
+pub type EpisodeObserver<'a> = dyn FnMut(&Env, Option<&Step>) -> Result<(), EvalError> + 'a;
+
+/// One evaluation episode observed step by step: the episode [`evaluate_policy`] scores as
+/// episode `k` of `task` (variation `variations[k mod len]`, the deterministic policy, the same
+/// code), stepped in `env` (e.g. one of [`Env::for_rendering`]). `observe` sees the environment
+/// right after the reset (`None`) and after every step (`Some(step)`); its error ends the
+/// episode.
+///
+/// # Errors
+/// [`EvalError::Shape`] for a policy that does not fit, [`EvalError::Sim`] from the
+/// environment, the observer's own error.
+pub fn observe_episode(
+    policy: &Policy,
+    env: &mut Env,
+    task: &EvalTask,
+    variations: &[Vec<f64>],
+    k: usize,
+    observe: &mut EpisodeObserver<'_>,
+) -> Result<Episode, EvalError> {
+    let spec = policy.spec();
+    if spec.obs_dim != OBS_DIM || spec.act_dim != ACTION_DIM {
+        return Err(EvalError::Shape(format!(
+            "the policy takes {} observation and {} action values; Meta-World has {OBS_DIM} and {ACTION_DIM}",
+            spec.obs_dim, spec.act_dim
+        )));
+    }
+    if let TaskEncoding::OneHot(i) = task.encoding {
+        if i >= spec.num_tasks {
+            return Err(EvalError::Shape(format!(
+                "task {} is encoded as {}, but the policy was trained on {} task(s)",
+                task.name,
+                task.encoding.label(),
+                spec.num_tasks
+            )));
+        }
+    }
+    if variations.is_empty() {
+        return Err(EvalError::Settings("no goal variations".into()));
+    }
+    let mut pol = policy.with_max_batch(1);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
+    let eps = run_chunk(
+        &mut pol,
+        std::slice::from_mut(env),
+        task,
+        variations,
+        k..k + 1,
+        &mut rng,
+        None,
+        &mut |_, env, step| observe(env, step),
+    )?;
+    Ok(eps[0])
+}
+
+/// Episodes `range` of one task, stepped in lockstep in `pool[..range.len()]` (episode `k` on
+/// variation `k mod 50`).
+#[allow(clippy::too_many_arguments)]
 fn run_chunk(
     policy: &mut Policy,
-    pool: &mut Vec<Env>,
+    pool: &mut [Env],
     task: &EvalTask,
     variations: &[Vec<f64>],
     range: std::ops::Range<usize>,
     rng: &mut rand_chacha::ChaCha8Rng,
     cancel: Option<&AtomicBool>,
+    observe: &mut Observer<'_>,
 ) -> Result<Vec<Episode>, EvalError> {
     let m = range.len();
-    while pool.len() < m {
-        pool.push(Env::new(task.name)?);
-    }
     let nt = policy.spec().num_tasks;
     let mut enc_row = vec![0.0f32; nt];
     task.encoding.write(&mut enc_row);
     let mut obs = vec![0.0f32; m * OBS_DIM];
     for (j, k) in range.enumerate() {
         let o = pool[j].reset(&variations[k % variations.len()])?;
+        observe(j, &pool[j], None)?;
         for (d, s) in obs[j * OBS_DIM..(j + 1) * OBS_DIM].iter_mut().zip(o) {
             *d = s as f32;
         }
@@ -550,6 +632,7 @@ fn run_chunk(
         let mut still = Vec::with_capacity(active.len());
         for (r, &j) in active.iter().enumerate() {
             let step = pool[j].step(&acts[r * ACTION_DIM..(r + 1) * ACTION_DIM])?;
+            observe(j, &pool[j], Some(&step))?;
             let e = &mut eps[j];
             e.steps += 1;
             e.ret += f64::from(step.reward as f32);

@@ -136,6 +136,14 @@ pub enum SimError {
     /// A trace file ([`crate::trace`]) is malformed: bad JSON, missing fields, wrong shapes.
     #[error("trace error: {0}")]
     Trace(String),
+    /// Offscreen rendering is not possible or was misused ([`crate::render`]): no EGL or Mesa
+    /// OpenGL (the message names the Debian packages), a frame size out of range, a model
+    /// without its rendering arrays, a renderer used with another model.
+    #[error("cannot render: {reason}")]
+    Render {
+        /// What failed and, for a missing library, what to install.
+        reason: String,
+    },
     /// Reading or writing a file failed.
     #[error("io error on {path}: {source}")]
     Io {

@@ -1,7 +1,7 @@
 //! MuJoCo 3.3.7 through a thin, safe wrapper, and the Meta-World v3 task suite built on it.
 //!
-//! `mujoco` is the only module with `unsafe`; everything above it (tasks, vectorised envs, trace
-//! replay) is safe Rust.
+//! `mujoco` and `render` (its offscreen renderer) are the only modules with `unsafe`; everything
+//! above them (tasks, vectorised envs, trace replay) is safe Rust.
 
 #![warn(missing_docs)]
 
@@ -12,6 +12,7 @@ pub mod mujoco;
 pub use error::{Result, SimError};
 pub use mujoco::{Model, Simulation};
 pub mod metaworld;
+pub mod render;
 pub mod trace;
 pub mod vec_env;
 

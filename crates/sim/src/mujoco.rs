@@ -2,7 +2,8 @@
 //! number of [`Simulation`]s, each with its own `mjData` and its own copy of the few model arrays
 //! that tasks write at run time.
 //!
-//! This is the only module of the project with `unsafe`. The library is loaded once per process
+//! This module and [`crate::render`] (the offscreen renderer over the same library) are the only
+//! ones of the project with `unsafe`. The library is loaded once per process
 //! (path baked in by `build.rs`, overridable with `TERL_MUJOCO_LIB`). Every slice we hand out is
 //! sized from the model's own counts, so the safe API cannot read past MuJoCo's arrays.
 //!
@@ -195,6 +196,8 @@ pub struct Model {
     api: &'static ffi::MuJoCoLib,
     ptr: NonNull<ffi::mjModel>,
     released_bytes: usize,
+    /// The rendering arrays' pointers were nulled by [`Model::release_render_data`].
+    render_data_released: bool,
 }
 
 // SAFETY: after construction nothing writes through `ptr` (all `&mut` accessors of Simulation
@@ -285,6 +288,7 @@ impl Model {
             api,
             ptr,
             released_bytes: 0,
+            render_data_released: false,
         })
     }
 
@@ -312,6 +316,12 @@ impl Model {
         unsafe { self.ptr.as_mut().narena = bytes as ffi::mjtSize };
     }
 
+    /// Whether the arrays only rendering reads are still there (no
+    /// [`Model::release_render_data`]): what [`crate::render::Renderer`] needs.
+    pub fn has_render_data(&self) -> bool {
+        !self.render_data_released
+    }
+
     /// Bytes of the buffer given back to the OS by [`Model::release_render_data`].
     pub fn released_bytes(&self) -> usize {
         self.released_bytes
@@ -332,7 +342,7 @@ impl Model {
     /// module offers none of them.
     pub fn release_render_data(&mut self) -> usize {
         let m = self.m();
-        if m.nsensor > 0 || m.nflex > 0 || m.nbvhdynamic > 0 || self.released_bytes > 0 {
+        if m.nsensor > 0 || m.nflex > 0 || m.nbvhdynamic > 0 || self.render_data_released {
             return 0;
         }
         // SAFETY: body_bvhadr/body_bvhnum and mesh_bvhadr have nbody and nmesh entries.
@@ -413,6 +423,7 @@ impl Model {
             m.mesh_facetexcoord = std::ptr::null_mut();
         }
         self.released_bytes = released;
+        self.render_data_released = true;
         released
     }
 }
@@ -537,6 +548,22 @@ impl Simulation {
     /// The shared model this simulation steps.
     pub fn shared_model(&self) -> &Arc<Model> {
         &self.shared
+    }
+
+    /// The MuJoCo function table (for [`crate::render`]).
+    pub(crate) fn api(&self) -> &'static ffi::MuJoCoLib {
+        self.api
+    }
+
+    /// This simulation's model view (valid for the life of `self`; never written through).
+    pub(crate) fn raw_model(&self) -> *const ffi::mjModel {
+        self.model.as_ptr()
+    }
+
+    /// This simulation's `mjData` (valid for the life of `self`; [`crate::render`] only reads
+    /// it).
+    pub(crate) fn raw_data(&self) -> *const ffi::mjData {
+        self.data.as_ptr()
     }
 
     fn m(&self) -> &ffi::mjModel {
@@ -777,6 +804,13 @@ impl Simulation {
         let n = 3 * self.nmocap();
         // SAFETY: mocap_pos has 3*nmocap entries; exclusive.
         unsafe { slice_mut(self.data.as_ref().mocap_pos, n) }
+    }
+    /// Mocap body orientations as (w, x, y, z) quaternions (`mjData.mocap_quat`, 4 per mocap
+    /// body).
+    pub fn mocap_quat(&self) -> &[f64] {
+        let n = 4 * self.nmocap();
+        // SAFETY: mocap_quat has 4*nmocap entries.
+        unsafe { slice(self.d().mocap_quat, n) }
     }
     /// Mutable mocap body orientations as (w, x, y, z) quaternions (`mjData.mocap_quat`,
     /// `[nmocap, 4]` row-major; MuJoCo normalises them).

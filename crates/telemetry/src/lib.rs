@@ -2,7 +2,8 @@
 //! selector), learner metrics (`metrics.mcap`), finished episodes (`episodes.mcap`, selector)
 //! and in-run evaluations (`eval.mcap`, the selector's evaluator),
 //! each one protobuf channel with the same layout and crash recovery as described here for the
-//! dataset.
+//! dataset; and the same scalars as TensorBoard event files ([`EventWriter`]: the learner's
+//! beside `metrics.mcap`, the evaluator's in `<run_dir>/eval/`).
 //!
 //! # The TEP dataset file
 //!
@@ -52,6 +53,7 @@
 
 mod log;
 mod records;
+mod tensorboard;
 mod tep;
 
 use std::path::{Path, PathBuf};
@@ -60,6 +62,7 @@ pub use records::{
     episodes_path, eval_path, metrics_path, read_log, EpisodeLogWriter, EvalLogWriter, LogRecord,
     LogWriter, Logged, MetricsWriter,
 };
+pub use tensorboard::EventWriter;
 pub use tep::{read_tep_dataset, TepDataset, TepDatasetWriter, TEP_SCHEMA_NAME, TEP_TOPIC};
 
 /// File name of the TEP dataset inside a run directory.

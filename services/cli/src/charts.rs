@@ -142,7 +142,7 @@ const FONT_PATHS: [&str; 3] = [
 
 /// Registers DejaVu Sans (package fonts-dejavu-core, installed by `deploy/setup.sh`) as the
 /// charts' `sans-serif` font; PNG text needs a font file, SVG text does not.
-fn register_font() -> Result<()> {
+pub(crate) fn register_font() -> Result<()> {
     static DONE: std::sync::OnceLock<std::result::Result<(), String>> = std::sync::OnceLock::new();
     DONE.get_or_init(|| {
         let path = FONT_PATHS

@@ -13,8 +13,8 @@ use anyhow::{Context, Result};
 use clap::Args;
 use serde::Serialize;
 use terl_runtime::eval::{
-    evaluate_policy, load_policy_checkpoint, plan_tasks, EvalSettings, EvalSummary,
-    UnseenTaskEncoding,
+    evaluate_policy, load_policy_checkpoint, plan_tasks, EvalSettings, EvalSummary, EvalTask,
+    PolicyCheckpoint, UnseenTaskEncoding,
 };
 
 #[derive(Debug, Args)]
@@ -61,29 +61,69 @@ struct EvalOutput {
     summary: EvalSummary,
 }
 
+/// A checkpoint's policy, the task list it was trained on (one-hot order) and the tasks to run
+/// with their task vectors: what `terl eval` and `terl render` share.
+pub(crate) struct PolicyAndTasks {
+    pub(crate) ckpt: PolicyCheckpoint,
+    pub(crate) trained: Vec<&'static str>,
+    pub(crate) tasks: Vec<EvalTask>,
+}
+
+impl PolicyAndTasks {
+    /// Loads `checkpoint` and checks it against `trained_tasks` (default: the run's
+    /// config.toml); `tasks` defaults to the trained tasks.
+    pub(crate) fn load(
+        checkpoint: &std::path::Path,
+        trained_tasks: Option<&str>,
+        tasks: Option<&str>,
+        unseen: UnseenTaskEncoding,
+    ) -> Result<Self> {
+        let ckpt = load_policy_checkpoint(checkpoint)?;
+        let trained: Vec<&'static str> = match (trained_tasks, ckpt.trained_tasks()) {
+            (Some(spec), _) => terl_runtime::resolve_tasks(spec)?,
+            (None, Some(tasks)) => tasks?,
+            (None, None) => anyhow::bail!(
+                "{} is not in a run folder with a config.toml, so the trained task order is \
+                 unknown; pass --trained-tasks",
+                ckpt.path.display()
+            ),
+        };
+        ckpt.check_trained_tasks(&trained)?;
+        let eval_tasks = match tasks {
+            Some(spec) => terl_runtime::resolve_tasks(spec)?,
+            None => trained.clone(),
+        };
+        let tasks = plan_tasks(&eval_tasks, &trained, unseen);
+        Ok(Self {
+            ckpt,
+            trained,
+            tasks,
+        })
+    }
+
+    /// The goal variations' seed: `seed`, else the run's `variation_seed`, else 0.
+    pub(crate) fn variation_seed(&self, seed: Option<u64>) -> u64 {
+        seed.or(self.ckpt.run_config.as_ref().map(|(_, c)| c.variation_seed))
+            .unwrap_or(0)
+    }
+}
+
 pub fn run(args: EvalArgs) -> Result<ExitCode> {
-    let ckpt = load_policy_checkpoint(&args.checkpoint)?;
-    let trained: Vec<&'static str> = match (&args.trained_tasks, ckpt.trained_tasks()) {
-        (Some(spec), _) => terl_runtime::resolve_tasks(spec)?,
-        (None, Some(tasks)) => tasks?,
-        (None, None) => anyhow::bail!(
-            "{} is not in a run folder with a config.toml, so the trained task order is \
-             unknown; pass --trained-tasks",
-            ckpt.path.display()
-        ),
-    };
-    ckpt.check_trained_tasks(&trained)?;
-    let eval_tasks = match &args.tasks {
-        Some(spec) => terl_runtime::resolve_tasks(spec)?,
-        None => trained.clone(),
-    };
-    let tasks = plan_tasks(&eval_tasks, &trained, args.unseen_task_encoding);
+    let loaded = PolicyAndTasks::load(
+        &args.checkpoint,
+        args.trained_tasks.as_deref(),
+        args.tasks.as_deref(),
+        args.unseen_task_encoding,
+    )?;
+    let variation_seed = loaded.variation_seed(args.seed);
+    let PolicyAndTasks {
+        ckpt,
+        trained,
+        tasks,
+    } = loaded;
     let settings = EvalSettings {
         episodes_per_task: args.episodes_per_task,
-        variation_seed: args
-            .seed
-            .or(ckpt.run_config.as_ref().map(|(_, c)| c.variation_seed))
-            .unwrap_or(0),
+        variation_seed,
         threads: args
             .threads
             .unwrap_or_else(|| EvalSettings::default().threads),

@@ -11,8 +11,10 @@ mod charts;
 mod cluster;
 mod env;
 mod eval;
+mod frames;
 mod launcher;
 mod planner;
+mod render;
 mod report;
 mod results;
 mod router;
@@ -46,6 +48,9 @@ enum Command {
     /// Deterministic evaluation of a checkpoint on each task's 50 goal variations (success
     /// rate, return, first-success step per task; MT-Test zero-shot tasks too).
     Eval(eval::EvalArgs),
+    /// Videos of a checkpoint's evaluation episodes (MP4 and a PNG strip per task and goal
+    /// variation), rendered offscreen by MuJoCo from a named camera.
+    Render(render::RenderArgs),
     /// Single-process training (Meta-World envs + MTSAC in one process).
     Train(train::TrainArgs),
     /// Status of a running cluster (learner and selector).
@@ -77,6 +82,7 @@ pub fn run(cli: Cli) -> Result<std::process::ExitCode> {
         Command::Bench(c) => bench::run(c),
         Command::Train(a) => train::run(a),
         Command::Eval(a) => eval::run(a),
+        Command::Render(a) => render::run(a),
         Command::Status(a) => status::run(a),
         Command::Cluster(c) => cluster::run(c),
         Command::Report(a) => report::run(a),

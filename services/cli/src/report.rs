@@ -52,6 +52,16 @@ pub struct ReportArgs {
     /// on every run.
     #[arg(long, default_value_t = terl_stats::DEFAULT_REPS)]
     pub bootstrap_reps: usize,
+    /// Run folders with checkpoints (e.g. one seed per algorithm) whose final policies are
+    /// drawn into the qualitative figure at the end of `results.md`: per task, the frames of
+    /// one deterministic episode of each run side by side (PNG in `<out>/frames/`). Needs
+    /// headless OpenGL (./deploy/setup.sh installs it).
+    #[arg(long, num_args = 1..)]
+    pub frames_from: Vec<PathBuf>,
+    /// The camera of the qualitative figure (a Meta-World camera: corner, corner2, corner3,
+    /// corner4, topview, behindGripper, gripperPOV).
+    #[arg(long, default_value = "corner")]
+    pub frames_camera: String,
 }
 
 /// Per-task statistics of the episode log.
@@ -336,7 +346,16 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
         }
     }
     if !evaluated.is_empty() {
-        let (md, files) = crate::results::write_results(&evaluated, &out, &opts)?;
+        let (mut md, mut files) = crate::results::write_results(&evaluated, &out, &opts)?;
+        if !args.frames_from.is_empty() {
+            let (section, pngs) =
+                crate::frames::section(&args.frames_from, &out, &args.frames_camera)?;
+            md.push_str(&section);
+            let md_path = out.join("results.md");
+            std::fs::write(&md_path, &md)
+                .with_context(|| format!("writing {}", md_path.display()))?;
+            files.extend(pngs);
+        }
         print!("{md}");
         for f in files {
             eprintln!("wrote {}", f.display());

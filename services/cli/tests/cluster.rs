@@ -67,20 +67,7 @@ impl Cluster {
 }
 
 fn wait_for_file(path: &Path) -> String {
-    let start = Instant::now();
-    loop {
-        if let Ok(text) = std::fs::read_to_string(path) {
-            if !text.trim().is_empty() {
-                return text.trim().to_string();
-            }
-        }
-        assert!(
-            start.elapsed() < TIMEOUT,
-            "{} never appeared",
-            path.display()
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    common::wait_for_addr(path, None, TIMEOUT)
 }
 
 fn status(learner: &str, selector: &str) -> Option<Value> {
@@ -715,12 +702,18 @@ fn mt50_cluster_trains_on_every_task() {
     );
 }
 
-/// Whether these tests run against release binaries (the launcher runs `target/release`).
-fn release_build() -> bool {
-    Path::new(env!("CARGO_BIN_EXE_terl"))
+/// The launcher runs `target/release` binaries: its tests fail in another profile instead of
+/// passing without running.
+fn require_release_build() {
+    let release = Path::new(env!("CARGO_BIN_EXE_terl"))
         .parent()
         .and_then(Path::file_name)
-        .is_some_and(|n| n == "release")
+        .is_some_and(|n| n == "release");
+    assert!(
+        release,
+        "the launcher runs target/release binaries: run this test with --release \
+         (./deploy/test.sh does)"
+    );
 }
 
 /// The README's launcher on a run with a training budget: the learner stops by itself at
@@ -730,10 +723,7 @@ fn launcher_stops_the_cluster_at_the_training_budget() {
     let shm_before = shm_files();
     service_binaries();
     let root = workspace();
-    if !release_build() {
-        eprintln!("the launcher runs target/release binaries; run this test with --release");
-        return;
-    }
+    require_release_build();
     let dir = tempfile::tempdir().unwrap();
     let text = std::fs::read_to_string(root.join("deploy/configs/cluster-smoke.toml")).unwrap();
     assert!(text.contains("warmup_env_steps = 1_000"));
@@ -829,6 +819,33 @@ fn launcher(root: &Path, args: &[&str], log: &Path) -> Child {
         .unwrap()
 }
 
+/// TensorBoard's own reading (`event_accumulator`, `.deps/tensorboard-venv`) of the event files
+/// in `dir`: `{"tags": {tag: [[step, value], ...]}, "files": n}`.
+fn tensorboard(dir: &Path) -> Value {
+    let root = workspace();
+    let python = root.join(".deps/tensorboard-venv/bin/python");
+    assert!(
+        python.exists(),
+        "{} is missing: run ./deploy/setup.sh",
+        python.display()
+    );
+    let o = Command::new(python)
+        .arg(root.join("crates/telemetry/tests/python/read_tensorboard.py"))
+        .arg(dir)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    serde_json::from_slice(&o.stdout).unwrap()
+}
+
+/// The env steps at which TensorBoard has the learner's `charts/env_steps`.
+fn tensorboard_env_steps(run_dir: &Path) -> Vec<u64> {
+    tensorboard(run_dir)["tags"]["charts/env_steps"]
+        .as_array()
+        .map(|a| a.iter().map(|p| p[0].as_u64().unwrap()).collect())
+        .unwrap_or_default()
+}
+
 /// Faults injected into a launcher-run cluster, each survived: the learner killed with
 /// SIGKILL is restarted and resumes from its last checkpoint (status says from which, the
 /// update counter continues from it); the launcher itself killed with SIGKILL leaves no
@@ -841,10 +858,7 @@ fn launcher(root: &Path, args: &[&str], log: &Path) -> Child {
 fn killed_learner_is_restarted_and_runs_resume_past_a_damaged_checkpoint() {
     service_binaries();
     let root = workspace();
-    if !release_build() {
-        eprintln!("the launcher runs target/release binaries; run this test with --release");
-        return;
-    }
+    require_release_build();
     let dir = tempfile::tempdir().unwrap();
     let text = std::fs::read_to_string(root.join("deploy/configs/cluster-smoke.toml")).unwrap();
     assert!(text.contains("checkpoint_every_secs = 5"));
@@ -902,6 +916,12 @@ fn killed_learner_is_restarted_and_runs_resume_past_a_damaged_checkpoint() {
                 .ends_with("update-0000000000.safetensors")
         }) && status(&learner_addr, &selector_addr)
             .is_some_and(|s| u(&s, &["learner", "updates"]) > 0)
+    });
+    // TensorBoard reads the live learner's scalars (keyed by env steps).
+    let mut before_kill = Vec::new();
+    wait_until("the learner's scalars in TensorBoard", limit, || {
+        before_kill = tensorboard_env_steps(&run_dir);
+        !before_kill.is_empty()
     });
     let pids = read_pids(&run_dir);
     let learner = pids.iter().find(|(r, _)| r == "learner").unwrap().1;
@@ -987,6 +1007,25 @@ fn killed_learner_is_restarted_and_runs_resume_past_a_damaged_checkpoint() {
     wait_until("updates past the resume point", limit, || {
         status(&learner_addr, &selector_addr)
             .is_some_and(|s| u(&s, &["learner", "updates"]) > at + 50)
+    });
+    // TensorBoard still reads everything the killed learner wrote (its file ends where the
+    // kill cut it), and the restarted learner's own file beside it.
+    wait_until(
+        "the restarted learner's scalars in TensorBoard",
+        limit,
+        || {
+            let tb = tensorboard(&run_dir);
+            let steps = tensorboard_env_steps(&run_dir);
+            tb["files"] == 2
+                && steps.len() > before_kill.len()
+                && before_kill.iter().all(|s| steps.contains(s))
+        },
+    );
+    // The in-run evaluations too, in their own folder.
+    wait_until("the in-run evaluations in TensorBoard", limit, || {
+        tensorboard(&run_dir.join("eval"))["tags"]["eval/mean_success_rate"]
+            .as_array()
+            .is_some_and(|a| !a.is_empty())
     });
     // The actor was not restarted: it waited for the restarted learner and rejoined.
     let actor = |pids: &[(String, u32)]| pids.iter().find(|(r, _)| r == "actor-0").map(|p| p.1);
@@ -1109,10 +1148,7 @@ fn killed_learner_is_restarted_and_runs_resume_past_a_damaged_checkpoint() {
 fn launcher_refuses_bad_or_locked_run_ids_and_reports_a_start_up_failure_with_its_error() {
     service_binaries();
     let root = workspace();
-    if !release_build() {
-        eprintln!("the launcher runs target/release binaries; run this test with --release");
-        return;
-    }
+    require_release_build();
     let dir = tempfile::tempdir().unwrap();
     let runs = dir.path().join("runs");
     let locks = dir.path().join("tmp");
@@ -1305,10 +1341,7 @@ fn terl(args: &[&str], cwd: &Path) -> (Option<i32>, String) {
 fn cluster_down_exits_0_and_clean_refuses_a_live_run() {
     service_binaries();
     let root = workspace();
-    if !release_build() {
-        eprintln!("the launcher runs target/release binaries; run this test with --release");
-        return;
-    }
+    require_release_build();
     let dir = tempfile::tempdir().unwrap();
     let runs = dir.path().join("runs");
     let runs_s = runs.to_str().unwrap();
@@ -1383,10 +1416,7 @@ fn cluster_down_exits_0_and_clean_refuses_a_live_run() {
 fn killed_terl_cluster_up_leaves_no_service_and_clean_removes_its_files() {
     service_binaries();
     let root = workspace();
-    if !release_build() {
-        eprintln!("the launcher runs target/release binaries; run this test with --release");
-        return;
-    }
+    require_release_build();
     let dir = tempfile::tempdir().unwrap();
     let runs = dir.path().join("runs");
     let runs_s = runs.to_str().unwrap();

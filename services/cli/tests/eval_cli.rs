@@ -405,3 +405,119 @@ fn eval_of_mt_test_tasks_uses_the_chosen_unseen_task_encoding() {
     ]);
     assert!(!bad.status.success());
 }
+
+/// `ffprobe`'s view of a video's first stream: (codec, frames decoded, width, height).
+fn probe(video: &Path) -> (String, u64, u64, u64) {
+    let o = Command::new("ffprobe")
+        .args(["-v", "error", "-select_streams", "v:0", "-count_frames"])
+        .args([
+            "-show_entries",
+            "stream=codec_name,nb_read_frames,width,height",
+        ])
+        .args(["-of", "json"])
+        .arg(video)
+        .output()
+        .expect("ffprobe (Debian's ffmpeg package, installed by ./deploy/setup.sh)");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+    let s = &v["streams"][0];
+    (
+        s["codec_name"].as_str().unwrap().to_string(),
+        s["nb_read_frames"].as_str().unwrap().parse().unwrap(),
+        s["width"].as_u64().unwrap(),
+        s["height"].as_u64().unwrap(),
+    )
+}
+
+#[test]
+fn render_writes_playable_videos_of_the_episodes_eval_scores() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = hand_built_run(dir.path());
+    let out = dir.path().join("videos");
+    let o = terl(&[
+        "render",
+        "--checkpoint",
+        run.to_str().unwrap(),
+        "--variations",
+        "0,1",
+        "--size",
+        "96x64",
+        "--every",
+        "5",
+        "--fps",
+        "16",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let rendered: Value =
+        serde_json::from_slice(&std::fs::read(out.join("render.json")).unwrap()).unwrap();
+    let episodes = rendered["episodes"].as_array().unwrap();
+    assert_eq!(episodes.len(), 4, "{rendered}");
+    // The same episodes as `terl eval`'s first two per task (episode k on variation k).
+    let eval = json(&terl(&[
+        "eval",
+        "--checkpoint",
+        run.to_str().unwrap(),
+        "--episodes-per-task",
+        "2",
+        "--json",
+    ]));
+    for t in eval["tasks"].as_array().unwrap() {
+        let name = t["task"].as_str().unwrap();
+        let mine: Vec<&Value> = episodes.iter().filter(|e| e["task"] == name).collect();
+        assert_eq!(mine.len(), 2);
+        let successes = mine.iter().filter(|e| e["success"] == true).count() as u64;
+        assert_eq!(successes, t["successes"].as_u64().unwrap(), "{name}");
+        let mean_return: f64 = mine
+            .iter()
+            .map(|e| e["episode_return"].as_f64().unwrap())
+            .sum::<f64>()
+            / 2.0;
+        assert!(
+            (mean_return - t["mean_return"].as_f64().unwrap()).abs() < 1e-9,
+            "{name}: {mean_return} vs {}",
+            t["mean_return"]
+        );
+    }
+    // The hand-built controller solves reach: its video shows a success.
+    assert!(episodes
+        .iter()
+        .any(|e| e["task"] == "reach-v3" && e["first_success_step"].as_u64().is_some()));
+    for e in episodes {
+        let video = out.join(e["video"].as_str().unwrap());
+        let (codec, frames, w, h) = probe(&video);
+        assert_eq!(codec, "h264");
+        assert_eq!((w, h), (96, 64));
+        // 500 steps, one frame every 5.
+        assert_eq!(frames, 100);
+        assert_eq!(e["frames"].as_u64().unwrap(), 100);
+        let strip = image::open(out.join(e["strip"].as_str().unwrap())).unwrap();
+        assert_eq!((strip.width(), strip.height()), (3 * 96 + 2 * 4, 64));
+    }
+    assert!(!std::fs::read_dir(&out).unwrap().any(|f| f
+        .unwrap()
+        .path()
+        .to_string_lossy()
+        .ends_with(".part")));
+
+    // Clear errors: an unknown camera (listing the scene's), an odd size, a bad variation.
+    for (args, expect) in [
+        (vec!["--camera", "nope"], "behindGripper"),
+        (vec!["--size", "95x64"], "WIDTHxHEIGHT"),
+        (vec!["--variations", "50"], "0..50"),
+    ] {
+        let mut all = vec![
+            "render",
+            "--checkpoint",
+            run.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        all.extend(args);
+        let o = terl(&all);
+        assert!(!o.status.success());
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains(expect), "{err}");
+    }
+}

@@ -31,30 +31,38 @@ fn run_experiment(root: &Path, runs: &Path, experiment: &str) -> String {
     err
 }
 
-/// Builds the service binaries; false (with a message) when the tests are not a release build,
-/// since the experiment scripts run `target/release` binaries.
-fn release_binaries_built() -> bool {
+/// Builds the service binaries; the experiment scripts run `target/release` binaries, so in
+/// another profile these tests fail instead of passing without running.
+fn release_binaries_built() {
     service_binaries();
     let release = Path::new(env!("CARGO_BIN_EXE_terl"))
         .parent()
         .and_then(Path::file_name)
         .is_some_and(|n| n == "release");
-    if !release {
-        eprintln!(
-            "the experiment scripts run target/release binaries; run this test with --release"
-        );
-    }
-    release
+    assert!(
+        release,
+        "the experiment scripts run target/release binaries: run this test with --release \
+         (./deploy/test.sh does)"
+    );
 }
 
 #[test]
 fn experiment_scripts_train_evaluate_and_report() {
-    if !release_binaries_built() {
-        return;
-    }
+    release_binaries_built();
     let root = workspace();
     let dir = tempfile::tempdir().unwrap();
     let runs = dir.path();
+    // A bad option is refused before anything runs.
+    for bad in ["0", "x", "1.5"] {
+        let out = Command::new(root.join("deploy/experiments/run.sh"))
+            .current_dir(&root)
+            .args(["mt10", "--learner-threads", bad, "--no-build"])
+            .args(["--runs-root", runs.to_str().unwrap()])
+            .output()
+            .unwrap();
+        assert_eq!(out.status.code(), Some(2), "--learner-threads {bad}");
+        assert!(String::from_utf8_lossy(&out.stderr).contains("--learner-threads"));
+    }
     run_experiment(&root, runs, "mt1-ind");
     for id in ["mt1-ind-mtsac-reach-s1", "mt1-ind-terl-reach-s1"] {
         let run = runs.join(format!("{id}{}", tag()));
@@ -104,6 +112,11 @@ fn experiment_scripts_train_evaluate_and_report() {
     }
     let report_dir = runs.join("report");
     args.extend(["--out".into(), report_dir.display().to_string()]);
+    // The qualitative figure from one run per algorithm (their final checkpoints).
+    args.push("--frames-from".into());
+    for id in ["mt10-mtsac-s1", "mt10-terl-s1"] {
+        args.push(runs.join(format!("{id}{}", tag())).display().to_string());
+    }
     let out = Command::new(env!("CARGO_BIN_EXE_terl"))
         .args(&args)
         .output()
@@ -135,6 +148,14 @@ fn experiment_scripts_train_evaluate_and_report() {
     for chart in ["mt10-eval-success.png", "mt1-ind-eval-return.svg"] {
         assert!(report_dir.join(chart).is_file(), "{chart}");
     }
+    // The qualitative figure: per task a grid of one row per run, three frames of 240×240 each.
+    assert!(md.contains("## What the final policies do"), "{md}");
+    for task in ["reach-v3", "push-v3"] {
+        let png = report_dir.join(format!("frames/mt10-{task}.png"));
+        assert!(md.contains(&format!("(frames/mt10-{task}.png)")), "{md}");
+        let img = image::open(&png).unwrap();
+        assert_eq!((img.width(), img.height()), (3 * 240 + 2 * 4, 2 * 240 + 4));
+    }
 }
 
 /// The paper's two stages as one command at smoke scale: each task alone until its planner
@@ -144,9 +165,7 @@ fn experiment_scripts_train_evaluate_and_report() {
 /// the multi-task run starting from that planner, whose tasks are validated at start.
 #[test]
 fn terl_pipeline_runs_stage_one_the_offline_planner_and_stage_three() {
-    if !release_binaries_built() {
-        return;
-    }
+    release_binaries_built();
     let root = workspace();
     let dir = tempfile::tempdir().unwrap();
     let runs = dir.path();

@@ -7,7 +7,7 @@
 use std::net::TcpListener;
 use std::path::Path;
 use std::process::{Command, Output, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 mod common;
 
@@ -104,19 +104,7 @@ fn a_learner_with_a_token_asked_without_one_is_refused_by_name() {
         .spawn()
         .unwrap();
     let addr_file = run_dir.join("learner.addr");
-    let start = Instant::now();
-    let addr = loop {
-        if let Ok(a) = std::fs::read_to_string(&addr_file) {
-            if !a.trim().is_empty() {
-                break a.trim().to_string();
-            }
-        }
-        if start.elapsed() > Duration::from_secs(60) || learner.try_wait().unwrap().is_some() {
-            let _ = learner.kill();
-            panic!("the learner did not start");
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    };
+    let addr = common::wait_for_addr(&addr_file, Some(&mut learner), Duration::from_secs(60));
     let out = status(&["--addr", &addr, "--timeout", "5"], dir.path());
     let _ = Command::new("kill")
         .args(["-TERM", &learner.id().to_string()])

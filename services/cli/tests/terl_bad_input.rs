@@ -176,17 +176,7 @@ fn services_with_an_unwritable_log_run_and_stop_cleanly() {
             .unwrap();
         let role = service.trim_start_matches("terl-");
         let addr_file = run_dir.join(format!("{role}.addr"));
-        let start = Instant::now();
-        while !addr_file.exists() {
-            if let Some(status) = child.try_wait().unwrap() {
-                panic!("{service} with a full log exited before serving: {status}");
-            }
-            assert!(
-                start.elapsed() < Duration::from_secs(60),
-                "{service} did not start"
-            );
-            std::thread::sleep(Duration::from_millis(50));
-        }
+        common::wait_for_addr(&addr_file, Some(&mut child), Duration::from_secs(60));
         std::thread::sleep(Duration::from_millis(500));
         Command::new("kill")
             .args(["-TERM", &child.id().to_string()])

@@ -99,6 +99,11 @@ pub(crate) struct LearnerState {
     /// The replay sampler's generator.
     pub(crate) sampler: RngState,
     pub(crate) planner: Option<PlannerState>,
+    /// Set in the final checkpoint of a finished run: why it ended (`budget`: the env-step
+    /// budget; `planner_ready`: stage 1's `cluster.stop_at_planner_samples_per_task`). Absent
+    /// in checkpoints of runs still going (and in those written before the field existed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub(crate) finished: Option<String>,
 }
 
 /// A learner checkpoint about to be written or just read.
@@ -316,6 +321,28 @@ mod tests {
             success_windows: vec!["101".into(), String::new()],
             ..LearnerState::default()
         }
+    }
+
+    /// Why a run finished survives its final checkpoint (what `--resume` reads to stay
+    /// finished); a state written without the field reads as "not finished".
+    #[test]
+    fn the_reason_a_run_finished_is_kept_in_its_checkpoint() {
+        let dir = tempfile::tempdir().unwrap();
+        let ckpt = dir.path().join("checkpoints");
+        let s = sac(1);
+        let mut finished = state(50);
+        finished.finished = Some("planner_ready".into());
+        Checkpointer::open(ckpt.clone(), 2)
+            .unwrap()
+            .periodic(5, &Snapshot::new(&s, None, &finished).unwrap())
+            .unwrap();
+        let found = newest_intact(&ckpt).unwrap().unwrap();
+        assert_eq!(found.state.finished.as_deref(), Some("planner_ready"));
+        let mut json = serde_json::to_value(state(50)).unwrap();
+        assert!(json.get("finished").is_none());
+        json.as_object_mut().unwrap().remove("finished");
+        let old: LearnerState = serde_json::from_value(json).unwrap();
+        assert_eq!(old.finished, None);
     }
 
     /// The newest intact checkpoint wins; a damaged newest one is skipped for the previous;

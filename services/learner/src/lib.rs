@@ -263,15 +263,21 @@ async fn run_in_span<T: terl_transport::ServiceTransport>(
     Ok(())
 }
 
-/// With `--resume`, the newest intact checkpoint when it has reached the run's budget: the run
-/// is finished and nothing is to be done.
+/// With `--resume`, the newest intact checkpoint when the run is finished under the run file as
+/// it is now: it has reached the env-step budget, or it is the final checkpoint of a stage-1 run
+/// that stopped because its planner was ready (recorded in it) and the run file still asks for
+/// that stop. Nothing is then to be done; a raised budget (or a removed stop) continues the run.
 fn finished_before(config: &LearnerConfig) -> anyhow::Result<Option<checkpoint::Found>> {
-    let budget = config.run.train.total_env_steps;
-    if !config.resume || budget == 0 {
+    if !config.resume {
         return Ok(None);
     }
+    let budget = config.run.train.total_env_steps;
+    let planner_stop = config.run.cluster.stop_at_planner_samples_per_task > 0;
     let found = checkpoint::newest_intact(&config.run_dir.join("checkpoints"))?;
-    Ok(found.filter(|f| f.state.env_steps >= budget))
+    Ok(found.filter(|f| {
+        (budget > 0 && f.state.env_steps >= budget)
+            || (planner_stop && f.state.finished.as_deref() == Some("planner_ready"))
+    }))
 }
 
 /// A finished run's learner under `--when-finished idle`: answers status (the final counters)

@@ -1,7 +1,8 @@
 //! The learner's metrics log, `runs/<id>/metrics.mcap` (`terl.v1.Metric` on `/metrics`): one
 //! sample of every metric per status window, flushed at once so a killed learner keeps its
-//! history. cleanrl-style names: `charts/…`, `losses/…`, `replay/…`, `tep/…`,
-//! `success_rate/<task>`, `guidance/rate/<task>`, and what senders report they could not
+//! history; the same samples as TensorBoard scalars keyed by env steps
+//! (`runs/<id>/events.out.tfevents.*.learner`: `tensorboard --logdir runs` shows live runs).
+//! cleanrl-style names: `charts/…`, `losses/…`, `replay/…`, `tep/…`, `success_rate/<task>`, `guidance/rate/<task>`, and what senders report they could not
 //! deliver (cumulative counts, see `crate::losses`): `transport/transition_batches_dropped`,
 //! `transport/transitions_dropped`, `transport/episodes_dropped`,
 //! `transport/selected_samples_dropped`, and per actor
@@ -23,7 +24,7 @@ use std::path::Path;
 
 use anyhow::Context;
 use terl_rl::UpdateStats;
-use terl_telemetry::MetricsWriter;
+use terl_telemetry::{EventWriter, MetricsWriter};
 use terl_wire::{LearnerStatus, Metric};
 
 /// SAC losses summed over the current window.
@@ -37,6 +38,7 @@ struct LossSums {
 
 pub(crate) struct MetricsLog {
     writer: MetricsWriter,
+    tensorboard: EventWriter,
     sums: LossSums,
     /// The learner process's CPU counters at the previous window (for `process/cpu_cores`).
     usage: Option<terl_runtime::process::Usage>,
@@ -47,8 +49,15 @@ impl MetricsLog {
         let path = terl_telemetry::fresh_path(run_dir, "metrics");
         let writer = MetricsWriter::create(&path)
             .with_context(|| format!("cannot create the metrics log {}", path.display()))?;
+        let tensorboard = EventWriter::create(run_dir, "learner").with_context(|| {
+            format!(
+                "cannot create the TensorBoard event file in {}",
+                run_dir.display()
+            )
+        })?;
         Ok(Self {
             writer,
+            tensorboard,
             sums: LossSums::default(),
             usage: terl_runtime::process::usage(None).ok(),
         })
@@ -197,6 +206,11 @@ impl MetricsLog {
                 }
             }
         }
+        self.tensorboard.scalars(
+            status.env_steps_total,
+            now as f64 / 1e9,
+            out.iter().map(|(name, value)| (name.as_str(), *value)),
+        )?;
         for (name, value) in out {
             let m = Metric {
                 name,

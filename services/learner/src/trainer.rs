@@ -240,6 +240,9 @@ struct Model {
     rng: ChaCha8Rng,
     publisher: Publisher,
     c: Counters,
+    /// Why the run is finished (`budget`, `planner_ready`) once it is; written into the final
+    /// checkpoint so a resumed learner knows.
+    finished: Option<&'static str>,
 }
 
 impl Model {
@@ -252,6 +255,7 @@ impl Model {
             &self.publisher,
             &self.rng,
             self.planner.as_ref(),
+            self.finished,
         );
         Snapshot::new(
             &self.sac,
@@ -356,6 +360,7 @@ impl<'a> Trainer<'a> {
                 terl,
             ),
             c,
+            finished: None,
         };
         let trainer = Self {
             config,
@@ -402,7 +407,7 @@ impl<'a> Trainer<'a> {
 
     /// True (and logged) when the run is done: its env-step budget is reached (between
     /// reproducible rounds), or stage 1 of the pipeline has the planner samples it wanted.
-    fn finished(&self) -> bool {
+    fn finished(&mut self) -> bool {
         let run = &self.config.run;
         let m = &self.m;
         let between_rounds = self
@@ -417,6 +422,7 @@ impl<'a> Trainer<'a> {
                 updates = m.sac.updates(),
                 "training budget reached (train.total_env_steps); stopping"
             );
+            self.m.finished = Some("budget");
             return true;
         }
         let wanted = run.cluster.stop_at_planner_samples_per_task;
@@ -428,6 +434,7 @@ impl<'a> Trainer<'a> {
                 "planner ready: every task validated with its selected samples \
                  (cluster.stop_at_planner_samples_per_task); stopping"
             );
+            self.m.finished = Some("planner_ready");
             return true;
         }
         false
@@ -606,6 +613,7 @@ fn learner_state(
     publisher: &Publisher,
     rng: &ChaCha8Rng,
     planner: Option<&PlannerTrainer>,
+    finished: Option<&str>,
 ) -> LearnerState {
     LearnerState {
         tasks: tasks.iter().map(|t| (*t).to_string()).collect(),
@@ -624,6 +632,7 @@ fn learner_state(
             .collect(),
         sampler: RngState::of(rng),
         planner: planner.map(PlannerTrainer::state),
+        finished: finished.map(str::to_string),
     }
 }
 

@@ -161,6 +161,16 @@ pub(crate) fn run(config: &SelectorConfig, shared: &Shared, learner_addr: &str) 
                 }
             }
         }
+        if let Ok(mut tb) = shared.eval_tensorboard.lock() {
+            if let Some(w) = tb.as_mut() {
+                let metrics = result.metrics();
+                let seconds = result.unix_time_nanos as f64 / 1e9;
+                let values = metrics.iter().map(|(k, v)| (k.as_str(), *v));
+                if let Err(e) = w.scalars(result.env_steps, seconds, values) {
+                    tracing::warn!("evaluation not written for TensorBoard: {e}");
+                }
+            }
+        }
         if let Ok(mut last) = shared.last_eval.lock() {
             last.0 = Some(result);
             last.1 += 1;

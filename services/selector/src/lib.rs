@@ -167,6 +167,9 @@ struct Shared {
     eval_policy: Mutex<Option<(u64, Vec<f32>)>>,
     /// The in-run evaluation log (None when evaluation is off or after shutdown).
     eval_log: Mutex<Option<terl_telemetry::EvalLogWriter>>,
+    /// The same evaluations as TensorBoard scalars (`<run_dir>/eval/events.out.tfevents.*`,
+    /// keyed by env steps).
+    eval_tensorboard: Mutex<Option<terl_telemetry::EventWriter>>,
     /// The latest evaluation and the number of evaluations so far.
     last_eval: Mutex<(Option<terl_wire::EvalResult>, u64)>,
 }
@@ -548,6 +551,7 @@ async fn run_in_span<T: ServiceTransport>(
         stop: AtomicBool::new(false),
         eval_policy: Mutex::new(None),
         eval_log: Mutex::new(None),
+        eval_tensorboard: Mutex::new(None),
         last_eval: Mutex::new((None, 0)),
     });
     let terl = config.run.algorithm == Algorithm::Terl;
@@ -563,6 +567,17 @@ async fn run_in_span<T: ServiceTransport>(
         let log = terl_telemetry::EvalLogWriter::create(&path)
             .with_context(|| format!("cannot create the evaluation log {}", path.display()))?;
         tracing::info!(path = %path.display(), "writing in-run evaluations");
+        let tb_dir = config.run_dir.join("eval");
+        let tb = terl_telemetry::EventWriter::create(&tb_dir, "evaluator").with_context(|| {
+            format!(
+                "cannot create the evaluation's TensorBoard file in {}",
+                tb_dir.display()
+            )
+        })?;
+        *shared
+            .eval_tensorboard
+            .lock()
+            .map_err(|_| anyhow::anyhow!("evaluation log lock poisoned"))? = Some(tb);
         *shared
             .eval_log
             .lock()

@@ -1,7 +1,8 @@
 //! What the process-level tests share: the workspace root and the service binaries.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Child, Command};
+use std::time::{Duration, Instant};
 
 pub fn workspace() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
@@ -40,4 +41,35 @@ pub fn service_binaries() -> PathBuf {
         .expect("cargo runs");
     assert!(status.success(), "building the services failed");
     bin_dir
+}
+
+/// The address a service writes to `path` once it serves (`<run>/learner.addr`, …), waiting
+/// up to `limit`. With `child` (the service), fails as soon as it exits, and kills it on a
+/// timeout.
+#[allow(dead_code)] // not every test binary that shares this module starts a service
+pub fn wait_for_addr(path: &Path, mut child: Option<&mut Child>, limit: Duration) -> String {
+    let start = Instant::now();
+    loop {
+        if let Ok(text) = std::fs::read_to_string(path) {
+            if !text.trim().is_empty() {
+                return text.trim().to_string();
+            }
+        }
+        if let Some(c) = child.as_deref_mut() {
+            if let Some(status) = c.try_wait().unwrap() {
+                panic!(
+                    "the service exited before writing {}: {status}",
+                    path.display()
+                );
+            }
+        }
+        if start.elapsed() > limit {
+            if let Some(c) = child.as_deref_mut() {
+                let _ = c.kill();
+                let _ = c.wait();
+            }
+            panic!("{} never appeared within {limit:?}", path.display());
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
 }
