@@ -235,6 +235,8 @@ pub struct Renderer {
     width: u32,
     height: u32,
     pixels: Vec<u8>,
+    /// World z of the last rendered camera's up axis (its y axis): below 0 it sees upside down.
+    up_z: f64,
 }
 
 impl std::fmt::Debug for Renderer {
@@ -378,6 +380,7 @@ impl Renderer {
             width,
             height,
             pixels: vec![0; 3 * width as usize * height as usize],
+            up_z: 1.0,
         })
     }
 
@@ -445,6 +448,10 @@ impl Renderer {
             copy(src.ctrl, dst.ctrl, mm.nu as usize);
             dst.time = src.time;
             self.api.mj_forward(m, self.data.as_ptr());
+            // cam_xmat: 9 per camera, row-major camera-to-world rotation; its second column is
+            // the camera's up axis in world coordinates.
+            let xmat = self.data.as_ref().cam_xmat;
+            self.up_z = *xmat.add(9 * camera_id + 7);
         }
         let mut cam = ffi::mjvCamera {
             type_: ffi::mjCAMERA_FIXED as c_int,
@@ -489,6 +496,32 @@ impl Renderer {
             height: self.height,
             rgb,
         })
+    }
+}
+
+impl Renderer {
+    /// [`Renderer::render`] turned the right way up for people: a camera whose up axis points
+    /// below the horizon (world z of its y axis < 0; Meta-World's `corner` and `corner2`, whose
+    /// frames MuJoCo, like Python Meta-World, draws upside down) has its frame rotated by 180°.
+    ///
+    /// # Errors
+    /// As [`Renderer::render`].
+    pub fn render_upright(&mut self, sim: &Simulation, camera: &str) -> Result<Frame> {
+        let mut frame = self.render(sim, camera)?;
+        if self.up_z < 0.0 {
+            frame.rotate_half_turn();
+        }
+        Ok(frame)
+    }
+}
+
+impl Frame {
+    /// Rotates the image by 180° in place (the last pixel first).
+    pub fn rotate_half_turn(&mut self) {
+        self.rgb.reverse();
+        for px in self.rgb.chunks_exact_mut(3) {
+            px.reverse();
+        }
     }
 }
 

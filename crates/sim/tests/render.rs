@@ -130,6 +130,25 @@ fn frames_match_python_mujocos_own_renderer() {
     }
 }
 
+/// `render_upright` turns the cameras that look upside down (their up axis below the horizon:
+/// Meta-World's `corner`, `corner2`) by 180° and leaves the others as MuJoCo draws them.
+#[test]
+fn upside_down_cameras_are_turned_upright() {
+    let env = env_after("reach-v3", 0, 0, 1);
+    let sim = &env.scene().sim;
+    let mut r = Renderer::new(sim, 48, 32).unwrap();
+    for (camera, upside_down) in [("corner", true), ("corner2", true), ("topview", false)] {
+        let raw = r.render(sim, camera).unwrap();
+        let upright = r.render_upright(sim, camera).unwrap();
+        let mut turned = raw.clone();
+        turned.rotate_half_turn();
+        assert_eq!(upright == turned, upside_down, "{camera}");
+        assert_eq!(upright == raw, !upside_down, "{camera}");
+        // A half turn is its own inverse, pixel for pixel: top-left ends bottom-right.
+        assert_eq!(&turned.rgb[turned.rgb.len() - 3..], &raw.rgb[..3]);
+    }
+}
+
 #[test]
 fn a_rendered_episode_steps_exactly_like_an_unrendered_one() {
     let mut plain = Env::for_rendering("push-v3").unwrap();

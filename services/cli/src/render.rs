@@ -353,7 +353,9 @@ pub(crate) fn record_episode(
             };
             let sim = &env.scene().sim;
             let Some(step) = step else {
-                let mut f = renderer.render(sim, shot.camera).map_err(EvalError::Sim)?;
+                let mut f = renderer
+                    .render_upright(sim, shot.camera)
+                    .map_err(EvalError::Sim)?;
                 caption(&mut f, &[format!("{label} · variation {k} · start")])
                     .map_err(|e| fail(e, &mut failure))?;
                 strip.start = Some(f);
@@ -371,7 +373,9 @@ pub(crate) fn record_episode(
             if !(video_frame || new_success || last) {
                 return Ok(());
             }
-            let mut f = renderer.render(sim, shot.camera).map_err(EvalError::Sim)?;
+            let mut f = renderer
+                .render_upright(sim, shot.camera)
+                .map_err(EvalError::Sim)?;
             let status = match first_success {
                 Some(s) => format!("success at step {s}"),
                 None => "no success yet".to_string(),
