@@ -666,11 +666,22 @@ pub struct PolicyCheckpoint {
     pub sac: terl_rl::SacConfig,
     /// The run's `config.toml` (`<run>/config.toml` next to `<run>/checkpoints/`), if found.
     pub run_config: Option<(std::path::PathBuf, crate::RunConfig)>,
+    /// The task list a cluster learner's checkpoint records itself (`tasks` of its
+    /// `terl.learner_state` metadata), in one-hot order; `None` for other checkpoints.
+    pub stored_tasks: Option<Vec<String>>,
 }
 
 impl PolicyCheckpoint {
     /// Task names the policy was trained on, in one-hot order, from the run's config.
     pub fn trained_tasks(&self) -> Option<Result<Vec<&'static str>, EvalError>> {
+        if let Some(stored) = &self.stored_tasks {
+            return Some(crate::resolve_tasks(&stored.join(",")).map_err(|e| {
+                EvalError::Checkpoint {
+                    path: self.path.display().to_string(),
+                    reason: format!("its recorded task list: {e:#}"),
+                }
+            }));
+        }
         self.run_config.as_ref().map(|(path, cfg)| {
             crate::resolve_tasks(&cfg.tasks).map_err(|e| EvalError::Checkpoint {
                 path: path.display().to_string(),
@@ -679,8 +690,23 @@ impl PolicyCheckpoint {
         })
     }
 
-    /// Checks that `trained` (the run's task list) fits the policy: one one-hot slot per task.
+    /// Checks that `trained` (the run's task list) fits the policy: one one-hot slot per task,
+    /// and, for a checkpoint that records its task list, the same tasks in the same order.
     pub fn check_trained_tasks(&self, trained: &[&str]) -> Result<(), EvalError> {
+        if let Some(stored) = &self.stored_tasks {
+            if stored
+                .iter()
+                .map(String::as_str)
+                .ne(trained.iter().copied())
+            {
+                return Err(EvalError::Shape(format!(
+                    "{} was trained on [{}] in this order (recorded in the checkpoint), not [{}]",
+                    self.path.display(),
+                    stored.join(", "),
+                    trained.join(", ")
+                )));
+            }
+        }
         let nt = self.policy.spec().num_tasks;
         if trained.len() != nt {
             return Err(EvalError::Shape(format!(
@@ -790,11 +816,24 @@ pub fn load_policy_checkpoint(path: &std::path::Path) -> Result<PolicyCheckpoint
             }),
         })
         .transpose()?;
+    let stored_tasks = file
+        .metadata
+        .get("terl.learner_state")
+        .and_then(|s| serde_json::from_str::<serde_json::Value>(s).ok())
+        .and_then(|v| {
+            v.get("tasks")?
+                .as_array()?
+                .iter()
+                .map(|t| t.as_str().map(str::to_string))
+                .collect::<Option<Vec<String>>>()
+        })
+        .filter(|t| !t.is_empty());
     Ok(PolicyCheckpoint {
         path,
         policy,
         sac,
         run_config,
+        stored_tasks,
     })
 }
 

@@ -31,26 +31,72 @@ struct Source {
     seed: u64,
 }
 
-/// Renders the figure for `runs` into `out_dir/frames/` and returns the markdown section and
-/// the files written.
-pub(crate) fn section(
-    runs: &[PathBuf],
-    out_dir: &Path,
-    camera: &str,
-) -> Result<(String, Vec<PathBuf>)> {
-    crate::charts::register_font()?;
-    let mut by_experiment: BTreeMap<String, Vec<Source>> = BTreeMap::new();
-    for dir in runs {
-        let run = load_run(dir)
-            .with_context(|| format!("--frames-from {}: not a run folder", dir.display()))?;
-        let loaded = PolicyAndTasks::load(dir, None, None, UnseenTaskEncoding::Uniform)
-            .with_context(|| format!("--frames-from {}: no usable checkpoint", dir.display()))?;
-        let seed = loaded.variation_seed(None);
-        by_experiment
-            .entry(run.experiment.clone())
-            .or_default()
-            .push(Source { run, loaded, seed });
+/// The runs of the figure, loaded and checked before a report writes anything.
+pub(crate) struct FrameSources {
+    by_experiment: BTreeMap<String, Vec<Source>>,
+    camera: String,
+}
+
+impl FrameSources {
+    /// Loads every run (its evaluations' metadata and its newest checkpoint; a folder given
+    /// twice counts once) and checks the camera against the scenes and that offscreen OpenGL
+    /// works.
+    pub(crate) fn load(runs: &[PathBuf], camera: &str) -> Result<Self> {
+        crate::charts::register_font()?;
+        let mut by_experiment: BTreeMap<String, Vec<Source>> = BTreeMap::new();
+        let mut seen = Vec::new();
+        for dir in runs {
+            let key = dir.canonicalize().unwrap_or_else(|_| dir.clone());
+            if seen.contains(&key) {
+                eprintln!(
+                    "note: --frames-from {} is given twice; drawn once",
+                    dir.display()
+                );
+                continue;
+            }
+            seen.push(key);
+            let run = load_run(dir)
+                .with_context(|| format!("--frames-from {}: not a run folder", dir.display()))?;
+            let loaded = PolicyAndTasks::load(dir, None, None, UnseenTaskEncoding::Uniform)
+                .with_context(|| {
+                    format!("--frames-from {}: no usable checkpoint", dir.display())
+                })?;
+            let seed = loaded.variation_seed(None);
+            by_experiment
+                .entry(run.experiment.clone())
+                .or_default()
+                .push(Source { run, loaded, seed });
+        }
+        // The camera exists (every Meta-World scene has the same cameras) and GL works.
+        if let Some(task) = by_experiment
+            .values()
+            .flatten()
+            .flat_map(|s| &s.loaded.tasks)
+            .next()
+        {
+            let env = Env::for_rendering(task.name)?;
+            let renderer = Renderer::new(&env.scene().sim, 8, 8)?;
+            anyhow::ensure!(
+                renderer.cameras().iter().any(|c| c == camera),
+                "--frames-camera {camera:?}: the scenes' cameras are {}",
+                renderer.cameras().join(", ")
+            );
+        }
+        Ok(Self {
+            by_experiment,
+            camera: camera.to_string(),
+        })
     }
+}
+
+/// Renders the figure of `sources` into `out_dir/frames/` and returns the markdown section and
+/// the files written.
+pub(crate) fn section(sources: FrameSources, out_dir: &Path) -> Result<(String, Vec<PathBuf>)> {
+    let FrameSources {
+        by_experiment,
+        camera,
+    } = sources;
+    let camera = camera.as_str();
     let frames_dir = out_dir.join("frames");
     std::fs::create_dir_all(&frames_dir)
         .with_context(|| format!("creating {}", frames_dir.display()))?;

@@ -144,7 +144,7 @@ pub(crate) struct Encoder {
 
 impl Encoder {
     fn start(path: &Path, width: u32, height: u32, fps: u32) -> Result<Self> {
-        let part = path.with_extension("mp4.part");
+        let part = part_path(path);
         let mut child = Command::new("ffmpeg")
             .args(["-hide_banner", "-loglevel", "error", "-y", "-f", "rawvideo"])
             .args(["-pixel_format", "rgb24", "-video_size"])
@@ -271,6 +271,26 @@ fn caption(frame: &mut Frame, lines: &[String]) -> Result<()> {
     Ok(())
 }
 
+/// Where a file is written before it is renamed to `path`: `<name>.<pid>.part` beside it, so a
+/// killed writer leaves no file under the final name and two writers never share one.
+pub(crate) fn part_path(path: &Path) -> PathBuf {
+    let name = path.file_name().unwrap_or_default().to_string_lossy();
+    path.with_file_name(format!("{name}.{}.part", std::process::id()))
+}
+
+/// Writes `path` through [`part_path`] and a rename (`write` gets the temporary path).
+fn write_atomically(path: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
+    let part = part_path(path);
+    if let Err(e) = write(&part) {
+        let _ = std::fs::remove_file(&part);
+        return Err(e);
+    }
+    std::fs::rename(&part, path).with_context(|| {
+        let _ = std::fs::remove_file(&part);
+        format!("renaming {} to {}", part.display(), path.display())
+    })
+}
+
 /// Rows of frames side by side, separated by 4 white pixels, as a PNG (every frame the size of
 /// the first).
 pub(crate) fn write_grid(path: &Path, rows: &[Vec<Frame>]) -> Result<()> {
@@ -292,8 +312,10 @@ pub(crate) fn write_grid(path: &Path, rows: &[Vec<Frame>]) -> Result<()> {
             image::imageops::replace(&mut img, &tile, i64::from(x), i64::from(y));
         }
     }
-    img.save_with_format(path, image::ImageFormat::Png)
-        .with_context(|| format!("writing {}", path.display()))
+    write_atomically(path, |part| {
+        img.save_with_format(part, image::ImageFormat::Png)
+            .with_context(|| format!("writing {}", path.display()))
+    })
 }
 
 /// What a rendered episode keeps for its strip.
@@ -522,8 +544,10 @@ pub fn run(args: RenderArgs) -> Result<ExitCode> {
         episodes,
     };
     let json_path = args.out.join("render.json");
-    std::fs::write(&json_path, serde_json::to_vec_pretty(&out)?)
-        .with_context(|| format!("writing {}", json_path.display()))?;
+    let json = serde_json::to_vec_pretty(&out)?;
+    write_atomically(&json_path, |part| {
+        std::fs::write(part, &json).with_context(|| format!("writing {}", json_path.display()))
+    })?;
     for e in &out.episodes {
         println!(
             "{}  variation {:>2}  {}  return {:>8.1}  {} frames  {}  {}",

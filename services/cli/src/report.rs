@@ -299,6 +299,15 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
         args.bootstrap_reps > 0,
         "--bootstrap-reps must be at least 1"
     );
+    // The qualitative figure's runs are checked before anything is written.
+    let frames = if args.frames_from.is_empty() {
+        None
+    } else {
+        Some(crate::frames::FrameSources::load(
+            &args.frames_from,
+            &args.frames_camera,
+        )?)
+    };
     let opts = crate::results::StatsOptions {
         last_evals: args.last_evals,
         bootstrap: terl_stats::Bootstrap::with_reps(args.bootstrap_reps),
@@ -347,9 +356,8 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
     }
     if !evaluated.is_empty() {
         let (mut md, mut files) = crate::results::write_results(&evaluated, &out, &opts)?;
-        if !args.frames_from.is_empty() {
-            let (section, pngs) =
-                crate::frames::section(&args.frames_from, &out, &args.frames_camera)?;
+        if let Some(frames) = frames {
+            let (section, pngs) = crate::frames::section(frames, &out)?;
             md.push_str(&section);
             let md_path = out.join("results.md");
             std::fs::write(&md_path, &md)

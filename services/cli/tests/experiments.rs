@@ -86,6 +86,39 @@ fn experiment_scripts_train_evaluate_and_report() {
         learner.contains("TEP buffer started from a dataset"),
         "{learner}"
     );
+    // A learner checkpoint records its task order: a swapped --trained-tasks is refused, and a
+    // checkpoint copied out of its run folder still knows its tasks.
+    let mtsac = runs.join(format!("mt10-mtsac-s1{}", tag()));
+    let terl = |args: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_terl"))
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let swapped = terl(&[
+        "eval",
+        "--checkpoint",
+        mtsac.to_str().unwrap(),
+        "--trained-tasks",
+        "push-v3,reach-v3",
+        "--episodes-per-task",
+        "1",
+    ]);
+    assert!(!swapped.status.success());
+    let err = String::from_utf8_lossy(&swapped.stderr);
+    assert!(err.contains("trained on [reach-v3, push-v3]"), "{err}");
+    let lone = runs.join("lone.safetensors");
+    std::fs::copy(mtsac.join("checkpoints/final.safetensors"), &lone).unwrap();
+    let out = terl(&[
+        "eval",
+        "--checkpoint",
+        lone.to_str().unwrap(),
+        "--episodes-per-task",
+        "1",
+        "--json",
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    std::fs::remove_file(&lone).unwrap();
     run_experiment(&root, runs, "mt-test");
     let zero_shot: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(

@@ -186,6 +186,12 @@ impl Counters {
         }
     }
 
+    /// Counts the current rate window's updates from `updates` (a resumed learner's restored
+    /// count): otherwise its first window would show every restored update as done in it.
+    pub(crate) fn start_rates_at(&mut self, updates: u64) {
+        self.updates_window.1 = updates;
+    }
+
     /// Refreshes the windowed rates at `now` with the learner's `updates`; true when a rate
     /// window ([`RATE_WINDOW`]) closed.
     pub(crate) fn refresh_rates(&mut self, updates: u64, now: Instant) -> bool {
@@ -475,6 +481,16 @@ mod tests {
         );
         // The actor's rate: 30 steps over the 2 s since its window opened at 0.5 s.
         assert!((status.actors[0].env_steps_per_second - 15.0).abs() < 1e-9);
+    }
+
+    /// A resumed learner's first rate window counts from its restored update count.
+    #[test]
+    fn a_resumed_learners_first_rate_is_its_own() {
+        let t0 = Instant::now();
+        let mut c = Counters::new(1, 3, t0);
+        c.start_rates_at(165_000);
+        assert!(c.refresh_rates(165_040, t0 + Duration::from_secs(2)));
+        assert!((c.updates_per_second - 20.0).abs() < 1e-9);
     }
 
     /// The busy rate counts only time inside updates; the ratio compares it with the standalone

@@ -702,6 +702,8 @@ fn restore(
         saved.chars().for_each(|ch| w.push(ch == '1'));
     }
     c.resumed = Some((found.path.clone(), found.updates));
+    // The first rate window counts from the restored update count, not from zero.
+    c.start_rates_at(found.updates);
     tracing::info!(
         checkpoint = %path,
         updates = found.updates,
