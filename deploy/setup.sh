@@ -10,16 +10,20 @@
 # - installs what `terl render` needs: EGL and Mesa's OpenGL (headless rendering), ffmpeg;
 # - creates the Python environments the tests use (.deps/grpc-venv, .deps/mcap-venv,
 #   .deps/k8s-venv, .deps/rliable-venv, .deps/render-venv, .deps/tensorboard-venv);
-#   `--no-test-tools` skips them (the container image's build stage).
+#   `--no-test-tools` skips them (the container image's build stage);
+# - with `--container`, installs podman, runc and debootstrap: building the container image from
+#   Debian packages when no image registry is reachable, and running it (deploy/container/).
 #
 # Nothing else is needed: the sim crate bakes the absolute path of .deps/mujoco/lib into every
 # binary it builds (override at run time with TERL_MUJOCO_LIB=/path/to/libmujoco.so).
 set -euo pipefail
 test_tools=1
+container_tools=0
 for arg in "$@"; do
     case "$arg" in
         --no-test-tools) test_tools=0 ;;
-        *) echo "usage: $0 [--no-test-tools]" >&2; exit 2 ;;
+        --container) container_tools=1 ;;
+        *) echo "usage: $0 [--no-test-tools] [--container]" >&2; exit 2 ;;
     esac
 done
 
@@ -141,6 +145,17 @@ setup_test_tools() {
     setup_render_venv
     setup_tensorboard_venv
 }
+
+# podman (with runc: Debian's default crun fails on hosts with hybrid cgroups) and debootstrap
+# for the container image (deploy/container/build.sh); the podman settings are in
+# deploy/container/containers.conf.
+setup_container_tools() {
+    [ "$container_tools" = 1 ] || return 0
+    local missing=()
+    for p in podman runc debootstrap; do command -v "$p" >/dev/null || missing+=("$p"); done
+    [ ${#missing[@]} -eq 0 ] || apt_install "${missing[@]}"
+}
+setup_container_tools
 
 [ "$have_all" = 1 ] && { say "already set up ($STAMP_CONTENT)"; setup_test_tools; exit 0; }
 

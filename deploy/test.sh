@@ -9,7 +9,8 @@ set -euo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$ROOT"
 
-"$ROOT/deploy/setup.sh"
+# --container: podman, runc and debootstrap for the container image test (services/cli/tests/container.rs).
+"$ROOT/deploy/setup.sh" --container
 
 say() { printf '\n[test] %s\n' "$*" >&2; }
 start=$(date +%s)

@@ -12,6 +12,7 @@
 
 #![warn(missing_docs)]
 
+pub mod certs;
 mod client;
 mod dataset;
 mod hub;

@@ -361,30 +361,17 @@ async fn without_a_token_the_server_serves_loopback_only() {
     cluster.stop().await;
 }
 
-/// A CA and a server certificate for `localhost` and `127.0.0.1` signed by it, written to
-/// `dir`: (ca.pem, cert.pem, key.pem).
+/// A CA and a certificate for `localhost` and `127.0.0.1` signed by it, written to `dir`
+/// ([`terl_wire::certs::write_run_certificates`], as `terl certs` makes them):
+/// (ca.pem, cert.pem, key.pem).
 fn make_certificates(dir: &Path) -> (PathBuf, PathBuf, PathBuf) {
-    use rcgen::{BasicConstraints, CertificateParams, IsCa, Issuer, KeyPair, KeyUsagePurpose};
-    std::fs::create_dir_all(dir).unwrap();
-    let mut ca_params = CertificateParams::new(Vec::<String>::new()).unwrap();
-    ca_params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
-    ca_params.key_usages = vec![KeyUsagePurpose::KeyCertSign, KeyUsagePurpose::CrlSign];
-    let ca_key = KeyPair::generate().unwrap();
-    let ca_cert = ca_params.self_signed(&ca_key).unwrap();
-    let issuer = Issuer::new(ca_params, ca_key);
-    let params =
-        CertificateParams::new(vec!["localhost".to_owned(), "127.0.0.1".to_owned()]).unwrap();
-    let key = KeyPair::generate().unwrap();
-    let cert = params.signed_by(&key, &issuer).unwrap();
-    let paths = (
-        dir.join("ca.pem"),
-        dir.join("cert.pem"),
-        dir.join("key.pem"),
-    );
-    std::fs::write(&paths.0, ca_cert.pem()).unwrap();
-    std::fs::write(&paths.1, cert.pem()).unwrap();
-    std::fs::write(&paths.2, key.serialize_pem()).unwrap();
-    paths
+    let files = terl_wire::certs::write_run_certificates(
+        dir,
+        "terl test",
+        &["localhost".to_owned(), "127.0.0.1".to_owned()],
+    )
+    .unwrap();
+    (files.ca, files.cert, files.key)
 }
 
 fn temp_dir(name: &str) -> PathBuf {

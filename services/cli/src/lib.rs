@@ -7,6 +7,7 @@
 mod bench;
 mod bench_netns;
 mod bench_tep;
+mod certs;
 mod charts;
 mod cluster;
 mod env;
@@ -66,6 +67,9 @@ enum Command {
     /// true step gaps and in the real environment.
     #[command(subcommand)]
     Planner(planner::PlannerCommand),
+    /// TLS files for a run's gRPC control plane: a fresh CA, one certificate it signs for the
+    /// given hosts and its key; prints the run-file settings that use them.
+    Certs(certs::CertsArgs),
     /// Zenoh's router, for clusters whose processes run with `[cluster.zenoh] mode = "client"`
     /// (e.g. the Kubernetes manifests in deploy/k8s); stops on SIGINT/SIGTERM.
     ZenohRouter(router::RouterArgs),
@@ -87,6 +91,7 @@ pub fn run(cli: Cli) -> Result<std::process::ExitCode> {
         Command::Cluster(c) => cluster::run(c),
         Command::Report(a) => report::run(a),
         Command::Planner(c) => planner::run(c),
+        Command::Certs(a) => certs::run(a),
         Command::ZenohRouter(a) => router::run(a),
     }
 }

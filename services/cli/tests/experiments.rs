@@ -117,7 +117,11 @@ fn experiment_scripts_train_evaluate_and_report() {
         "1",
         "--json",
     ]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     std::fs::remove_file(&lone).unwrap();
     run_experiment(&root, runs, "mt-test");
     let zero_shot: serde_json::Value = serde_json::from_str(
