@@ -165,7 +165,7 @@ fn wait_until(pods: &Podman, what: &str, limit: Duration, mut check: impl FnMut(
     eprintln!("after {:.1} s: {what}", start.elapsed().as_secs_f64());
 }
 
-/// `terl status --json` (`args` say where and how) must answer with the learner past
+/// The `terl status --json` output `status` must answer with the learner past
 /// `env_steps` env steps, some updates, and an actor acting on published weights.
 fn trained(status: &std::process::Output, env_steps: u64) -> bool {
     if !status.status.success() {
