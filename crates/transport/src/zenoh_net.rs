@@ -35,7 +35,9 @@
 //!   handed to Zenoh is lost only when the TCP session between the two hosts closes (the
 //!   link stayed down longer than the lease, or Zenoh's queue was blocked for 5 s); the
 //!   receiver then counts it as a gap in the sender's sequence numbers
-//!   ([`crate::LossTracker`]'s `missed`). The credits of such a link are reset when the
+//!   ([`crate::LossTracker`]'s `missed`). A dropped sink lingers up to [`SINK_LINGER`]
+//!   until its live receivers have consumed what it sent, so closing a process right after
+//!   its last send loses nothing that was still in Zenoh's (or a router's) queues. The credits of such a link are reset when the
 //!   receiver's token comes back (a new epoch). A message whose length is not the
 //!   expected one is rejected and counted in the source's `rejected`.
 //! - **Limits:** a new port counts the existing tokens of its kind first (a liveliness query
@@ -76,6 +78,10 @@ pub const CLAIM_ATTEMPTS: u32 = 5;
 const MATCH_TIMEOUT: Duration = Duration::from_secs(5);
 /// Slice of a blocked send between checks of the cancel flag.
 const BLOCK_POLL: Duration = Duration::from_millis(5);
+/// How long a dropped sink waits for its live receivers to take what it already handed to
+/// Zenoh: closing the session at once would discard the frames still in Zenoh's queues
+/// (and a router's), which the sink has already reported as delivered.
+pub const SINK_LINGER: Duration = Duration::from_secs(2);
 
 fn zenoh_err(
     operation: &'static str,
@@ -790,6 +796,54 @@ impl<M: Message> ZenohSink<M> {
                         .0;
                 }
             }
+        }
+    }
+}
+
+impl<M: Message> ZenohSink<M> {
+    /// Messages handed to Zenoh that a live receiver has not yet consumed (this epoch).
+    fn unconsumed(&self, state: &PortState) -> u64 {
+        self.links
+            .iter()
+            .filter(|(id, _)| state.peers.contains_key(id))
+            .map(|(id, link)| {
+                let acked = match state.acks.get(id) {
+                    Some(&(e, consumed)) if e == link.epoch => consumed,
+                    _ => 0,
+                };
+                link.sent.saturating_sub(acked)
+            })
+            .sum()
+    }
+}
+
+/// Lingers up to [`SINK_LINGER`] (less once cancelled) until every live receiver has
+/// consumed what this sink sent; what is still outstanding after that is lost with the
+/// session and shows at the receiver as a gap in the sequence numbers.
+impl<M: Message> Drop for ZenohSink<M> {
+    fn drop(&mut self) {
+        let start = Instant::now();
+        let mut state = lock(&self.shared.state);
+        loop {
+            let outstanding = self.unconsumed(&state);
+            if outstanding == 0 || self.cancel.load(Ordering::Relaxed) {
+                return;
+            }
+            let left = SINK_LINGER.saturating_sub(start.elapsed());
+            if left.is_zero() {
+                tracing::debug!(
+                    service = %self.label,
+                    outstanding,
+                    "sink closed with messages its receivers had not consumed"
+                );
+                return;
+            }
+            state = self
+                .shared
+                .wake
+                .wait_timeout(state, left.min(BLOCK_POLL))
+                .unwrap_or_else(|e| e.into_inner())
+                .0;
         }
     }
 }
