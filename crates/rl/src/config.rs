@@ -1,5 +1,6 @@
 //! The one configuration struct of MTSAC.
 
+use crate::care::CareConfig;
 use crate::error::SacError;
 use serde::{Deserialize, Serialize};
 
@@ -76,6 +77,11 @@ pub struct SacConfig {
     /// Bound of each critic's output layer under `init = "he_uniform"`. Default 3e-3
     /// (reference: `uniform(3e-3)` Q head).
     pub critic_head_init: f64,
+    /// CARE's context-based encoder in front of policy and critics (`[sac.care]`;
+    /// `algorithm = "care"` sets it): the heads read `[mixture of state encoders, task
+    /// encoding]` instead of `[observation, one-hot task id]`. `None`: MTSAC.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub care: Option<CareConfig>,
 }
 
 /// Most update threads [`SacConfig::threads`] accepts.
@@ -159,6 +165,7 @@ impl Default for SacConfig {
             init: NetInit::HeUniform,
             policy_head_init: 1e-3,
             critic_head_init: 3e-3,
+            care: None,
         }
     }
 }
@@ -176,14 +183,18 @@ impl SacConfig {
         toml::to_string(self).expect("SacConfig serialises to TOML")
     }
 
-    /// Input size of the policy: observation plus one-hot task id.
+    /// Input size of the policy: observation plus one-hot task id, or with CARE the mixture
+    /// and the task encoding ([`CareConfig::front_dim`]).
     pub fn policy_input(&self) -> usize {
-        self.obs_dim + self.num_tasks
+        match &self.care {
+            Some(care) => care.front_dim(),
+            None => self.obs_dim + self.num_tasks,
+        }
     }
 
-    /// Input size of a critic: observation, one-hot task id, action.
+    /// Input size of a critic: the policy's input ([`Self::policy_input`]), then the action.
     pub fn critic_input(&self) -> usize {
-        self.obs_dim + self.num_tasks + self.act_dim
+        self.policy_input() + self.act_dim
     }
 
     /// The target entropy in force.
@@ -245,6 +256,9 @@ impl SacConfig {
                 "max_grad_norm {} must be ≥ 0 (0: no clipping)",
                 self.max_grad_norm
             ));
+        }
+        if let Some(care) = &self.care {
+            care.validate()?;
         }
         for (name, v) in [
             ("policy_head_init", self.policy_head_init),

@@ -8,6 +8,8 @@
 //!
 //! - [`SacConfig`]: every hyper-parameter, serde/TOML;
 //! - [`Sac`]: networks, optimisers and the update (critics, actor, per-task temperature, targets);
+//! - [`care`]: CARE's context-based encoder (mixture of state encoders under task attention),
+//!   the third algorithm of the paper's Table I, in front of the same SAC heads;
 //! - [`Policy`]: inference-only policy for actors (fast small-batch `act`);
 //! - [`replay::MultiTaskReplay`]: per-task ring buffers in contiguous `f32` storage;
 //! - [`rollout`]: the one environment loop (act, step, hand transitions to a sink) of the
@@ -24,6 +26,7 @@
 #![warn(missing_docs)]
 
 pub mod batch;
+pub mod care;
 pub mod config;
 pub mod env;
 pub mod error;
@@ -44,6 +47,7 @@ pub mod train;
 pub mod value;
 
 pub use batch::Batch;
+pub use care::{CareConfig, CareContext, CareNet};
 pub use config::{auto_threads, NetInit, SacConfig};
 pub use error::SacError;
 pub use policy::{Policy, PolicySpec};

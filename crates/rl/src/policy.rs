@@ -1,6 +1,7 @@
 //! Inference-only policy for actors: the same network as the learner's, `f32`, sequential GEMMs
 //! (actors run one per core), buffers preallocated for a fixed maximum batch.
 
+use crate::care::{CareConfig, CarePolicy};
 use crate::config::SacConfig;
 use crate::error::SacError;
 use crate::small_mlp::SmallBatchMlp;
@@ -10,7 +11,7 @@ use terl_nn::tensors::TensorFile;
 use terl_nn::{gaussian, Activation, Mlp, MlpSpec};
 
 /// What an actor needs to rebuild the policy network: sizes only.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PolicySpec {
     /// Observation length without the task one-hot (39 for Meta-World).
     pub obs_dim: usize,
@@ -20,6 +21,9 @@ pub struct PolicySpec {
     pub num_tasks: usize,
     /// Widths of the hidden layers.
     pub hidden: Vec<usize>,
+    /// CARE's encoder in front of the network (`None`: MTSAC's `[obs, one-hot]` input).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub care: Option<CareConfig>,
 }
 
 impl PolicySpec {
@@ -31,12 +35,32 @@ impl PolicySpec {
             act_dim: cfg.act_dim,
             num_tasks: cfg.num_tasks,
             hidden: cfg.policy_hidden.clone(),
+            care: cfg.care.clone(),
+        }
+    }
+
+    /// Width of the network's input: observation and one-hot, or CARE's front.
+    fn input_dim(&self) -> Option<usize> {
+        match &self.care {
+            Some(c) => c.feature_dim.checked_add(c.encoding_dim),
+            None => self.obs_dim.checked_add(self.num_tasks),
+        }
+    }
+
+    /// Length of one explicit task-encoding row of [`Policy::act_encoded`]: `num_tasks` (a
+    /// one-hot-like row) or, with CARE, its context length (768 for task embeddings).
+    pub fn task_encoding_dim(&self) -> usize {
+        match &self.care {
+            Some(c) => c.context_dim(self.num_tasks),
+            None => self.num_tasks,
         }
     }
 
     pub(crate) fn mlp_spec(&self) -> MlpSpec {
         MlpSpec {
-            input: self.obs_dim + self.num_tasks,
+            input: self
+                .input_dim()
+                .expect("policy input width overflows usize"),
             hidden: self.hidden.clone(),
             output: 2 * self.act_dim,
             hidden_activation: Activation::Relu,
@@ -65,12 +89,16 @@ impl PolicySpec {
 
     /// [`Self::num_params`], or `None` when the sizes overflow `usize`.
     pub fn checked_num_params(&self) -> Option<usize> {
-        let mut sizes = vec![self.obs_dim.checked_add(self.num_tasks)?];
+        let mut sizes = vec![self.input_dim()?];
         sizes.extend_from_slice(&self.hidden);
         sizes.push(self.act_dim.checked_mul(2)?);
-        sizes.windows(2).try_fold(0usize, |acc, w| {
+        let head = sizes.windows(2).try_fold(0usize, |acc, w| {
             acc.checked_add(w[0].checked_mul(w[1])?.checked_add(w[1])?)
-        })
+        })?;
+        match &self.care {
+            Some(c) => head.checked_add(CarePolicy::num_params(c, self.obs_dim, self.num_tasks)?),
+            None => Some(head),
+        }
     }
 }
 
@@ -86,8 +114,10 @@ pub struct Policy {
     net: Mlp<f32>,
     /// The network's weights packed for small batches.
     small: SmallBatchMlp,
-    /// Network input rows (observation, then the one-hot task id).
+    /// Network input rows (observation, then the one-hot task id; with CARE its front).
     input: Vec<f32>,
+    /// CARE's encoder in front of the network.
+    care: Option<CarePolicy>,
     eps: Vec<f32>,
     log_prob: Vec<f32>,
     /// Version of the loaded weights (set by the caller, e.g. the learner's update count).
@@ -103,7 +133,11 @@ impl Policy {
         Self {
             eps: vec![0.0; max_batch * spec.act_dim],
             log_prob: vec![0.0; max_batch],
-            input: vec![0.0; max_batch * (spec.obs_dim + spec.num_tasks)],
+            input: vec![0.0; max_batch * spec.mlp_spec().input],
+            care: spec
+                .care
+                .as_ref()
+                .map(|c| CarePolicy::new(c, spec.obs_dim, spec.num_tasks, max_batch)),
             small,
             spec,
             net,
@@ -127,11 +161,11 @@ impl Policy {
 
     /// Replaces the weights with a flat vector from [`crate::Sac::policy_params_f32`].
     pub fn set_params(&mut self, params: &[f32], version: u64) -> Result<(), SacError> {
-        if params.len() != self.net.num_params() {
+        let needed = self.spec.num_params();
+        if params.len() != needed {
             return Err(SacError::Shape(format!(
-                "policy weights have {} values, this policy needs {}",
+                "policy weights have {} values, this policy needs {needed}",
                 params.len(),
-                self.net.num_params()
             )));
         }
         if params.iter().any(|v| !v.is_finite()) {
@@ -139,15 +173,26 @@ impl Policy {
                 "policy weights contain a non-finite value".into(),
             ));
         }
-        self.net.params.copy_from_slice(params);
+        let (head, rest) = params.split_at(self.net.num_params());
+        self.net.params.copy_from_slice(head);
+        if let Some(care) = &mut self.care {
+            care.set_params(rest);
+        }
         self.pack_weights();
         self.version = version;
         Ok(())
     }
 
-    /// Loads `policy.{layer}.weight|bias` tensors (as written by [`crate::Sac::policy_tensors`]).
+    /// Loads `policy.{layer}.weight|bias` tensors (as written by [`crate::Sac::policy_tensors`];
+    /// with CARE also its experts, actor attention, task encoder and context table). On error
+    /// nothing is changed.
     pub fn load(&mut self, file: &TensorFile, version: u64) -> Result<(), SacError> {
-        self.net.import(crate::names::POLICY, file)?;
+        let mut net = self.net.clone();
+        net.import(crate::names::POLICY, file)?;
+        if let Some(care) = &mut self.care {
+            care.load(file)?;
+        }
+        self.net = net;
         self.pack_weights();
         self.version = version;
         Ok(())
@@ -158,9 +203,23 @@ impl Policy {
     pub fn with_max_batch(&self, max_batch: usize) -> Self {
         let mut p = Self::new(self.spec.clone(), max_batch);
         p.net.params.copy_from_slice(&self.net.params);
+        if let (Some(d), Some(s)) = (&mut p.care, &self.care) {
+            d.copy_from(s);
+        }
         p.pack_weights();
         p.version = self.version;
         p
+    }
+
+    /// Width of one network input row.
+    fn small_input(&self) -> usize {
+        self.net.input_dim()
+    }
+
+    /// With CARE, task `task`'s row of the context table (what [`Policy::act`] encodes for
+    /// it); `None` without CARE or for a task id out of range.
+    pub fn care_context(&self, task: usize) -> Option<&[f32]> {
+        self.care.as_ref().and_then(|c| c.context_row(task))
     }
 
     /// Largest batch [`Policy::act`] accepts.
@@ -188,10 +247,7 @@ impl Policy {
         self.act_with(
             obs,
             task_ids.len(),
-            |row, onehot| {
-                onehot.fill(0.0);
-                onehot[task_ids[row]] = 1.0;
-            },
+            Ok(task_ids),
             deterministic,
             rng,
             actions,
@@ -199,9 +255,11 @@ impl Policy {
     }
 
     /// Like [`Policy::act`], with the task part of each input row given as a vector instead of
-    /// a task id: `task_encodings` is rows × num_tasks (row-major). A one-hot row is exactly
-    /// `act`; other rows (e.g. uniform `1/num_tasks`, or zeros) condition the policy on a task
-    /// it was not trained on (zero-shot evaluation).
+    /// a task id: `task_encodings` is rows × [`PolicySpec::task_encoding_dim`] (row-major). For
+    /// MTSAC a one-hot row is exactly `act`; other rows (e.g. uniform `1/num_tasks`, or zeros)
+    /// condition the policy on a task it was not trained on (zero-shot evaluation). With CARE
+    /// a row is a task context (its description embedding through a ReLU,
+    /// [`crate::care::context_table`]), so a new task is given by its own description.
     pub fn act_encoded(
         &mut self,
         obs: &[f32],
@@ -210,7 +268,7 @@ impl Policy {
         rng: &mut impl Rng,
         actions: &mut [f32],
     ) -> Result<(), SacError> {
-        let nt = self.spec.num_tasks;
+        let nt = self.spec.task_encoding_dim();
         let rows = task_encodings.len() / nt.max(1);
         if task_encodings.len() != rows * nt {
             return Err(SacError::Shape(format!(
@@ -218,21 +276,19 @@ impl Policy {
                 task_encodings.len()
             )));
         }
-        self.act_with(
-            obs,
-            rows,
-            |row, enc| enc.copy_from_slice(&task_encodings[row * nt..(row + 1) * nt]),
-            deterministic,
-            rng,
-            actions,
-        )
+        if task_encodings.iter().any(|v| !v.is_finite()) {
+            return Err(SacError::Shape(
+                "act_encoded: a task encoding has a non-finite value".into(),
+            ));
+        }
+        self.act_with(obs, rows, Err(task_encodings), deterministic, rng, actions)
     }
 
     fn act_with(
         &mut self,
         obs: &[f32],
         rows: usize,
-        mut encode: impl FnMut(usize, &mut [f32]),
+        tasks: Result<&[usize], &[f32]>,
         deterministic: bool,
         rng: &mut impl Rng,
         actions: &mut [f32],
@@ -247,16 +303,26 @@ impl Policy {
                 self.small.max_rows()
             )));
         }
-        let w = od + nt;
+        let w = self.small_input();
         let input = &mut self.input[..rows * w];
-        for (r, (row, o)) in input
-            .chunks_exact_mut(w)
-            .zip(obs.chunks_exact(od))
-            .enumerate()
-        {
-            let (x, task) = row.split_at_mut(od);
-            x.copy_from_slice(o);
-            encode(r, task);
+        if let Some(care) = &mut self.care {
+            care.front(obs, rows, tasks, input);
+        } else {
+            for (r, (row, o)) in input
+                .chunks_exact_mut(w)
+                .zip(obs.chunks_exact(od))
+                .enumerate()
+            {
+                let (x, task) = row.split_at_mut(od);
+                x.copy_from_slice(o);
+                match tasks {
+                    Ok(ids) => {
+                        task.fill(0.0);
+                        task[ids[r]] = 1.0;
+                    }
+                    Err(enc) => task.copy_from_slice(&enc[r * nt..(r + 1) * nt]),
+                }
+            }
         }
         let head = self.small.forward(input, rows);
         if deterministic {

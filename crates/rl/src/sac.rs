@@ -16,6 +16,7 @@
 //! beats splitting small GEMMs across cores.
 
 use crate::batch::Batch;
+use crate::care::{self, CareEncoder};
 use crate::config::SacConfig;
 use crate::error::SacError;
 use crate::names;
@@ -95,6 +96,12 @@ pub struct Sac<T: Float = f32> {
     targets: Vec<T>,
     d_actions: Vec<T>,
     d_log_prob: Vec<T>,
+    /// CARE's encoder in front of the heads (`config.care`).
+    care: Option<CareEncoder<T>>,
+    /// CARE: gradient of the critics' loss w.r.t. their front, `[B, front_dim]`, both summed.
+    d_front: Vec<T>,
+    /// CARE: gradient of the actor's loss w.r.t. the mixture part of its input, `[B, F]`.
+    d_features: Vec<T>,
     updates: u64,
     rejected_batches: u64,
 }
@@ -156,10 +163,22 @@ impl<T: Float> Critic<T> {
 
     /// Fills rows `0..B` with `(s, a)` of the batch and runs the critic on them (needs no
     /// policy output, so it can run while the policy does).
-    fn forward_replay(&mut self, cfg: &SacConfig, batch: &Batch, par: Par) {
+    fn forward_replay(&mut self, cfg: &SacConfig, batch: &Batch, care: Option<&[T]>, par: Par) {
         let (b, od, a, nt) = (batch.len(), cfg.obs_dim, cfg.act_dim, cfg.num_tasks);
         let w = cfg.critic_input();
         let cin = self.cache.input_mut(0..b);
+        if let Some(front) = care {
+            let p = cfg.policy_input();
+            for i in 0..b {
+                let row = &mut cin[i * w..(i + 1) * w];
+                row[..p].copy_from_slice(&front[i * p..(i + 1) * p]);
+                for (d, &s) in row[p..].iter_mut().zip(&batch.actions[i * a..(i + 1) * a]) {
+                    *d = T::of_f32(s);
+                }
+            }
+            self.net.forward_rows(&mut self.cache, 0..b, par);
+            return;
+        }
         for i in 0..b {
             let task = batch.task_ids[i] as usize;
             let row = &mut cin[i * w..(i + 1) * w];
@@ -176,9 +195,35 @@ impl<T: Float> Critic<T> {
 
     /// Fills inputs and runs the target on `(s', a')` and the critic on `(s, ã)` (rows
     /// `B..2B`), with `a'` and `ã` the policy's samples `pi_actions` (rows `0..B` and `B..2B`).
-    fn forward_policy(&mut self, cfg: &SacConfig, batch: &Batch, pi_actions: &[T], par: Par) {
+    fn forward_policy(
+        &mut self,
+        cfg: &SacConfig,
+        batch: &Batch,
+        pi_actions: &[T],
+        care: Option<(&[T], &[T])>,
+        par: Par,
+    ) {
         let (b, od, a, nt) = (batch.len(), cfg.obs_dim, cfg.act_dim, cfg.num_tasks);
         let w = cfg.critic_input();
+        if let Some((critic, target)) = care {
+            // CARE: the target reads the target encoder's front on s', the critic its own on s.
+            let p = cfg.policy_input();
+            let tin = self.target_cache.input_mut(0..b);
+            for i in 0..b {
+                let row = &mut tin[i * w..(i + 1) * w];
+                row[..p].copy_from_slice(&target[i * p..(i + 1) * p]);
+                row[p..].copy_from_slice(&pi_actions[i * a..(i + 1) * a]);
+            }
+            self.target.forward(&mut self.target_cache, b, par);
+            let cin = self.cache.input_mut(b..2 * b);
+            for i in 0..b {
+                let row = &mut cin[i * w..(i + 1) * w];
+                row[..p].copy_from_slice(&critic[i * p..(i + 1) * p]);
+                row[p..].copy_from_slice(&pi_actions[(b + i) * a..(b + i + 1) * a]);
+            }
+            self.net.forward_rows(&mut self.cache, b..2 * b, par);
+            return;
+        }
         let tin = self.target_cache.input_mut(0..b);
         for i in 0..b {
             let task = batch.task_ids[i] as usize;
@@ -209,14 +254,14 @@ impl<T: Float> Critic<T> {
     /// Critic-loss parameter gradients from rows `0..B` and the actor's action gradients from
     /// rows `B..2B` (gradient of the loss w.r.t. the outputs already written by the caller).
     fn backward(&mut self, cfg: &SacConfig, b: usize, par: Par) {
-        self.net.backward(
-            &mut self.cache,
-            0..b,
-            Some(&mut self.grads),
-            InputGrad::None,
-            par,
-        );
-        let acts = cfg.obs_dim + cfg.num_tasks..cfg.critic_input();
+        // With CARE the critics' loss also flows into the encoder through the front columns.
+        let front = match cfg.care {
+            Some(_) => InputGrad::Cols(0..cfg.policy_input()),
+            None => InputGrad::None,
+        };
+        self.net
+            .backward(&mut self.cache, 0..b, Some(&mut self.grads), front, par);
+        let acts = cfg.policy_input()..cfg.critic_input();
         self.net
             .backward(&mut self.cache, b..2 * b, None, InputGrad::Cols(acts), par);
     }
@@ -251,7 +296,40 @@ fn both<T: Float>(critics: &mut [Critic<T>; 2], parallel: bool, f: impl Fn(&mut 
 
 impl<T: Float> Sac<T> {
     /// Builds networks (seeded by `config.seed`), optimisers and all update buffers.
+    ///
+    /// # Errors
+    /// An invalid config, or CARE with task-embedding context (its context table needs the
+    /// task names: [`Sac::for_tasks`]).
     pub fn new(config: SacConfig) -> Result<Self, SacError> {
+        Self::with_context(config, None)
+    }
+
+    /// Like [`Sac::new`] for the tasks `tasks` (in task-id order): with CARE the context table
+    /// is built from their names ([`care::context_table`]); MTSAC ignores the names.
+    ///
+    /// # Errors
+    /// [`Sac::new`]'s, a task count other than `num_tasks`, or a task without a published
+    /// embedding.
+    pub fn for_tasks(config: SacConfig, tasks: &[String]) -> Result<Self, SacError> {
+        let table = match &config.care {
+            Some(care) => {
+                if tasks.len() != config.num_tasks {
+                    return Err(SacError::Config(format!(
+                        "{} task names for num_tasks {}",
+                        tasks.len(),
+                        config.num_tasks
+                    )));
+                }
+                Some(care::context_table(care, tasks)?)
+            }
+            None => None,
+        };
+        Self::with_context(config, table.as_deref())
+    }
+
+    /// Like [`Sac::new`] with CARE's context table given (`[num_tasks, context_dim]`; `None`
+    /// builds the one-hot table, the only one that needs no task names).
+    pub fn with_context(config: SacConfig, context: Option<&[f32]>) -> Result<Self, SacError> {
         config.validate()?;
         let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
         let policy = Mlp::new_with(&policy_spec(&config), config.init_for(false), &mut rng);
@@ -259,6 +337,32 @@ impl<T: Float> Sac<T> {
             Critic::new(&config, &mut rng),
             Critic::new(&config, &mut rng),
         ];
+        let care = match &config.care {
+            None => None,
+            Some(cc) => {
+                let one_hot;
+                let table = match (context, cc.context) {
+                    (Some(t), _) => t,
+                    (None, care::CareContext::OneHot) => {
+                        one_hot = care::context_table(
+                            cc,
+                            &(0..config.num_tasks)
+                                .map(|t| t.to_string())
+                                .collect::<Vec<_>>(),
+                        )?;
+                        &one_hot[..]
+                    }
+                    (None, care::CareContext::TaskEmbeddings) => {
+                        return Err(SacError::Config(
+                            "care with context = \"task_embeddings\" needs the task names \
+                             (Sac::for_tasks) or a context table"
+                                .into(),
+                        ))
+                    }
+                };
+                Some(CareEncoder::new(&config, table, &mut rng)?)
+            }
+        };
         let pool = if config.threads > 1 {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(config.threads)
@@ -294,6 +398,13 @@ impl<T: Float> Sac<T> {
             targets: zeros(b),
             d_actions: zeros(b * a),
             d_log_prob: zeros(b),
+            d_front: zeros(if care.is_some() {
+                b * config.policy_input()
+            } else {
+                0
+            }),
+            d_features: zeros(config.care.as_ref().map_or(0, |c| b * c.feature_dim)),
+            care,
             updates: 0,
             rejected_batches: 0,
             config,
@@ -360,6 +471,28 @@ impl<T: Float> Sac<T> {
         )
     }
 
+    /// CARE's attention over its state encoders after the last update's forward pass: the
+    /// critics' and the actor's, each `[num_tasks, num_experts]` (rows sum to one). `None`
+    /// without CARE.
+    pub fn care_attention(&self) -> Option<(&[T], &[T])> {
+        self.care
+            .as_ref()
+            .map(|c| (c.critic_attention(), c.actor_attention()))
+    }
+
+    /// CARE's network `net` (`None` without CARE or for an expert index out of range); its
+    /// optimiser state and target are left as they are.
+    pub fn care_net_mut(&mut self, net: care::CareNet) -> Option<&mut Mlp<T>> {
+        self.care.as_mut().and_then(|c| c.net_mut(net))
+    }
+
+    /// The gradient of CARE's network `net` from the last [`Sac::compute_gradients`] (after
+    /// [`Sac::update`], clipped): experts, critics' attention and task encoder from the
+    /// critics' loss, the actor's attention from the actor's loss.
+    pub fn care_gradient(&self, net: care::CareNet) -> Option<&[T]> {
+        self.care.as_ref().and_then(|c| c.gradient(net))
+    }
+
     /// The shape of the policy, for building an inference [`crate::Policy`].
     pub fn policy_spec(&self) -> PolicySpec {
         PolicySpec::from_config(&self.config)
@@ -396,9 +529,36 @@ impl<T: Float> Sac<T> {
     fn clip_gradients(&mut self) -> (f64, f64) {
         let max = self.config.max_grad_norm;
         let bound = if max > 0.0 { max } else { f64::INFINITY };
+        if self.care.is_some() {
+            return self.clip_care_gradients(bound);
+        }
         let actor = clip_global_norm(&mut [&mut self.policy_grads[..]], bound);
         let [c1, c2] = &mut self.critics;
         let critic = clip_global_norm(&mut [&mut c1.grads[..], &mut c2.grads[..]], bound);
+        (actor, critic)
+    }
+
+    /// [`Self::clip_gradients`] with CARE: the actor's group also holds the actor's attention,
+    /// the critics' group the experts, the critics' attention and the task encoder.
+    fn clip_care_gradients(&mut self, bound: f64) -> (f64, f64) {
+        let care = self.care.as_mut().expect("called with CARE");
+        let actor =
+            (care::sq_norm(&self.policy_grads) + care::sq_norm(care.actor_grads_mut())).sqrt();
+        let [c1, c2] = &mut self.critics;
+        let critic =
+            (care::sq_norm(&c1.grads) + care::sq_norm(&c2.grads) + care.critic_grad_sq_norm())
+                .sqrt();
+        if actor.is_finite() && actor > bound {
+            let scale = T::of(bound / actor);
+            self.policy_grads.iter_mut().for_each(|v| *v *= scale);
+            care.actor_grads_mut().iter_mut().for_each(|v| *v *= scale);
+        }
+        if critic.is_finite() && critic > bound {
+            let scale = T::of(bound / critic);
+            c1.grads.iter_mut().for_each(|v| *v *= scale);
+            c2.grads.iter_mut().for_each(|v| *v *= scale);
+            care.scale_critic_grads(scale);
+        }
         (actor, critic)
     }
 
@@ -453,7 +613,11 @@ impl<T: Float> Sac<T> {
         // Policy on s' (rows 0..B) and s (rows B..2B), then reparameterised samples.
         let pw = cfg.policy_input();
         let pin = self.policy_cache.input_mut(0..2 * b);
-        for i in 0..b {
+        if let Some(care) = &mut self.care {
+            care.forward(&batch.obs, &batch.next_obs, &batch.task_ids, par);
+            pin.copy_from_slice(&care.front_policy[..2 * b * pw]);
+        }
+        for i in (0..b).filter(|_| self.care.is_none()) {
             let task = batch.task_ids[i] as usize;
             write_input(
                 &mut pin[i * pw..(i + 1) * pw],
@@ -473,6 +637,7 @@ impl<T: Float> Sac<T> {
         // The policy on s' and s while the critics run on (s, a) of the batch (on one thread
         // each with a pool: the three are independent).
         let critic_par = if parallel { Par::Seq } else { par };
+        let care_critic = self.care.as_ref().map(|c| &c.front_critic[..b * pw]);
         if parallel {
             let (policy, policy_cache, critics) =
                 (&self.policy, &mut self.policy_cache, &mut self.critics);
@@ -483,13 +648,15 @@ impl<T: Float> Sac<T> {
                 },
                 || {
                     clear_upper_state();
-                    both(critics, false, |c| c.forward_replay(cfg, batch, Par::Seq));
+                    both(critics, false, |c| {
+                        c.forward_replay(cfg, batch, care_critic, Par::Seq)
+                    });
                 },
             );
         } else {
             self.policy.forward(&mut self.policy_cache, 2 * b, par);
             both(&mut self.critics, false, |c| {
-                c.forward_replay(cfg, batch, par)
+                c.forward_replay(cfg, batch, care_critic, par)
             });
         }
         let (eps, pi_actions, log_prob) = (
@@ -510,8 +677,12 @@ impl<T: Float> Sac<T> {
 
         // Both critics: targets on (s', a'), critics on (s, ã).
         let pi_actions = &self.pi_actions[..2 * b * a];
+        let care_fronts = self
+            .care
+            .as_ref()
+            .map(|c| (&c.front_critic[..b * pw], &c.front_target[..b * pw]));
         both(&mut self.critics, parallel, |c| {
-            c.forward_policy(cfg, batch, pi_actions, critic_par)
+            c.forward_policy(cfg, batch, pi_actions, care_fronts, critic_par)
         });
 
         // Targets and the gradients of all losses w.r.t. the critic outputs.
@@ -580,12 +751,13 @@ impl<T: Float> Sac<T> {
         both(&mut self.critics, parallel, |c| {
             c.backward(cfg, b, critic_par)
         });
-        let act_cols = od + nt..cfg.critic_input();
+        let act_cols = pw..cfg.critic_input();
         let qw = cfg.critic_input();
+        self.care_backward_critic(batch, par);
         for i in 0..b {
             let g1 = &self.critics[0].cache.grad_input(b + i..b + i + 1)[act_cols.clone()];
             let g2 = &self.critics[1].cache.grad_input(b + i..b + i + 1)[act_cols.clone()];
-            debug_assert_eq!(g1.len() + od + nt, qw);
+            debug_assert_eq!(g1.len() + pw, qw);
             for j in 0..a {
                 self.d_actions[i * a + j] = g1[j] + g2[j];
             }
@@ -601,13 +773,22 @@ impl<T: Float> Sac<T> {
             a,
             d_head,
         );
+        // With CARE the actor's loss also trains the actor's attention (through the mixture
+        // columns; the experts' outputs and the task encoding are detached for the actor).
+        let features = self.config.care.as_ref().map_or(0, |c| c.feature_dim);
+        let policy_input_grad = if features > 0 {
+            InputGrad::Cols(0..features)
+        } else {
+            InputGrad::None
+        };
         self.policy.backward(
             &mut self.policy_cache,
             b..2 * b,
             Some(&mut self.policy_grads),
-            InputGrad::None,
+            policy_input_grad,
             par,
         );
+        self.care_backward_actor(batch, par);
 
         for (network, g) in [
             ("policy", &self.policy_grads),
@@ -619,7 +800,41 @@ impl<T: Float> Sac<T> {
                 return Err(SacError::NonFiniteGradient { network });
             }
         }
+        if let Some(network) = self.care.as_ref().and_then(|c| c.non_finite_gradient()) {
+            return Err(SacError::NonFiniteGradient { network });
+        }
         Ok(stats)
+    }
+
+    /// CARE: the critics' loss into the encoder, from both critics' gradients w.r.t. their
+    /// front columns (rows `0..B`, written by [`Critic::backward`]).
+    fn care_backward_critic(&mut self, batch: &Batch, par: Par) {
+        let Some(care) = &mut self.care else { return };
+        let (b, pw) = (batch.len(), self.config.policy_input());
+        for i in 0..b {
+            let g1 = &self.critics[0].cache.grad_input(i..i + 1)[..pw];
+            let g2 = &self.critics[1].cache.grad_input(i..i + 1)[..pw];
+            for ((d, &x), &y) in self.d_front[i * pw..(i + 1) * pw]
+                .iter_mut()
+                .zip(g1)
+                .zip(g2)
+            {
+                *d = x + y;
+            }
+        }
+        care.backward_critic(&batch.task_ids, &self.d_front[..b * pw], par);
+    }
+
+    /// CARE: the actor's loss into the actor's attention, from the policy's gradient w.r.t.
+    /// the mixture columns of its input on `s` (rows `B..2B`).
+    fn care_backward_actor(&mut self, batch: &Batch, par: Par) {
+        let Some(care) = &mut self.care else { return };
+        let (b, features) = (batch.len(), care.cfg.feature_dim);
+        for i in 0..b {
+            self.d_features[i * features..(i + 1) * features]
+                .copy_from_slice(&self.policy_cache.grad_input(b + i..b + i + 1)[..features]);
+        }
+        care.backward_actor(&batch.task_ids, &self.d_features[..b * features], par);
     }
 
     /// Steps all optimisers with the gradients of the last computation and moves the targets.
@@ -643,6 +858,9 @@ impl<T: Float> Sac<T> {
             policy_adam.step(&mut policy.params, policy_grads);
         }
         self.alpha_adam.step(&mut self.log_alpha, &self.alpha_grads);
+        if let Some(care) = &mut self.care {
+            care.step();
+        }
         self.updates += 1;
     }
 
@@ -655,20 +873,27 @@ impl<T: Float> Sac<T> {
             + q.forward_flops(2 * b)
             + q.backward_flops(b, true, 0)
             + q.backward_flops(b, false, self.config.act_dim);
-        policy + 2 * critic
+        policy + 2 * critic + self.care.as_ref().map_or(0, |c| c.update_flops(b))
     }
 
     /// Policy weights as flat `f32` in the [`Mlp`] layout (per layer `weight [out, in]`, bias),
     /// for broadcasting to actors ([`crate::Policy::set_params`]).
     pub fn policy_params_f32(&self) -> Vec<f32> {
-        self.policy.params.iter().map(|v| v.f32()).collect()
+        let mut out: Vec<f32> = self.policy.params.iter().map(|v| v.f32()).collect();
+        if let Some(care) = &self.care {
+            care.policy_params_f32(&mut out);
+        }
+        out
     }
 
     /// Policy weights as named `f32` tensors `policy.{layer}.weight|bias`.
     pub fn policy_tensors(&self) -> Vec<Tensor> {
         let mut out = Vec::new();
-        self.policy
-            .export_values(names::POLICY, &self.policy_params_f32(), &mut out);
+        let head: Vec<f32> = self.policy.params.iter().map(|v| v.f32()).collect();
+        self.policy.export_values(names::POLICY, &head, &mut out);
+        if let Some(care) = &self.care {
+            care.policy_tensors(&mut out);
+        }
         out
     }
 
@@ -706,6 +931,9 @@ impl<T: Float> Sac<T> {
             vec![2],
             &[self.updates as i64, self.rejected_batches as i64],
         ));
+        if let Some(care) = &self.care {
+            care.checkpoint_tensors(&mut t);
+        }
         let mut meta = BTreeMap::new();
         meta.insert("format".to_string(), "pt".to_string());
         meta.insert("terl.sac_config".to_string(), self.config.to_toml());
@@ -742,6 +970,10 @@ impl<T: Float> Sac<T> {
         let mut alpha_adam = self.alpha_adam.clone();
         alpha_adam.import("log_alpha_adam", file)?;
         let counters = file.i64_values("counters", &[2])?;
+        let care = match &self.care {
+            Some(c) => Some(c.restore(file)?),
+            None => None,
+        };
         let rng = match (
             file.metadata.get("terl.rng_seed"),
             file.metadata.get("terl.rng_word_pos"),
@@ -771,6 +1003,9 @@ impl<T: Float> Sac<T> {
         }
         self.log_alpha = log_alpha;
         self.alpha_adam = alpha_adam;
+        if care.is_some() {
+            self.care = care;
+        }
         self.updates = counters[0].max(0) as u64;
         self.rejected_batches = counters[1].max(0) as u64;
         if let Some(rng) = rng {

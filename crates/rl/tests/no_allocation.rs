@@ -35,6 +35,25 @@ fn sac_and_tep_updates_allocate_nothing_after_warm_up() {
     assert_eq!(info.count_total, 0, "SAC update allocated: {info:?}");
     assert_eq!(sac.updates(), 8);
 
+    // The same with CARE's encoder in front of the heads.
+    let care_cfg = SacConfig {
+        care: Some(terl_rl::CareConfig {
+            context: terl_rl::CareContext::OneHot,
+            ..terl_rl::CareConfig::default()
+        }),
+        ..cfg.clone()
+    };
+    let mut care: Sac<f32> = Sac::new(care_cfg).unwrap();
+    for _ in 0..3 {
+        care.update(&batch).unwrap();
+    }
+    let info = allocation_counter::measure(|| {
+        for _ in 0..5 {
+            care.update(&batch).unwrap();
+        }
+    });
+    assert_eq!(info.count_total, 0, "CARE update allocated: {info:?}");
+
     let tcfg = TepConfig {
         obs_dim: 39,
         act_dim: 4,

@@ -22,14 +22,19 @@ pub enum Algorithm {
     Mtsac,
     /// MTSAC plus PTR selection, the TEP planner and guidance (`"terl"`).
     Terl,
+    /// SAC behind CARE's context-based encoder (`"care"`, [`terl_rl::care`]): the same
+    /// learner, replay and heads as MTSAC, the input `[mixture of state encoders under task
+    /// attention, task encoding]`; settings under `[sac.care]` (default: CARE's MT10 ones).
+    Care,
 }
 
 impl Algorithm {
-    /// Its name as in the run file (`algorithm = "..."`): `"mtsac"` or `"terl"`.
+    /// Its name as in the run file (`algorithm = "..."`): `"mtsac"`, `"terl"` or `"care"`.
     pub fn as_str(self) -> &'static str {
         match self {
             Self::Mtsac => "mtsac",
             Self::Terl => "terl",
+            Self::Care => "care",
         }
     }
 }
@@ -431,8 +436,18 @@ impl RunConfig {
     pub fn load(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("cannot read config {}", path.display()))?;
-        let cfg: Self =
+        let mut cfg: Self =
             toml::from_str(&text).with_context(|| format!("invalid config {}", path.display()))?;
+        match (cfg.algorithm, &cfg.sac.care) {
+            (Algorithm::Care, None) => cfg.sac.care = Some(terl_rl::CareConfig::default()),
+            (Algorithm::Care, Some(_)) => {}
+            (other, Some(_)) => anyhow::bail!(
+                "[sac.care] is set but algorithm = \"{}\": CARE's encoder needs \
+                 algorithm = \"care\"",
+                other.as_str()
+            ),
+            (_, None) => {}
+        }
         anyhow::ensure!(
             (1..=MAX_NUM_ENVS).contains(&cfg.num_envs),
             "num_envs must be in 1..={MAX_NUM_ENVS} (got {})",
@@ -563,10 +578,27 @@ impl RunConfig {
              has no planner)"
         );
         anyhow::ensure!(
-            !c.reproducible || cfg.algorithm == Algorithm::Mtsac,
-            "cluster.reproducible = true needs algorithm = \"mtsac\": TERL's selected samples \
-             reach the learner from the selector asynchronously"
+            !c.reproducible || cfg.algorithm != Algorithm::Terl,
+            "cluster.reproducible = true needs algorithm = \"mtsac\" or \"care\": TERL's \
+             selected samples reach the learner from the selector asynchronously"
         );
+        if let Some(care) = &cfg.sac.care {
+            care.validate()
+                .map_err(|e| anyhow::anyhow!("[sac.care] in {}: {e}", path.display()))?;
+            if care.context == terl_rl::CareContext::TaskEmbeddings {
+                if let Ok(tasks) = crate::resolve_tasks(&cfg.tasks) {
+                    if let Some(t) = tasks
+                        .iter()
+                        .find(|t| terl_rl::care::task_embedding(t).is_none())
+                    {
+                        anyhow::bail!(
+                            "[sac.care] context = \"task_embeddings\": task `{t}` has no \
+                             published description embedding (use context = \"one_hot\")"
+                        );
+                    }
+                }
+            }
+        }
         anyhow::ensure!(
             c.policy_lag_rounds <= MAX_POLICY_LAG_ROUNDS,
             "cluster.policy_lag_rounds must be at most {MAX_POLICY_LAG_ROUNDS} (got {})",
@@ -597,11 +629,32 @@ impl RunConfig {
     /// and `planner` (TEP's F and AN). `u64::MAX` stands for a size that overflows.
     pub fn weight_message_bytes(&self, num_tasks: usize) -> Vec<(&'static str, u64)> {
         let sac = &self.sac;
-        let policy = widths(
-            sac.obs_dim.saturating_add(num_tasks),
-            &sac.policy_hidden,
-            sac.act_dim.saturating_mul(2),
-        );
+        let front = match &sac.care {
+            Some(c) => c.front_dim(),
+            None => sac.obs_dim.saturating_add(num_tasks),
+        };
+        let policy = widths(front, &sac.policy_hidden, sac.act_dim.saturating_mul(2));
+        // CARE's policy message also carries the experts, the actor's attention, the task
+        // encoder (two tensors each per layer) and the context table.
+        let care_extra = sac.care.as_ref().map_or(0u64, |c| {
+            let values = terl_rl::PolicySpec {
+                obs_dim: sac.obs_dim,
+                act_dim: sac.act_dim,
+                num_tasks,
+                hidden: vec![],
+                care: Some(c.clone()),
+            }
+            .checked_num_params()
+            .map_or(u64::MAX, |n| n as u64);
+            let layers = (c.num_experts * (c.expert_hidden.len() + 1)
+                + c.gate_hidden.len()
+                + 1
+                + c.context_hidden.len()
+                + 1) as u64;
+            values
+                .saturating_mul(4)
+                .saturating_add((2 * layers + 1) * TENSOR_OVERHEAD_BYTES)
+        });
         let critic = widths(
             sac.obs_dim
                 .saturating_add(num_tasks)
@@ -631,7 +684,11 @@ impl RunConfig {
         out.into_iter()
             .map(|(kind, nets)| {
                 let bytes = mlp_message_bytes(&nets).unwrap_or(u64::MAX);
-                let extra = if kind == "planner" { gate_bytes } else { 0 };
+                let extra = match kind {
+                    "planner" => gate_bytes,
+                    "policy" => care_extra,
+                    _ => 0,
+                };
                 (kind, bytes.saturating_add(extra))
             })
             .collect()

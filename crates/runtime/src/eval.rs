@@ -149,6 +149,31 @@ impl TaskEncoding {
     }
 }
 
+/// The task part of the policy's input for `task`: its [`TaskEncoding`] over the trained
+/// tasks, or with CARE ([`terl_rl::care`]) a context row: a trained task's own row of the
+/// policy's context table, and for a task it was not trained on under task-description
+/// context that task's own published description embedding (CARE's way to a new task; the
+/// unseen-task setting then does not apply), else the encoding over the one-hot rows.
+pub fn encoding_row(policy: &Policy, task: &EvalTask) -> Vec<f32> {
+    let spec = policy.spec();
+    let nt = spec.num_tasks;
+    if let Some(care) = &spec.care {
+        if let TaskEncoding::OneHot(i) = task.encoding {
+            if let Some(row) = policy.care_context(i) {
+                return row.to_vec();
+            }
+        }
+        if care.context == terl_rl::CareContext::TaskEmbeddings {
+            if let Some(e) = terl_rl::care::task_embedding(task.name) {
+                return e.iter().map(|v| v.max(0.0)).collect();
+            }
+        }
+    }
+    let mut row = vec![0.0f32; nt];
+    task.encoding.write(&mut row);
+    row
+}
+
 /// One task to evaluate and the task vector the policy sees for it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct EvalTask {
@@ -598,9 +623,8 @@ fn run_chunk(
     observe: &mut Observer<'_>,
 ) -> Result<Vec<Episode>, EvalError> {
     let m = range.len();
-    let nt = policy.spec().num_tasks;
-    let mut enc_row = vec![0.0f32; nt];
-    task.encoding.write(&mut enc_row);
+    let enc_row = encoding_row(policy, task);
+    let nt = enc_row.len();
     let mut obs = vec![0.0f32; m * OBS_DIM];
     for (j, k) in range.enumerate() {
         let o = pool[j].reset(&variations[k % variations.len()])?;
@@ -849,6 +873,7 @@ mod tests {
                 act_dim: ACTION_DIM,
                 num_tasks,
                 hidden: vec![16],
+                care: None,
             },
             1,
         )
@@ -941,6 +966,7 @@ mod tests {
                 act_dim: ACTION_DIM,
                 num_tasks: 1,
                 hidden: vec![4],
+                care: None,
             },
             1,
         );

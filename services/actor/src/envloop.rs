@@ -589,6 +589,7 @@ pub(crate) fn run<T: ServiceTransport>(
         act_dim: ACTION_DIM,
         num_tasks: tasks.len(),
         hidden: run.sac.policy_hidden.clone(),
+        care: run.sac.care.clone(),
     };
     // TERL guidance (Eq. 15); `N` counts episodes since the first planner version, the actor's
     // or each environment's (`[guidance] episode_counter`).

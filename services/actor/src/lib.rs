@@ -208,7 +208,7 @@ async fn run_in_span<T: terl_transport::ServiceTransport>(
     );
     let mailbox = Arc::new(Mailbox::default());
     let kinds = match config.run.algorithm {
-        Algorithm::Mtsac => vec![WeightsKind::Policy],
+        Algorithm::Mtsac | Algorithm::Care => vec![WeightsKind::Policy],
         Algorithm::Terl => vec![WeightsKind::Policy, WeightsKind::Planner],
     };
     let (claimed_tx, claimed_rx) = tokio::sync::oneshot::channel();

@@ -60,6 +60,7 @@ impl ActorLoop {
             act_dim: ACTION_DIM,
             num_tasks: all_tasks.len(),
             hidden: policy_hidden.to_vec(),
+            care: None,
         };
         let sigma = GuidanceConfig::default().sigma;
         let guide = match planner {

@@ -95,7 +95,8 @@ pub fn run(args: TrainArgs) -> Result<std::process::ExitCode> {
         tasks.len() * cfg.eval_envs_per_task,
         cfg.variation_seed,
     )?;
-    let mut sac = Sac::new(cfg.sac.clone())?;
+    let task_names: Vec<String> = tasks.iter().map(|t| t.to_string()).collect();
+    let mut sac = Sac::for_tasks(cfg.sac.clone(), &task_names)?;
     eprintln!(
         "training {} task(s) [{}] with {} envs, {} env steps; run folder {}",
         tasks.len(),

@@ -348,10 +348,11 @@ impl<'a> Trainer<'a> {
         let start = Instant::now();
         let mut c = Counters::new(nt, run.train.success_window, start);
         c.standalone_updates_per_second = shared.standalone_updates_per_second;
+        let task_names: Vec<String> = tasks.iter().map(|t| t.to_string()).collect();
         let mut m = Model {
             tasks,
             algorithm: run.algorithm,
-            sac: Sac::new(sac_config.clone())?,
+            sac: Sac::for_tasks(sac_config.clone(), &task_names)?,
             planner,
             rng: ChaCha8Rng::seed_from_u64(run.train.seed ^ 0x1ea7_7e55),
             publisher: Publisher::new(

@@ -529,7 +529,7 @@ async fn run_in_span<T: ServiceTransport>(
     span: tracing::Span,
 ) -> anyhow::Result<()> {
     anyhow::ensure!(
-        config.run.algorithm == Algorithm::Mtsac || config.learner_addr.is_some(),
+        config.run.algorithm != Algorithm::Terl || config.learner_addr.is_some(),
         "algorithm = \"terl\" needs the learner's address (--learner-addr): PTR scoring follows \
          its policy and critic weights"
     );
