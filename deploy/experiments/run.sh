@@ -32,7 +32,9 @@
 #                                    in deploy/configs/experiments/ and deploy/configs/mt10*.toml
 #                                    name them; smoke is the scripts' own quick check)
 #   --seeds "1 2"                    training seeds (default "1 2")
-#   --algorithms "mtsac terl"        (default both)
+#   --algorithms "mtsac terl care"   any of mtsac, terl and care (CARE, the paper's third row;
+#                                    [sac.care] of the base file or CARE's MT10 defaults);
+#                                    default "mtsac terl"
 #   --tasks "door-open-v3 ..."       mt1-ind only: a subset of its tasks
 #   --steps N                        override every run's env-step budget
 #   --actors N                       actors per run (default: cores - 1, at least 1)
@@ -54,10 +56,11 @@
 #   --learner-threads N|auto         every run's [sac] threads (the learner's cores; default: the
 #                                    base run file's, "auto" at workstation and paper scale); use
 #                                    it with --tag, the run id does not name it
-#   --mode reproducible|asynchronous MTSAC runs with [cluster] reproducible = true (the default:
-#                                    the same seed gives the same run bit for bit, at about 10 %
-#                                    more wall time on MT10 workstation) or asynchronous; TERL
-#                                    runs are asynchronous (docs/cluster.md#reproducible-runs)
+#   --mode reproducible|asynchronous MTSAC and CARE runs with [cluster] reproducible = true (the
+#                                    default: the same seed gives the same run bit for bit, at
+#                                    about 10 % more wall time on MT10 workstation) or
+#                                    asynchronous; TERL runs are asynchronous
+#                                    (docs/cluster.md#reproducible-runs)
 # A run whose eval-final.json exists is skipped, so an interrupted experiment resumes where it
 # stopped (a run stopped mid-way starts again from scratch). A run whose id is held by running
 # processes is not touched. A failed run does not stop the others; the script then exits 1.
@@ -116,7 +119,7 @@ done
 case "$scale" in workstation|paper|smoke) ;; *) echo "--scale must be workstation, paper or smoke" >&2; exit 2 ;; esac
 case "$mode" in reproducible|asynchronous) ;; *) echo "--mode must be reproducible or asynchronous" >&2; exit 2 ;; esac
 for a in $algorithms; do
-    case "$a" in mtsac|terl) ;; *) echo "unknown algorithm $a (mtsac or terl)" >&2; exit 2 ;; esac
+    case "$a" in mtsac|terl|care) ;; *) echo "unknown algorithm $a (mtsac, terl or care)" >&2; exit 2 ;; esac
 done
 [ -n "${seeds// /}" ] || { echo "--seeds needs at least one seed" >&2; exit 2; }
 [ -n "${algorithms// /}" ] || { echo "--algorithms needs at least one algorithm" >&2; exit 2; }
@@ -200,7 +203,7 @@ run_config() {
             edits+=(-e "s/^\\[sac\\]\$/[sac]\\nthreads = $t/")
         fi
     fi
-    if [ "$alg" = mtsac ] && [ "$mode" = reproducible ]; then
+    if [ "$alg" != terl ] && [ "$mode" = reproducible ]; then
         edits+=(-e '/^reproducible *=/d')
         if grep -q '^\[cluster\]$' "$base"; then
             edits+=(-e 's/^\[cluster\]$/[cluster]\nreproducible = true/')

@@ -1055,6 +1055,16 @@ pub fn random_batch(cfg: &SacConfig, seed: u64) -> Batch {
     batch
 }
 
+/// A learner of `config`'s shape for timing: with CARE, a context table of the right shape
+/// whatever the tasks (the cost does not depend on its values).
+pub fn timing_learner(config: &SacConfig) -> Result<Sac<f32>, SacError> {
+    let table = config.care.as_ref().map(|c| {
+        let n = config.num_tasks * c.context_dim(config.num_tasks);
+        (0..n).map(|i| ((i % 7) as f32) * 0.05).collect::<Vec<f32>>()
+    });
+    Sac::with_context(config.clone(), table.as_deref())
+}
+
 /// Updates per second of a learner of `config`'s shape running alone: a fresh [`Sac`] (same
 /// networks, batch size and update threads; its own thread pool) on a [`random_batch`]: one
 /// warm-up update, then updates back to back until `seconds` have passed (at least one). This is
@@ -1066,7 +1076,7 @@ pub fn random_batch(cfg: &SacConfig, seed: u64) -> Batch {
 /// # Errors
 /// The config's validation errors, or a failed update (none is expected on random data).
 pub fn standalone_update_rate(config: &SacConfig, seconds: f64) -> Result<f64, SacError> {
-    let mut sac: Sac<f32> = Sac::new(config.clone())?;
+    let mut sac = timing_learner(config)?;
     let batch = random_batch(config, config.seed ^ 0x5ca1_ab1e);
     let warm_up = std::time::Instant::now();
     sac.update(&batch)?;

@@ -53,7 +53,7 @@ pub struct RunEval {
     pub dir: PathBuf,
     /// Experiment name (grouping key): the run file's `experiment`, else its `tasks`.
     pub experiment: String,
-    /// `"mtsac"` or `"terl"`, followed by the run file's `variant` in parentheses if set.
+    /// `"mtsac"`, `"terl"` or `"care"`, followed by the run file's `variant` in parentheses if set.
     pub algorithm: String,
     /// The run's training seed (`[train] seed`).
     pub seed: u64,
@@ -298,6 +298,10 @@ pub fn paper_success(experiment: &str, algorithm: &str) -> Option<f64> {
         ("mt-test", "terl") => 19.4,
         ("mt20", "mtsac") => 63.4,
         ("mt20", "terl") => 68.8,
+        ("mt1-ind", "care") => 95.2,
+        ("mt10", "care") => 75.6,
+        ("mt-test", "care") => 23.4,
+        ("mt20", "care") => 64.6,
         _ => return None,
     };
     Some(v)
