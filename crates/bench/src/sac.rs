@@ -83,6 +83,21 @@ pub struct SacBenchReport {
     pub gemm_square_gflops: f64,
     /// Mean latency of one stochastic `Policy::act` on 8 observations (one thread).
     pub inference_batch8_us: f64,
+    /// CARE's update at the same head sizes, batch and threads (its MT10 encoder settings,
+    /// [`terl_rl::CareConfig::default`]), timed alternately with MTSAC's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub care: Option<CareRate>,
+}
+
+/// CARE's update rate beside MTSAC's, both timed in the same alternating slices.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CareRate {
+    /// CARE updates per second.
+    pub updates_per_s: f64,
+    /// MTSAC updates per second in the same slices.
+    pub mtsac_updates_per_s: f64,
+    /// `updates_per_s / mtsac_updates_per_s`.
+    pub relative_to_mtsac: f64,
 }
 
 impl SacBenchConfig {
@@ -144,6 +159,7 @@ pub fn sac_bench(config: &SacBenchConfig) -> Result<SacBenchReport, SacError> {
     });
     let inference_batch8_us =
         inference_latency_us(&sac, 8, (config.seconds / 10.0).clamp(0.2, 1.0))?;
+    let care = care_rate(&cfg, &mut sac, &batch, config.seconds / 2.0)?;
 
     Ok(SacBenchReport {
         implementation: "terl-rust-faer".to_string(),
@@ -158,6 +174,46 @@ pub fn sac_bench(config: &SacBenchConfig) -> Result<SacBenchReport, SacError> {
         gemm_efficiency: achieved_gflops / gemm_gflops,
         gemm_square_gflops,
         inference_batch8_us,
+        care: Some(care),
+    })
+}
+
+/// CARE's and MTSAC's update rates at the same sizes, timed in alternating slices for
+/// `seconds` each (at least 3 updates each).
+fn care_rate(
+    cfg: &SacConfig,
+    mtsac: &mut Sac<f32>,
+    batch: &terl_rl::Batch,
+    seconds: f64,
+) -> Result<CareRate, SacError> {
+    let mut care = terl_rl::sac::timing_learner(&SacConfig {
+        care: Some(terl_rl::CareConfig::default()),
+        ..cfg.clone()
+    })?;
+    care.update(batch)?;
+    let slice = (seconds / 10.0).clamp(0.05, 0.5);
+    let timed = |sac: &mut Sac<f32>, spent: &mut f64, n: &mut u64| -> Result<(), SacError> {
+        let start = Instant::now();
+        loop {
+            sac.update(batch)?;
+            *n += 1;
+            if start.elapsed().as_secs_f64() >= slice {
+                break;
+            }
+        }
+        *spent += start.elapsed().as_secs_f64();
+        Ok(())
+    };
+    let (mut care_s, mut care_n, mut mtsac_s, mut mtsac_n) = (0.0, 0u64, 0.0, 0u64);
+    while care_s < seconds || care_n < 3 || mtsac_n < 3 {
+        timed(&mut care, &mut care_s, &mut care_n)?;
+        timed(mtsac, &mut mtsac_s, &mut mtsac_n)?;
+    }
+    let (c, m) = (care_n as f64 / care_s, mtsac_n as f64 / mtsac_s);
+    Ok(CareRate {
+        updates_per_s: c,
+        mtsac_updates_per_s: m,
+        relative_to_mtsac: c / m,
     })
 }
 

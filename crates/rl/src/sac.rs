@@ -1060,7 +1060,9 @@ pub fn random_batch(cfg: &SacConfig, seed: u64) -> Batch {
 pub fn timing_learner(config: &SacConfig) -> Result<Sac<f32>, SacError> {
     let table = config.care.as_ref().map(|c| {
         let n = config.num_tasks * c.context_dim(config.num_tasks);
-        (0..n).map(|i| ((i % 7) as f32) * 0.05).collect::<Vec<f32>>()
+        (0..n)
+            .map(|i| ((i % 7) as f32) * 0.05)
+            .collect::<Vec<f32>>()
     });
     Sac::with_context(config.clone(), table.as_deref())
 }

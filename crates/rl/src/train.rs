@@ -201,7 +201,7 @@ impl PolicySource for TrainPolicy<'_, '_> {
         if self.acting {
             let sac = self.sac.borrow();
             self.policy
-                .set_params(&sac.policy_net().params, sac.updates())?;
+                .set_params(&sac.policy_params_f32(), sac.updates())?;
         }
         Ok(Flow::Continue)
     }
@@ -308,7 +308,7 @@ where
         self.next_eval = self.next_eval.saturating_add(config.eval_every_env_steps);
         self.eval_round += 1;
         self.eval_policy
-            .set_params(&sac.policy_net().params, sac.updates())?;
+            .set_params(&sac.policy_params_f32(), sac.updates())?;
         let eval_seed = config.seed.wrapping_add(1_000_003 * self.eval_round);
         let eval = evaluate(
             &mut self.eval_policy,
@@ -368,7 +368,7 @@ pub fn train<E: VecEnvironment, V: VecEnvironment>(
     let start = Instant::now();
     let mut policy = Policy::new(sac.policy_spec(), n);
     let eval_policy = Policy::new(sac.policy_spec(), eval_env.num_envs());
-    policy.set_params(&sac.policy_net().params, sac.updates())?;
+    policy.set_params(&sac.policy_params_f32(), sac.updates())?;
     let sac = RefCell::new(sac);
     let mut source = TrainPolicy {
         sac: &sac,

@@ -15,11 +15,16 @@ fn tag() -> String {
 }
 
 fn run_experiment(root: &Path, runs: &Path, experiment: &str) -> String {
+    run_experiment_with(root, runs, experiment, &[])
+}
+
+fn run_experiment_with(root: &Path, runs: &Path, experiment: &str, extra: &[&str]) -> String {
     let out = Command::new(root.join("deploy/experiments/run.sh"))
         .current_dir(root)
         .args([
             experiment, "--scale", "smoke", "--seeds", "1", "--actors", "1",
         ])
+        .args(extra)
         .args(["--no-build", "--runs-root", runs.to_str().unwrap()])
         // Run ids are machine-wide (shared-memory names): a tag keeps these apart from any
         // experiment running on the same machine.
@@ -80,6 +85,15 @@ fn experiment_scripts_train_evaluate_and_report() {
 
     let log = run_experiment(&root, runs, "mt10");
     assert!(log.contains("mt10-terl-from-mt1-ind-s1"), "{log}");
+    // CARE, the third row of Table I, through the same command, cluster and evaluation.
+    run_experiment_with(&root, runs, "mt10", &["--algorithms", "care"]);
+    let care = runs.join(format!("mt10-care-s1{}", tag()));
+    assert!(
+        care.join("eval-final.json").is_file(),
+        "CARE: no final evaluation"
+    );
+    let care_cfg = std::fs::read_to_string(care.join("config.toml")).unwrap();
+    assert!(care_cfg.contains("algorithm = \"care\""), "{care_cfg}");
     let from = runs.join(format!("mt10-terl-from-mt1-ind-s1{}", tag()));
     let learner = std::fs::read_to_string(from.join("learner.log")).unwrap();
     assert!(
@@ -171,6 +185,8 @@ fn experiment_scripts_train_evaluate_and_report() {
         "| mt10 | terl |",
         "| mt10 | terl (from-mt1-ind) |",
         "| mt-test | mtsac |",
+        "| mt10 | care |",
+        "| mt-test | care |",
     ] {
         assert!(md.contains(row), "no row {row} in\n{md}");
     }
