@@ -748,8 +748,10 @@ impl PolicyCheckpoint {
 }
 
 /// The checkpoint a path names: a `.safetensors` file as is; a run directory (or its
-/// `checkpoints/` directory): the newest SAC checkpoint in it by modification time (the
-/// planner's `planner.safetensors` and temporaries are skipped).
+/// `checkpoints/` directory): its newest SAC checkpoint by name, `final.safetensors` first, then
+/// `latest.safetensors` (the single-process trainer's), then the highest `update-<N>`, file times
+/// breaking ties only among other names (a copy that does not keep file times resolves the
+/// same; the planner's `planner.safetensors` and temporaries are skipped).
 pub fn resolve_checkpoint(path: &std::path::Path) -> Result<std::path::PathBuf, EvalError> {
     let err = |reason: String| EvalError::Checkpoint {
         path: path.display().to_string(),
@@ -773,9 +775,21 @@ pub fn resolve_checkpoint(path: &std::path::Path) -> Result<std::path::PathBuf, 
             let name = e.file_name().to_string_lossy().into_owned();
             name.ends_with(".safetensors") && !name.starts_with("planner")
         })
-        .filter_map(|e| Some((e.metadata().ok()?.modified().ok()?, e.path())))
+        .filter_map(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let stem = name.trim_end_matches(".safetensors");
+            let rank = match stem {
+                "final" => (3, 0),
+                "latest" => (2, 0),
+                _ => match stem.strip_prefix("update-").map(str::parse::<u64>) {
+                    Some(Ok(n)) => (1, n),
+                    _ => (0, 0),
+                },
+            };
+            Some((rank, e.metadata().ok()?.modified().ok()?, e.path()))
+        })
         .max();
-    newest.map(|(_, p)| p).ok_or_else(|| {
+    newest.map(|(_, _, p)| p).ok_or_else(|| {
         err(format!(
             "no checkpoint (*.safetensors) in {}",
             dir.display()
@@ -865,6 +879,33 @@ pub fn load_policy_checkpoint(path: &std::path::Path) -> Result<PolicyCheckpoint
 mod tests {
     use super::*;
     use terl_rl::PolicySpec;
+
+    #[test]
+    fn a_run_folder_resolves_to_its_newest_checkpoint_by_name_not_file_time() {
+        let dir = tempfile::tempdir().unwrap();
+        let ck = dir.path().join("checkpoints");
+        std::fs::create_dir(&ck).unwrap();
+        let touch = |name: &str, age_s: u64| {
+            let p = ck.join(name);
+            std::fs::write(&p, b"").unwrap();
+            let t = std::time::SystemTime::now() - std::time::Duration::from_secs(age_s);
+            std::fs::File::options()
+                .write(true)
+                .open(&p)
+                .unwrap()
+                .set_modified(t)
+                .unwrap();
+        };
+        // A copy that did not keep file times: the older update is the newest file.
+        touch("update-0000000010.safetensors", 100);
+        touch("update-0000000002.safetensors", 1);
+        touch("planner.safetensors", 0);
+        let got = resolve_checkpoint(dir.path()).unwrap();
+        assert!(got.ends_with("update-0000000010.safetensors"), "{got:?}");
+        touch("final.safetensors", 500);
+        let got = resolve_checkpoint(dir.path()).unwrap();
+        assert!(got.ends_with("final.safetensors"), "{got:?}");
+    }
 
     fn policy(num_tasks: usize) -> Policy {
         Policy::new(

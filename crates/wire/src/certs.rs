@@ -19,6 +19,16 @@ pub enum CertError {
     /// No host names or addresses were given, or one is empty.
     #[error("certificates need at least one host name or IP address, none of them empty")]
     NoHosts,
+    /// A host is neither an IP address nor a valid DNS name (RFC 1035 letters, digits and
+    /// hyphens; labels of 1–63 characters; at most 253 in all), or the common name is longer
+    /// than X.509's 64 characters.
+    #[error("`{name}` is not usable in a certificate: {reason}")]
+    BadName {
+        /// The name as given.
+        name: String,
+        /// What is wrong with it.
+        reason: String,
+    },
     /// rcgen refused a name or failed to sign.
     #[error("cannot make the certificate: {0}")]
     Generate(#[from] rcgen::Error),
@@ -59,6 +69,15 @@ pub fn write_run_certificates(
     if hosts.is_empty() || hosts.iter().any(|h| h.trim().is_empty()) {
         return Err(CertError::NoHosts);
     }
+    for h in hosts {
+        check_host(h)?;
+    }
+    if common_name.is_empty() || common_name.chars().count() > 64 {
+        return Err(CertError::BadName {
+            name: common_name.to_string(),
+            reason: "a common name has 1 to 64 characters".into(),
+        });
+    }
     let mut ca_params = CertificateParams::new(Vec::<String>::new())?;
     ca_params.is_ca = IsCa::Ca(BasicConstraints::Constrained(0));
     ca_params.key_usages = vec![KeyUsagePurpose::KeyCertSign, KeyUsagePurpose::CrlSign];
@@ -90,15 +109,108 @@ pub fn write_run_certificates(
         cert: dir.join("cert.pem"),
         key: dir.join("key.pem"),
     };
-    write_file(&files.ca, &ca_cert.pem(), 0o644)?;
-    write_file(&files.cert, &cert.pem(), 0o644)?;
-    write_file(&files.key, &key.serialize_pem(), 0o600)?;
+    // All three are written beside their names first and renamed only when all are there, the
+    // key first: a failure leaves the folder's old set as it was and no temporary behind.
+    let mut parts = Vec::new();
+    for (path, text, mode) in [
+        (&files.key, key.serialize_pem(), 0o600),
+        (&files.cert, cert.pem(), 0o644),
+        (&files.ca, ca_cert.pem(), 0o644),
+    ] {
+        match write_part(path, &text, mode) {
+            Ok(part) => parts.push((part, path.clone())),
+            Err(e) => {
+                for (part, _) in &parts {
+                    let _ = std::fs::remove_file(part);
+                }
+                return Err(e);
+            }
+        }
+    }
+    // The old files stay reachable under a second name until all three new ones are in place.
+    let backup = |p: &Path| p.with_extension(format!("{}.old", std::process::id()));
+    let mut kept = Vec::new();
+    let undo = |parts: &[(PathBuf, PathBuf)], kept: &[PathBuf], replaced: &[PathBuf]| {
+        for (part, _) in parts {
+            let _ = std::fs::remove_file(part);
+        }
+        for path in replaced {
+            if kept.contains(path) {
+                let _ = std::fs::rename(backup(path), path);
+            }
+        }
+        for path in kept {
+            let _ = std::fs::remove_file(backup(path));
+        }
+    };
+    for (_, path) in &parts {
+        if std::fs::symlink_metadata(path).is_ok_and(|m| m.is_file()) {
+            if let Err(source) = std::fs::hard_link(path, backup(path)) {
+                undo(&parts, &kept, &[]);
+                return Err(CertError::Write {
+                    path: path.clone(),
+                    source,
+                });
+            }
+            kept.push(path.clone());
+        }
+    }
+    let mut replaced = Vec::new();
+    for (part, path) in &parts {
+        if let Err(source) = std::fs::rename(part, path) {
+            undo(&parts, &kept, &replaced);
+            return Err(CertError::Write {
+                path: path.clone(),
+                source,
+            });
+        }
+        replaced.push(path.clone());
+    }
+    for path in &kept {
+        let _ = std::fs::remove_file(backup(path));
+    }
     Ok(files)
 }
 
-/// Writes `text` to `<path>.<pid>.part` with `mode`, then renames it to `path`, so a reader
-/// never sees half a file and a key is never readable by others, even for a moment.
-fn write_file(path: &Path, text: &str, mode: u32) -> Result<(), CertError> {
+/// An IP address, or a DNS name of RFC 1035 labels (a leading `*.` wildcard allowed).
+fn check_host(h: &str) -> Result<(), CertError> {
+    let bad = |reason: &str| {
+        Err(CertError::BadName {
+            name: h.to_string(),
+            reason: reason.to_string(),
+        })
+    };
+    if h.parse::<std::net::IpAddr>().is_ok() {
+        return Ok(());
+    }
+    if h.len() > 253 {
+        return bad("a DNS name has at most 253 characters");
+    }
+    let labels: Vec<&str> = h.strip_prefix("*.").unwrap_or(h).split('.').collect();
+    if labels.iter().all(|l| l.chars().all(|c| c.is_ascii_digit())) {
+        return bad("neither an IP address nor a DNS name (all-digit labels)");
+    }
+    for l in labels {
+        if l.is_empty() || l.len() > 63 {
+            return bad("every dot-separated label of a DNS name has 1 to 63 characters");
+        }
+        if !l.chars().all(|c| c.is_ascii_alphanumeric() || c == '-') {
+            return bad(
+                "a DNS name has letters, digits, hyphens and dots only (no port, scheme, \
+                 brackets or spaces: give an address as 10.0.0.1 or ::1)",
+            );
+        }
+        if l.starts_with('-') || l.ends_with('-') {
+            return bad("a DNS label does not start or end with a hyphen");
+        }
+    }
+    Ok(())
+}
+
+/// Writes `text` to `<path>.<pid>.part` with `mode` (synced) and returns that path; the caller
+/// renames it to `path`, so a reader never sees half a file and a key is never readable by
+/// others, even for a moment. On error no temporary is left.
+fn write_part(path: &Path, text: &str, mode: u32) -> Result<PathBuf, CertError> {
     use std::io::Write;
     use std::os::unix::fs::OpenOptionsExt;
     let err = |source| CertError::Write {
@@ -113,16 +225,84 @@ fn write_file(path: &Path, text: &str, mode: u32) -> Result<(), CertError> {
         .mode(mode)
         .open(&part)
         .map_err(err)?;
-    file.write_all(text.as_bytes())
+    if let Err(e) = file
+        .write_all(text.as_bytes())
         .and_then(|()| file.sync_all())
-        .map_err(err)?;
-    std::fs::rename(&part, path).map_err(err)
+    {
+        let _ = std::fs::remove_file(&part);
+        return Err(err(e));
+    }
+    Ok(part)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use std::os::unix::fs::PermissionsExt;
+
+    #[test]
+    fn names_a_certificate_cannot_match_are_refused() {
+        let dir = std::env::temp_dir().join(format!("terl-certs-bad-{}", std::process::id()));
+        for bad in [
+            "10.0.0.1:50051",
+            "[::1]",
+            "https://h",
+            "a b",
+            "a\nb",
+            "999.1.1.1",
+            "-x.example",
+            "a..b",
+            &"x".repeat(64),
+            &format!("{}.example", "a.".repeat(130)),
+        ] {
+            let e = write_run_certificates(&dir, "terl run", &[bad.to_string()]).unwrap_err();
+            assert!(matches!(e, CertError::BadName { .. }), "{bad}: {e}");
+        }
+        let e = write_run_certificates(&dir, &"c".repeat(65), &["h".to_string()]).unwrap_err();
+        assert!(matches!(e, CertError::BadName { .. }), "{e}");
+        assert!(!dir.exists(), "nothing is written for a refused name");
+        for good in [
+            "terl-learner",
+            "*.svc.cluster.local",
+            "::1",
+            "10.0.0.1",
+            "a-1.b2",
+        ] {
+            check_host(good).unwrap();
+        }
+    }
+
+    #[test]
+    fn a_failed_write_keeps_the_old_set_and_leaves_no_temporary() {
+        let dir = std::env::temp_dir().join(format!("terl-certs-keep-{}", std::process::id()));
+        let hosts = vec!["h".to_string()];
+        let old = write_run_certificates(&dir, "terl run", &hosts).unwrap();
+        let before: Vec<String> = [&old.ca, &old.cert, &old.key]
+            .iter()
+            .map(|p| std::fs::read_to_string(p).unwrap())
+            .collect();
+        // cert.pem's name taken by a non-empty folder: its rename fails.
+        std::fs::remove_file(&old.cert).unwrap();
+        std::fs::create_dir_all(old.cert.join("x")).unwrap();
+        assert!(write_run_certificates(&dir, "terl run", &hosts).is_err());
+        assert_eq!(std::fs::read_to_string(&old.ca).unwrap(), before[0]);
+        assert_eq!(
+            std::fs::read_to_string(&old.key).unwrap(),
+            before[2],
+            "the key is put back"
+        );
+        let names: Vec<String> = std::fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        assert!(
+            names
+                .iter()
+                .all(|n| !n.ends_with(".part") && !n.ends_with(".old")),
+            "{names:?}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn writes_a_ca_a_certificate_and_a_private_key() {

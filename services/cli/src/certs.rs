@@ -31,6 +31,13 @@ pub fn run(args: CertsArgs) -> Result<ExitCode> {
     }
     let files = terl_wire::certs::write_run_certificates(&args.out, &args.common_name, &hosts)
         .with_context(|| format!("cannot make the certificates in {}", args.out.display()))?;
+    // Absolute paths: a run file is read by processes started from other folders.
+    let absolute = |p: PathBuf| std::fs::canonicalize(&p).unwrap_or(p);
+    let files = terl_wire::certs::RunCertificates {
+        ca: absolute(files.ca),
+        cert: absolute(files.cert),
+        key: absolute(files.key),
+    };
     eprintln!(
         "wrote {}, {} and {} (certificate for {}); the learner and selector need all three, \
          every other process of the run the CA",

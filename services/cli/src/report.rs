@@ -292,12 +292,23 @@ fn eval_markdown(evals: &[terl_wire::EvalResult]) -> String {
     s
 }
 
+/// Most bootstrap resamples `--bootstrap-reps` accepts (each holds a row of means in memory).
+pub const MAX_BOOTSTRAP_REPS: usize = 1_000_000;
+/// Longest rolling window `--window` and `--last-evals` accept.
+pub const MAX_WINDOW: usize = 1_000_000;
+
 pub fn run(args: ReportArgs) -> Result<ExitCode> {
-    anyhow::ensure!(args.window > 0, "--window must be at least 1");
-    anyhow::ensure!(args.last_evals > 0, "--last-evals must be at least 1");
     anyhow::ensure!(
-        args.bootstrap_reps > 0,
-        "--bootstrap-reps must be at least 1"
+        (1..=MAX_WINDOW).contains(&args.window),
+        "--window must be in 1..={MAX_WINDOW}"
+    );
+    anyhow::ensure!(
+        (1..=MAX_WINDOW).contains(&args.last_evals),
+        "--last-evals must be in 1..={MAX_WINDOW}"
+    );
+    anyhow::ensure!(
+        (1..=MAX_BOOTSTRAP_REPS).contains(&args.bootstrap_reps),
+        "--bootstrap-reps must be in 1..={MAX_BOOTSTRAP_REPS}"
     );
     // The qualitative figure's runs are checked before anything is written.
     let frames = if args.frames_from.is_empty() {

@@ -246,15 +246,51 @@ fn final_eval_point(path: &Path, tasks: &[String], env_steps: u64) -> Result<Eva
                 .iter()
                 .find(|e| e.get("task").and_then(serde_json::Value::as_str) == Some(t))
                 .with_context(|| format!("{}: no result for {t}", path.display()))?;
-            field(e, "success_rate")
+            let rate = field(e, "success_rate")?;
+            if let Some(n) = e.get("episodes").and_then(serde_json::Value::as_f64) {
+                anyhow::ensure!(
+                    n >= 1.0 && n.fract() == 0.0,
+                    "{}: {t} has {n} episodes (a whole number ≥ 1 expected)",
+                    path.display()
+                );
+            }
+            if let (Some(k), Some(n)) = (
+                e.get("successes").and_then(serde_json::Value::as_f64),
+                e.get("episodes").and_then(serde_json::Value::as_f64),
+            ) {
+                anyhow::ensure!(
+                    (0.0..=n).contains(&k),
+                    "{}: {t} has {k} successes in {n} episodes",
+                    path.display()
+                );
+            }
+            Ok(rate)
         })
         .collect::<Result<Vec<f64>>>()?;
+    let mean_success = field(&v, "mean_success_rate")?;
+    for (what, rate) in per_task_success
+        .iter()
+        .map(|&r| ("a task's success_rate", r))
+        .chain([("mean_success_rate", mean_success)])
+    {
+        anyhow::ensure!(
+            (0.0..=1.0).contains(&rate),
+            "{}: {what} {rate} is not in [0, 1]",
+            path.display()
+        );
+    }
+    let episodes_per_task = field(&v, "episodes_per_task")?;
+    anyhow::ensure!(
+        episodes_per_task >= 1.0 && episodes_per_task.fract() == 0.0 && episodes_per_task <= 1e9,
+        "{}: episodes_per_task {episodes_per_task} is not a whole number in 1..=1e9",
+        path.display()
+    );
     Ok(EvalPoint {
         env_steps,
-        mean_success: field(&v, "mean_success_rate")?,
+        mean_success,
         per_task_success,
         mean_return: field(&v, "mean_return")?,
-        episodes_per_task: field(&v, "episodes_per_task")? as usize,
+        episodes_per_task: episodes_per_task as usize,
     })
 }
 

@@ -69,3 +69,51 @@ fn report_keeps_the_episodes_before_a_damaged_record_length() {
         "{md}"
     );
 }
+
+/// Values that pass the parser but not the report's bounds are refused before anything is
+/// allocated or written: huge resample counts and windows, and a final evaluation whose counts
+/// contradict each other.
+#[test]
+fn report_refuses_unbounded_options_and_impossible_final_evaluations() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    std::fs::create_dir_all(&run).unwrap();
+    let terl = |args: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_terl"))
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let out_dir = dir.path().join("out");
+    let (r, o) = (run.to_str().unwrap(), out_dir.to_str().unwrap());
+    for (flag, value) in [
+        ("--bootstrap-reps", "18446744073709551615"),
+        ("--bootstrap-reps", "1000000000"),
+        ("--window", "18446744073709551615"),
+        ("--last-evals", "18446744073709551615"),
+    ] {
+        let out = terl(&["report", r, "--out", o, flag, value]);
+        assert_eq!(out.status.code(), Some(1), "{flag} {value}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(flag) && !err.contains("panicked"), "{err}");
+    }
+    assert!(!out_dir.exists(), "nothing is written for refused options");
+    // A final evaluation with 4200 successes in 50 episodes, or 0 episodes, is not a result.
+    std::fs::write(
+        run.join("config.toml"),
+        "tasks = \"reach-v3\"\nnum_envs = 1\n[train]\ntotal_env_steps = 1000\n",
+    )
+    .unwrap();
+    for (successes, episodes) in [(4200, 50), (0, 0)] {
+        let eval = serde_json::json!({
+            "mean_success_rate": 0.5, "mean_return": 1.0, "episodes_per_task": episodes,
+            "tasks": [{"task": "reach-v3", "episodes": episodes, "successes": successes,
+                       "success_rate": 0.5, "mean_return": 1.0}]
+        });
+        std::fs::write(run.join("eval-final.json"), eval.to_string()).unwrap();
+        let out = terl(&["report", r, "--out", o]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{successes}/{episodes}: {err}");
+        assert!(err.contains("episodes"), "{err}");
+    }
+}
