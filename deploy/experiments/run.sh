@@ -70,8 +70,13 @@ cd "$ROOT"
 
 usage() { sed -n '2,/^set -euo pipefail/{/^set -euo/!p}' "$0"; }
 [ $# -ge 1 ] || { usage >&2; exit 2; }
+case "$1" in -h|--help) usage; exit 0 ;; esac
 experiment=$1
 shift
+case "$experiment" in
+    mt1-ind|mt10|mt20|mt-test|terl-pipeline) ;;
+    *) echo "unknown experiment $experiment (mt1-ind, mt10, mt20, mt-test or terl-pipeline; see --help)" >&2; exit 2 ;;
+esac
 scale=workstation
 seeds="1 2"
 algorithms="mtsac terl"
