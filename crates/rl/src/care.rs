@@ -301,6 +301,32 @@ impl<T: Float> Trained<T> {
         self.adam.step(&mut self.net.params, &self.grads);
     }
 
+    /// Parameter gradients (written) from the output gradients already in `rows` of the cache.
+    fn backward_params(&mut self, rows: std::ops::Range<usize>, par: faer::Par) {
+        self.net.backward(
+            &mut self.cache,
+            rows,
+            Some(&mut self.grads),
+            InputGrad::None,
+            par,
+        );
+    }
+
+    /// An attention network's parameter gradients from the gradient `dw` of its softmax output
+    /// `w` (`[rows, k]`).
+    fn backward_attention(
+        &mut self,
+        w: &[T],
+        dw: &[T],
+        k: usize,
+        temperature: f64,
+        par: faer::Par,
+    ) {
+        let rows = w.len() / k;
+        softmax_backward(w, dw, k, temperature, self.cache.grad_output_mut(0..rows));
+        self.backward_params(0..rows, par);
+    }
+
     fn export(&self, prefix: &str, out: &mut Vec<Tensor>) {
         self.net.export(prefix, out);
         self.adam.export(&format!("{prefix}_adam"), out);
@@ -621,13 +647,7 @@ impl<T: Float> CareEncoder<T> {
                 }
                 self.dw[t * k + kk] += dot;
             }
-            e.net.backward(
-                &mut e.cache,
-                b..2 * b,
-                Some(&mut e.grads),
-                InputGrad::None,
-                par,
-            );
+            e.backward_params(b..2 * b, par);
         }
         for (i, &t) in tasks.iter().enumerate() {
             let t = t as usize;
@@ -638,41 +658,17 @@ impl<T: Float> CareEncoder<T> {
                 *acc += d;
             }
         }
-        let gate = &mut self.critic_gate;
-        softmax_backward(
-            &self.w_critic,
-            &self.dw,
-            k,
-            self.cfg.temperature,
-            gate.cache.grad_output_mut(0..nt),
-        );
-        gate.net.backward(
-            &mut gate.cache,
-            0..nt,
-            Some(&mut gate.grads),
-            InputGrad::None,
-            par,
-        );
+        self.critic_gate
+            .backward_attention(&self.w_critic, &self.dw, k, self.cfg.temperature, par);
         let enc = &mut self.task_encoder;
         enc.cache.grad_output_mut(0..nt).copy_from_slice(&self.dz);
-        enc.net.backward(
-            &mut enc.cache,
-            0..nt,
-            Some(&mut enc.grads),
-            InputGrad::None,
-            par,
-        );
+        enc.backward_params(0..nt, par);
     }
 
     /// Gradient of the actor's loss into the actor's attention, from its gradient w.r.t. the
     /// mixture part of the policy's input on `s` (`d_features`: `[b, feature_dim]`).
     pub(crate) fn backward_actor(&mut self, tasks: &[u32], d_features: &[T], par: faer::Par) {
-        let (b, nt, k, f) = (
-            tasks.len(),
-            self.num_tasks,
-            self.cfg.num_experts,
-            self.cfg.feature_dim,
-        );
+        let (b, k, f) = (tasks.len(), self.cfg.num_experts, self.cfg.feature_dim);
         self.dw.fill(T::of(0.0));
         for (kk, e) in self.experts.iter().enumerate() {
             let out = e.cache.output(b..2 * b);
@@ -685,21 +681,8 @@ impl<T: Float> CareEncoder<T> {
                 self.dw[t * k + kk] += dot;
             }
         }
-        let gate = &mut self.actor_gate;
-        softmax_backward(
-            &self.w_actor,
-            &self.dw,
-            k,
-            self.cfg.temperature,
-            gate.cache.grad_output_mut(0..nt),
-        );
-        gate.net.backward(
-            &mut gate.cache,
-            0..nt,
-            Some(&mut gate.grads),
-            InputGrad::None,
-            par,
-        );
+        self.actor_gate
+            .backward_attention(&self.w_actor, &self.dw, k, self.cfg.temperature, par);
     }
 
     /// `Σ g²` (in f64) over the gradients the critics' optimisers step: experts, attention,

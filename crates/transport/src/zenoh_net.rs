@@ -638,6 +638,14 @@ struct PortState {
 }
 
 impl PortState {
+    /// Messages `receiver` acknowledged as consumed in link epoch `epoch` (0 for another epoch).
+    fn consumed(&self, receiver: u64, epoch: u64) -> u64 {
+        match self.acks.get(&receiver) {
+            Some(&(e, consumed)) if e == epoch => consumed,
+            _ => 0,
+        }
+    }
+
     fn add_peer(&mut self, id: u64) {
         if let std::collections::hash_map::Entry::Vacant(e) = self.peers.entry(id) {
             self.next_generation += 1;
@@ -764,11 +772,7 @@ impl<M: Message> ZenohSink<M> {
             if !state.peers.contains_key(&receiver) {
                 return Credit::Gone;
             }
-            let acked = match state.acks.get(&receiver) {
-                Some(&(e, consumed)) if e == epoch => consumed,
-                _ => 0,
-            };
-            if sent.saturating_sub(acked) < self.buffer {
+            if sent.saturating_sub(state.consumed(receiver, epoch)) < self.buffer {
                 return Credit::Granted;
             }
             if !*saw_full {
@@ -806,13 +810,7 @@ impl<M: Message> ZenohSink<M> {
         self.links
             .iter()
             .filter(|(id, _)| state.peers.contains_key(id))
-            .map(|(id, link)| {
-                let acked = match state.acks.get(id) {
-                    Some(&(e, consumed)) if e == link.epoch => consumed,
-                    _ => 0,
-                };
-                link.sent.saturating_sub(acked)
-            })
+            .map(|(id, link)| link.sent.saturating_sub(state.consumed(*id, link.epoch)))
             .sum()
     }
 }
