@@ -27,6 +27,11 @@ RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps --release -q
 say "Kubernetes manifests (deploy/k8s) against the API's schemas"
 "$ROOT/.deps/k8s-venv/bin/kubernetes-validate" --strict --quiet "$ROOT"/deploy/k8s/*.yaml
 
+say "the service binaries the cluster tests start (built here once, not inside a test)"
+# The same packages services/cli/tests/common::service_binaries builds: the test build below
+# compiles them with the dev-dependencies' features, a separate set that coexists with this one.
+cargo build --release -q -p terl-cli -p terl-learner -p terl-actor -p terl-selector
+
 say "tests (release)"
 if cargo nextest --version >/dev/null 2>&1; then
     cargo nextest run --workspace --release --no-fail-fast "$@"

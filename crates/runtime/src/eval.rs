@@ -757,11 +757,14 @@ pub fn resolve_checkpoint(path: &std::path::Path) -> Result<std::path::PathBuf, 
         path: path.display().to_string(),
         reason,
     };
-    if path.is_file() {
+    let meta = std::fs::metadata(path).map_err(|e| err(e.to_string()))?;
+    if meta.is_file() {
         return Ok(path.to_path_buf());
     }
-    if !path.is_dir() {
-        return Err(err("no such file or directory".into()));
+    if !meta.is_dir() {
+        return Err(err(
+            "neither a checkpoint file nor a run folder (a device, socket or pipe)".into(),
+        ));
     }
     let dir = if path.join("checkpoints").is_dir() {
         path.join("checkpoints")
@@ -905,6 +908,11 @@ mod tests {
         touch("final.safetensors", 500);
         let got = resolve_checkpoint(dir.path()).unwrap();
         assert!(got.ends_with("final.safetensors"), "{got:?}");
+        // A device is named as what it is, a missing path as missing.
+        let e = resolve_checkpoint(std::path::Path::new("/dev/null")).unwrap_err();
+        assert!(e.to_string().contains("neither a checkpoint file"), "{e}");
+        let e = resolve_checkpoint(&dir.path().join("nope")).unwrap_err();
+        assert!(e.to_string().contains("No such file"), "{e}");
     }
 
     fn policy(num_tasks: usize) -> Policy {

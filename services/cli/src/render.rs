@@ -10,7 +10,9 @@
 //! - `<task>-v<k>.png`: a strip of three frames: the start (after the reset), the first
 //!   success (else the video frame with the highest reward, "nearest the goal"), the end;
 //! - `render.json`: per episode the success flag, first-success step, return, frame count and
-//!   the files.
+//!   the files; rewritten after every episode, with `complete: false` until the last one, so
+//!   it always describes this render's files (a render killed mid-way leaves a true, partial
+//!   list; its `*.<pid>.part` leftovers are removed by the next render into the folder).
 
 use std::io::{IsTerminal, Write as _};
 use std::path::{Path, PathBuf};
@@ -94,7 +96,21 @@ struct RenderOutput {
     every: u32,
     fps: u32,
     variation_seed: u64,
+    /// False while the render runs (the episodes listed are the ones finished so far, their
+    /// files in place); true once every requested episode is written.
+    complete: bool,
     episodes: Vec<RenderedEpisode>,
+}
+
+impl RenderOutput {
+    /// Replaces `<out>/render.json` (through a temporary file and a rename).
+    fn write(&self, out: &Path) -> Result<()> {
+        let json_path = out.join("render.json");
+        let json = serde_json::to_vec_pretty(self)?;
+        write_atomically(&json_path, |part| {
+            std::fs::write(part, &json).with_context(|| format!("writing {}", json_path.display()))
+        })
+    }
 }
 
 /// `WIDTHxHEIGHT`, both even and in 2..=MAX_SIDE.
@@ -276,6 +292,30 @@ fn caption(frame: &mut Frame, lines: &[String]) -> Result<()> {
 pub(crate) fn part_path(path: &Path) -> PathBuf {
     let name = path.file_name().unwrap_or_default().to_string_lossy();
     path.with_file_name(format!("{name}.{}.part", std::process::id()))
+}
+
+/// Removes the `<name>.<pid>.part` files in `dir` whose writer no longer runs (a render or
+/// report killed mid-file); parts of a live process are left alone. Returns how many went.
+pub(crate) fn remove_stale_parts(dir: &Path) -> usize {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return 0;
+    };
+    let mut removed = 0;
+    for entry in entries.filter_map(std::result::Result::ok) {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let Some(pid) = name
+            .strip_suffix(".part")
+            .and_then(|stem| stem.rsplit_once('.'))
+            .and_then(|(_, pid)| pid.parse::<u32>().ok())
+        else {
+            continue;
+        };
+        let alive = pid == std::process::id() || Path::new(&format!("/proc/{pid}")).exists();
+        if !alive && std::fs::remove_file(entry.path()).is_ok() {
+            removed += 1;
+        }
+    }
+    removed
 }
 
 /// Writes `path` through [`part_path`] and a rename (`write` gets the temporary path).
@@ -460,8 +500,18 @@ pub fn run(args: RenderArgs) -> Result<ExitCode> {
         args.unseen_task_encoding,
     )?;
     let seed = loaded.variation_seed(args.seed);
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))?;
+    let mut out = RenderOutput {
+        checkpoint: loaded.ckpt.path.display().to_string(),
+        policy_version: loaded.ckpt.policy.version,
+        camera: args.camera.clone(),
+        width: size.0,
+        height: size.1,
+        every: args.every,
+        fps: args.fps,
+        variation_seed: seed,
+        complete: false,
+        episodes: Vec::new(),
+    };
     let total = (loaded.tasks.len() * variation_list.len()) as u64 * u64::from(MAX_PATH_LENGTH);
     let bar = std::io::stderr().is_terminal().then(|| {
         let bar = indicatif::ProgressBar::new(total);
@@ -477,7 +527,6 @@ pub fn run(args: RenderArgs) -> Result<ExitCode> {
             b.inc(n);
         }
     };
-    let mut episodes = Vec::new();
     for task in &loaded.tasks {
         let mut env = Env::for_rendering(task.name)?;
         let mut renderer = Renderer::new(&env.scene().sim, size.0, size.1)?;
@@ -488,6 +537,20 @@ pub fn run(args: RenderArgs) -> Result<ExitCode> {
                 args.camera,
                 renderer.cameras().join(", ")
             );
+        }
+        if out.episodes.is_empty() {
+            // The folder is made once the first scene has the camera; from then on render.json
+            // names only this render's finished episodes.
+            std::fs::create_dir_all(&args.out)
+                .with_context(|| format!("creating {}", args.out.display()))?;
+            let stale = remove_stale_parts(&args.out);
+            if stale > 0 {
+                eprintln!(
+                    "removed {stale} partial file(s) an interrupted render left in {}",
+                    args.out.display()
+                );
+            }
+            out.write(&args.out)?;
         }
         let variations = goal_variations(task.name, seed)?;
         for &k in &variation_list {
@@ -515,7 +578,7 @@ pub fn run(args: RenderArgs) -> Result<ExitCode> {
             let frames = encoder.finish()?;
             write_grid(&strip, std::slice::from_ref(&got.tiles))?;
             let o = got.outcome;
-            episodes.push(RenderedEpisode {
+            out.episodes.push(RenderedEpisode {
                 task: task.name.to_string(),
                 variation: k,
                 success: o.first_success.is_some(),
@@ -527,27 +590,14 @@ pub fn run(args: RenderArgs) -> Result<ExitCode> {
                 video: format!("{stem}.mp4"),
                 strip: format!("{stem}.png"),
             });
+            out.write(&args.out)?;
         }
     }
     if let Some(b) = bar {
         b.finish_and_clear();
     }
-    let out = RenderOutput {
-        checkpoint: loaded.ckpt.path.display().to_string(),
-        policy_version: loaded.ckpt.policy.version,
-        camera: args.camera.clone(),
-        width: size.0,
-        height: size.1,
-        every: args.every,
-        fps: args.fps,
-        variation_seed: seed,
-        episodes,
-    };
-    let json_path = args.out.join("render.json");
-    let json = serde_json::to_vec_pretty(&out)?;
-    write_atomically(&json_path, |part| {
-        std::fs::write(part, &json).with_context(|| format!("writing {}", json_path.display()))
-    })?;
+    out.complete = true;
+    out.write(&args.out)?;
     for e in &out.episodes {
         println!(
             "{}  variation {:>2}  {}  return {:>8.1}  {} frames  {}  {}",
@@ -581,6 +631,29 @@ mod tests {
         assert_eq!(parse_variations("3, 0,3").unwrap(), vec![3, 0]);
         for bad in ["50", "-1", "a", ""] {
             assert!(parse_variations(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn only_the_parts_of_writers_that_are_gone_are_removed() {
+        let dir = tempfile::tempdir().unwrap();
+        // A child that has exited (and been reaped) is a pid no process holds any more.
+        let mut child = std::process::Command::new("true").spawn().unwrap();
+        let gone = child.id();
+        child.wait().unwrap();
+        let names = [
+            format!("reach-v3-v0.mp4.{gone}.part"),
+            format!("reach-v3-v0.png.{}.part", std::process::id()),
+            "notes.part".to_string(),
+            "reach-v3-v0.mp4".to_string(),
+        ];
+        for n in &names {
+            std::fs::write(dir.path().join(n), b"x").unwrap();
+        }
+        assert_eq!(remove_stale_parts(dir.path()), 1);
+        assert!(!dir.path().join(&names[0]).exists());
+        for n in &names[1..] {
+            assert!(dir.path().join(n).exists(), "{n}");
         }
     }
 }

@@ -332,6 +332,7 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
     let mut evaluated = Vec::new();
     let mut anything = false;
     let mut used_names: Vec<String> = Vec::new();
+    let mut left_out: Vec<(PathBuf, String)> = Vec::new();
     for dir in &args.run_dirs {
         if !dir.is_dir() {
             eprintln!("note: {} is not a run folder; skipped", dir.display());
@@ -362,15 +363,31 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
         }
         match crate::results::load_run(dir) {
             Ok(r) => evaluated.push(r),
-            Err(e) => eprintln!("note: no evaluations used from {}: {e:#}", dir.display()),
+            Err(e) if e.is::<crate::results::NoEvaluations>() => {
+                eprintln!("note: no evaluations used from {}: {e:#}", dir.display());
+            }
+            Err(e) => {
+                eprintln!("error: evaluations of {} left out: {e:#}", dir.display());
+                left_out.push((dir.clone(), format!("{e:#}")));
+            }
         }
     }
     if !evaluated.is_empty() {
         let (mut md, mut files) = crate::results::write_results(&evaluated, &out, &opts)?;
+        let md_path = out.join("results.md");
+        if !left_out.is_empty() {
+            md.push_str(&left_out_section(&left_out));
+            std::fs::write(&md_path, &md)
+                .with_context(|| format!("writing {}", md_path.display()))?;
+        }
         if let Some(frames) = frames {
+            eprintln!(
+                "wrote {}; drawing the qualitative figure (one episode per task and run, \
+                 a few seconds each)...",
+                md_path.display()
+            );
             let (section, pngs) = crate::frames::section(frames, &out)?;
             md.push_str(&section);
-            let md_path = out.join("results.md");
             std::fs::write(&md_path, &md)
                 .with_context(|| format!("writing {}", md_path.display()))?;
             files.extend(pngs);
@@ -381,12 +398,37 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
         }
         anything = true;
     }
+    if !left_out.is_empty() {
+        // The report covers the rest, but a run lost from a comparison must not pass unseen.
+        eprintln!(
+            "error: {} run folder(s) left out of the report, their evaluations unreadable: {}",
+            left_out.len(),
+            left_out
+                .iter()
+                .map(|(d, _)| d.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        return Ok(ExitCode::FAILURE);
+    }
     anyhow::ensure!(
         anything,
         "nothing to report: no episodes.mcap and no evaluations in {:?}",
         args.run_dirs
     );
     Ok(ExitCode::SUCCESS)
+}
+
+/// The `results.md` section that names the run folders whose evaluations could not be used.
+fn left_out_section(left_out: &[(PathBuf, String)]) -> String {
+    let mut md = String::from(
+        "\n## Run folders left out\n\nTheir evaluations exist but could not be used, so the \
+         tables above do not include them (`terl report` exits with status 1):\n\n",
+    );
+    for (dir, why) in left_out {
+        let _ = writeln!(md, "- `{}`: {}", dir.display(), why.replace('\n', " "));
+    }
+    md
 }
 
 /// Every record of the run's `<kind>.mcap` log and its restarted segments (`<kind>.2.mcap`,

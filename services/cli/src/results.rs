@@ -89,12 +89,34 @@ impl RunEval {
     }
 }
 
-/// Reads a run folder's config and evaluations. A folder without any evaluation is an error
-/// naming what was looked for.
+/// The error of [`load_run`] for a folder that holds nothing to use (no run file, or a run
+/// without any evaluation yet): nothing is lost by leaving it out. Every other error of
+/// [`load_run`] means evaluations exist but cannot be used (damaged, cut, contradictory).
+#[derive(Debug)]
+pub struct NoEvaluations(pub String);
+
+impl std::fmt::Display for NoEvaluations {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for NoEvaluations {}
+
+/// Reads a run folder's config and evaluations. A folder without a run file or without any
+/// evaluation is a [`NoEvaluations`] error naming what was looked for; damaged evaluations are
+/// other errors.
 pub fn load_run(dir: &Path) -> Result<RunEval> {
     let cfg_path = dir.join("config.toml");
+    if !cfg_path.exists() {
+        return Err(NoEvaluations(format!(
+            "{} is not a run folder (no config.toml)",
+            dir.display()
+        ))
+        .into());
+    }
     let cfg = RunConfig::load(&cfg_path)
-        .with_context(|| format!("{} is not a run folder", dir.display()))?;
+        .with_context(|| format!("{}: its run file cannot be read", dir.display()))?;
     let tasks: Vec<String> = terl_runtime::resolve_tasks(&cfg.tasks)?
         .into_iter()
         .map(String::from)
@@ -156,11 +178,13 @@ pub fn load_run(dir: &Path) -> Result<RunEval> {
         points.retain(|q| q.env_steps < p.env_steps);
         points.push(p);
     }
-    anyhow::ensure!(
-        !points.is_empty(),
-        "{}: no evaluation found (progress.jsonl of `terl train`, or in-run evaluations of a cluster run)",
-        dir.display()
-    );
+    if points.is_empty() {
+        return Err(NoEvaluations(format!(
+            "{}: no evaluation found (progress.jsonl of `terl train`, or in-run evaluations of a cluster run)",
+            dir.display()
+        ))
+        .into());
+    }
     Ok(RunEval {
         dir: dir.to_path_buf(),
         experiment: cfg.experiment.clone().unwrap_or_else(|| cfg.tasks.clone()),

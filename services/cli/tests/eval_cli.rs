@@ -454,6 +454,7 @@ fn render_writes_playable_videos_of_the_episodes_eval_scores() {
         serde_json::from_slice(&std::fs::read(out.join("render.json")).unwrap()).unwrap();
     let episodes = rendered["episodes"].as_array().unwrap();
     assert_eq!(episodes.len(), 4, "{rendered}");
+    assert_eq!(rendered["complete"], true, "{rendered}");
     // The same episodes as `terl eval`'s first two per task (episode k on variation k).
     let eval = json(&terl(&[
         "eval",
@@ -501,7 +502,9 @@ fn render_writes_playable_videos_of_the_episodes_eval_scores() {
         .to_string_lossy()
         .ends_with(".part")));
 
-    // Clear errors: an unknown camera (listing the scene's), an odd size, a bad variation.
+    // Clear errors: an unknown camera (listing the scene's), an odd size, a bad variation;
+    // none of them creates the output folder.
+    let not_made = dir.path().join("not-made");
     for (args, expect) in [
         (vec!["--camera", "nope"], "behindGripper"),
         (vec!["--size", "95x64"], "WIDTHxHEIGHT"),
@@ -512,12 +515,13 @@ fn render_writes_playable_videos_of_the_episodes_eval_scores() {
             "--checkpoint",
             run.to_str().unwrap(),
             "--out",
-            out.to_str().unwrap(),
+            not_made.to_str().unwrap(),
         ];
-        all.extend(args);
+        all.extend(args.iter().copied());
         let o = terl(&all);
         assert!(!o.status.success());
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(err.contains(expect), "{err}");
+        assert!(!not_made.exists(), "{args:?} made the output folder");
     }
 }

@@ -117,3 +117,69 @@ fn report_refuses_unbounded_options_and_impossible_final_evaluations() {
         assert!(err.contains("episodes"), "{err}");
     }
 }
+
+/// Several runs, one of them with a damaged final evaluation: the report covers the others,
+/// names the damaged one in `results.md` and on stderr, and exits 1 so a script notices that a
+/// run is missing from the comparison. Folders that are not runs are only noted.
+#[test]
+fn a_run_left_out_of_a_multi_run_report_is_named_and_fails_the_command() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = "experiment = \"x\"\ntasks = \"reach-v3\"\nnum_envs = 1\n[train]\ntotal_env_steps = 1000\nseed = SEED\n";
+    let eval = serde_json::json!({
+        "mean_success_rate": 0.5, "mean_return": 1.0, "episodes_per_task": 50,
+        "tasks": [{"task": "reach-v3", "episodes": 50, "successes": 25,
+                   "success_rate": 0.5, "mean_return": 1.0}]
+    })
+    .to_string();
+    let mut runs = Vec::new();
+    for seed in 1..=3 {
+        let run = dir.path().join(format!("x-mtsac-s{seed}"));
+        std::fs::create_dir_all(&run).unwrap();
+        std::fs::write(
+            run.join("config.toml"),
+            config.replace("SEED", &seed.to_string()),
+        )
+        .unwrap();
+        // Seed 2's file is cut in the middle (a copy interrupted by a full disk).
+        let text = if seed == 2 {
+            &eval[..eval.len() / 2]
+        } else {
+            &eval[..]
+        };
+        std::fs::write(run.join("eval-final.json"), text).unwrap();
+        runs.push(run);
+    }
+    let not_a_run = dir.path().join("notes");
+    std::fs::create_dir_all(&not_a_run).unwrap();
+    runs.push(not_a_run);
+    let out_dir = dir.path().join("out");
+    let out = Command::new(env!("CARGO_BIN_EXE_terl"))
+        .arg("report")
+        .args(&runs)
+        .arg("--out")
+        .arg(&out_dir)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("1 run folder(s) left out") && err.contains("x-mtsac-s2"),
+        "{err}"
+    );
+    assert!(err.contains("notes is not a run folder"), "{err}");
+    let md = std::fs::read_to_string(out_dir.join("results.md")).unwrap();
+    let (tables, left) = md.split_once("## Run folders left out").expect(&md);
+    assert!(
+        left.contains("x-mtsac-s2") && left.contains("not JSON"),
+        "{left}"
+    );
+    assert!(
+        !left.contains("x-mtsac-s1") && !left.contains("notes"),
+        "{left}"
+    );
+    // The two readable seeds are in the table.
+    assert!(
+        tables.contains("| x | mtsac |") && tables.contains("| 2 |"),
+        "{tables}"
+    );
+}
