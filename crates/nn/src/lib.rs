@@ -12,7 +12,8 @@
 //! - [`Adam`]: PyTorch-equivalent Adam with bias correction over a flat parameter vector;
 //! - [`gaussian`]: the tanh-squashed Gaussian policy head (reparameterised sample, log-prob with
 //!   the tanh correction, backward);
-//! - [`tensors`]: safetensors (de)serialisation of named tensors with shape/dtype validation.
+//! - [`tensors`]: safetensors (de)serialisation of named tensors with shape/dtype validation;
+//! - [`gradcheck`]: the error measure of the gradient checks against finite differences.
 //!
 //! Everything is generic over [`Float`] (`f32` for training, `f64` for gradient checks).
 
@@ -21,6 +22,7 @@
 pub mod adam;
 pub mod error;
 pub mod gaussian;
+pub mod gradcheck;
 pub mod mlp;
 pub mod scalar;
 pub mod simd;

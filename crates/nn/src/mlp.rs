@@ -45,6 +45,21 @@ pub struct MlpSpec {
     pub output_activation: Activation,
 }
 
+impl MlpSpec {
+    /// Number of parameters of a network of this shape (every layer's `weight [out, in]` and
+    /// `bias [out]`, the length of [`Mlp::params`]), or `None` when it overflows `usize` (sizes
+    /// read from an untrusted file).
+    pub fn checked_num_params(&self) -> Option<usize> {
+        let mut sizes = Vec::with_capacity(self.hidden.len() + 2);
+        sizes.push(self.input);
+        sizes.extend_from_slice(&self.hidden);
+        sizes.push(self.output);
+        sizes.windows(2).try_fold(0usize, |acc, w| {
+            acc.checked_add(w[0].checked_mul(w[1])?.checked_add(w[1])?)
+        })
+    }
+}
+
 /// Which gradient w.r.t. the network input a backward pass computes.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum InputGrad {

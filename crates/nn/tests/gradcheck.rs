@@ -4,16 +4,8 @@
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use terl_nn::gaussian;
+use terl_nn::gradcheck::max_rel_err;
 use terl_nn::{Activation, Adam, AdamConfig, InputGrad, Mlp, MlpCache, MlpSpec};
-
-/// Largest element-wise relative error, with an absolute floor so exact zeros compare sanely.
-fn max_rel_err(analytic: &[f64], numeric: &[f64]) -> f64 {
-    analytic
-        .iter()
-        .zip(numeric)
-        .map(|(&a, &n)| (a - n).abs() / (a.abs().max(n.abs())).max(1e-6))
-        .fold(0.0, f64::max)
-}
 
 fn spec(act: Activation, out_act: Activation) -> MlpSpec {
     MlpSpec {
@@ -230,4 +222,24 @@ fn adam_matches_a_hand_computed_pytorch_step() {
         expect0 - (0.1 / (1.0 - 0.81)) * m / (v.sqrt() / (1.0 - 0.999f64 * 0.999).sqrt() + 1e-8);
     assert!((p[0] - expect).abs() < 1e-12, "{} vs {expect}", p[0]);
     assert_eq!(adam.steps(), 2);
+}
+
+/// The parameter count computed from a shape is the length of the network built from it, and
+/// an overflowing shape is `None`, not a wrapped number.
+#[test]
+fn parameter_count_of_a_shape_is_the_built_networks() {
+    for hidden in [vec![], vec![7], vec![3, 9, 4]] {
+        let s = MlpSpec {
+            hidden,
+            ..spec(Activation::Relu, Activation::Identity)
+        };
+        let mlp = Mlp::<f64>::new(&s, &mut ChaCha8Rng::seed_from_u64(0));
+        assert_eq!(s.checked_num_params(), Some(mlp.num_params()), "{s:?}");
+    }
+    let huge = MlpSpec {
+        input: usize::MAX / 2,
+        hidden: vec![4],
+        ..spec(Activation::Relu, Activation::Identity)
+    };
+    assert_eq!(huge.checked_num_params(), None);
 }

@@ -897,18 +897,11 @@ impl CarePolicy {
 
     /// Number of `f32` values [`Self::set_params`] takes.
     pub(crate) fn num_params(cfg: &CareConfig, obs_dim: usize, num_tasks: usize) -> Option<usize> {
-        let count = |s: &MlpSpec| -> Option<usize> {
-            let mut sizes = vec![s.input];
-            sizes.extend_from_slice(&s.hidden);
-            sizes.push(s.output);
-            sizes.windows(2).try_fold(0usize, |acc, w| {
-                acc.checked_add(w[0].checked_mul(w[1])?.checked_add(w[1])?)
-            })
-        };
-        count(&cfg.expert_spec(obs_dim))?
+        cfg.expert_spec(obs_dim)
+            .checked_num_params()?
             .checked_mul(cfg.num_experts)?
-            .checked_add(count(&cfg.gate_spec())?)?
-            .checked_add(count(&cfg.task_encoder_spec(num_tasks))?)?
+            .checked_add(cfg.gate_spec().checked_num_params()?)?
+            .checked_add(cfg.task_encoder_spec(num_tasks).checked_num_params()?)?
             .checked_add(num_tasks.checked_mul(cfg.context_dim(num_tasks))?)
     }
 

@@ -61,8 +61,17 @@ impl PolicySpec {
             input: self
                 .input_dim()
                 .expect("policy input width overflows usize"),
-            hidden: self.hidden.clone(),
             output: 2 * self.act_dim,
+            ..self.mlp_spec_unchecked()
+        }
+    }
+
+    /// The head's hidden layers and activations (input and output widths left 0).
+    fn mlp_spec_unchecked(&self) -> MlpSpec {
+        MlpSpec {
+            input: 0,
+            hidden: self.hidden.clone(),
+            output: 0,
             hidden_activation: Activation::Relu,
             output_activation: Activation::Identity,
         }
@@ -89,12 +98,12 @@ impl PolicySpec {
 
     /// [`Self::num_params`], or `None` when the sizes overflow `usize`.
     pub fn checked_num_params(&self) -> Option<usize> {
-        let mut sizes = vec![self.input_dim()?];
-        sizes.extend_from_slice(&self.hidden);
-        sizes.push(self.act_dim.checked_mul(2)?);
-        let head = sizes.windows(2).try_fold(0usize, |acc, w| {
-            acc.checked_add(w[0].checked_mul(w[1])?.checked_add(w[1])?)
-        })?;
+        let head = MlpSpec {
+            input: self.input_dim()?,
+            output: self.act_dim.checked_mul(2)?,
+            ..self.mlp_spec_unchecked()
+        }
+        .checked_num_params()?;
         match &self.care {
             Some(c) => head.checked_add(CarePolicy::num_params(c, self.obs_dim, self.num_tasks)?),
             None => Some(head),

@@ -3,8 +3,11 @@
 //! forward pass written here from the exported tensors, checkpoint round trips, and the
 //! published task context.
 
-use rand::{Rng, SeedableRng};
+mod common;
+
+use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use terl_nn::gradcheck::max_rel_err;
 use terl_nn::tensors::TensorFile;
 use terl_rl::care::{self, CareNet};
 use terl_rl::{Batch, CareConfig, CareContext, Policy, Sac, SacConfig, UpdateStats};
@@ -40,31 +43,9 @@ fn small_config(batch: usize, gamma: f64) -> SacConfig {
     }
 }
 
+/// [`common::random_batch`] with every 4th row terminal.
 fn random_batch(rows: usize, cfg: &SacConfig, seed: u64) -> Batch {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let mut b = Batch::with_capacity(rows, cfg.obs_dim, cfg.act_dim);
-    for i in 0..rows {
-        let obs: Vec<f32> = (0..cfg.obs_dim).map(|_| rng.gen_range(-1.0..1.0)).collect();
-        let next: Vec<f32> = (0..cfg.obs_dim).map(|_| rng.gen_range(-1.0..1.0)).collect();
-        let act: Vec<f32> = (0..cfg.act_dim).map(|_| rng.gen_range(-0.9..0.9)).collect();
-        b.push(
-            &obs,
-            &act,
-            rng.gen_range(-1.0..1.0),
-            &next,
-            i % 4 == 0,
-            (i % cfg.num_tasks) as u32,
-        );
-    }
-    b
-}
-
-fn max_rel_err(analytic: &[f64], numeric: &[f64]) -> f64 {
-    analytic
-        .iter()
-        .zip(numeric)
-        .map(|(&a, &n)| (a - n).abs() / a.abs().max(n.abs()).max(1e-6))
-        .fold(0.0, f64::max)
+    common::random_batch(rows, cfg, seed, 4)
 }
 
 /// Central differences of `loss` w.r.t. every parameter of CARE network `net`.

@@ -1,8 +1,11 @@
 //! The SAC losses against finite differences (f64), fixed-seed determinism, bad-input handling,
 //! checkpoints and replay sampling.
 
+mod common;
+
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use terl_nn::gradcheck::max_rel_err;
 use terl_nn::tensors::TensorFile;
 use terl_rl::replay::MultiTaskReplay;
 use terl_rl::{Batch, Policy, Sac, SacConfig, SacError};
@@ -20,31 +23,9 @@ fn small_config(batch: usize) -> SacConfig {
     }
 }
 
+/// [`common::random_batch`] with every 3rd row terminal.
 fn random_batch(rows: usize, cfg: &SacConfig, seed: u64) -> Batch {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let mut b = Batch::with_capacity(rows, cfg.obs_dim, cfg.act_dim);
-    for i in 0..rows {
-        let obs: Vec<f32> = (0..cfg.obs_dim).map(|_| rng.gen_range(-1.0..1.0)).collect();
-        let next: Vec<f32> = (0..cfg.obs_dim).map(|_| rng.gen_range(-1.0..1.0)).collect();
-        let act: Vec<f32> = (0..cfg.act_dim).map(|_| rng.gen_range(-0.9..0.9)).collect();
-        b.push(
-            &obs,
-            &act,
-            rng.gen_range(-1.0..1.0),
-            &next,
-            i % 3 == 0,
-            (i % cfg.num_tasks) as u32,
-        );
-    }
-    b
-}
-
-fn max_rel_err(analytic: &[f64], numeric: &[f64]) -> f64 {
-    analytic
-        .iter()
-        .zip(numeric)
-        .map(|(&a, &n)| (a - n).abs() / a.abs().max(n.abs()).max(1e-6))
-        .fold(0.0, f64::max)
+    common::random_batch(rows, cfg, seed, 3)
 }
 
 /// Central differences of one loss w.r.t. a parameter vector chosen by `params`.

@@ -3,6 +3,7 @@
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use terl_nn::gradcheck::max_rel_err;
 use terl_rl::tep::{FTarget, GoalLoss};
 use terl_rl::{SacError, Tep, TepBatch, TepBuffer, TepConfig};
 
@@ -59,14 +60,6 @@ fn random_batch(rows: usize, cfg: &TepConfig, seed: u64) -> TepBatch {
         b.push(&s, &a, &s1, &g, 2 + i as u32);
     }
     b
-}
-
-fn max_rel_err(analytic: &[f64], numeric: &[f64]) -> f64 {
-    analytic
-        .iter()
-        .zip(numeric)
-        .map(|(&a, &n)| (a - n).abs() / a.abs().max(n.abs()).max(1e-6))
-        .fold(0.0, f64::max)
 }
 
 fn numeric_grad(
