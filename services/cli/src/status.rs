@@ -492,8 +492,10 @@ fn last_started_run() -> Result<Option<std::path::PathBuf>> {
     match live_launcher(&dir)? {
         Some(_) => Ok(Some(dir)),
         None => anyhow::bail!(
-            "no cluster is running: {} has no launcher.pid (its launcher stopped)",
-            dir.display()
+            "no cluster is running: the last one started here, in {dir}, has stopped (its \
+             launcher removed launcher.pid); `terl report {dir}` summarises it, \
+             ./deploy/local-cluster.sh --resume {dir} continues it",
+            dir = dir.display()
         ),
     }
 }
