@@ -142,6 +142,18 @@ impl CareConfig {
         Ok(())
     }
 
+    /// Number of `f32` values a policy's CARE encoder carries (the experts, the actor's
+    /// attention, the task encoder and the `[num_tasks, context_dim]` context table: the layout
+    /// of `CareEncoder::policy_params_f32`), or `None` when it overflows `usize`.
+    pub fn policy_num_params(&self, obs_dim: usize, num_tasks: usize) -> Option<usize> {
+        self.expert_spec(obs_dim)
+            .checked_num_params()?
+            .checked_mul(self.num_experts)?
+            .checked_add(self.gate_spec().checked_num_params()?)?
+            .checked_add(self.task_encoder_spec(num_tasks).checked_num_params()?)?
+            .checked_add(num_tasks.checked_mul(self.context_dim(num_tasks))?)
+    }
+
     /// The task encoder `E`: context → encoding.
     pub fn task_encoder_spec(&self, num_tasks: usize) -> MlpSpec {
         relu_mlp(
@@ -895,16 +907,6 @@ impl CarePolicy {
         p
     }
 
-    /// Number of `f32` values [`Self::set_params`] takes.
-    pub(crate) fn num_params(cfg: &CareConfig, obs_dim: usize, num_tasks: usize) -> Option<usize> {
-        cfg.expert_spec(obs_dim)
-            .checked_num_params()?
-            .checked_mul(cfg.num_experts)?
-            .checked_add(cfg.gate_spec().checked_num_params()?)?
-            .checked_add(cfg.task_encoder_spec(num_tasks).checked_num_params()?)?
-            .checked_add(num_tasks.checked_mul(cfg.context_dim(num_tasks))?)
-    }
-
     /// Loads the flat layout of [`CareEncoder::policy_params_f32`] (length already checked).
     pub(crate) fn set_params(&mut self, mut params: &[f32]) {
         let mut take = |dst: &mut [f32]| {
@@ -966,7 +968,9 @@ impl CarePolicy {
     fn refresh(&mut self) {
         let nt = self.num_tasks;
         let (z, w) = (std::mem::take(&mut self.z), std::mem::take(&mut self.w));
-        let (z, w) = self.encode_rows(&self.context.clone(), nt, z, w);
+        let context = std::mem::take(&mut self.context);
+        let (z, w) = self.encode_rows(&context, nt, z, w);
+        self.context = context;
         self.z = z;
         self.w = w;
     }

@@ -105,7 +105,7 @@ impl PolicySpec {
         }
         .checked_num_params()?;
         match &self.care {
-            Some(c) => head.checked_add(CarePolicy::num_params(c, self.obs_dim, self.num_tasks)?),
+            Some(c) => head.checked_add(c.policy_num_params(self.obs_dim, self.num_tasks)?),
             None => Some(head),
         }
     }

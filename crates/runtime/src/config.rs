@@ -637,15 +637,9 @@ impl RunConfig {
         // CARE's policy message also carries the experts, the actor's attention, the task
         // encoder (two tensors each per layer) and the context table.
         let care_extra = sac.care.as_ref().map_or(0u64, |c| {
-            let values = terl_rl::PolicySpec {
-                obs_dim: sac.obs_dim,
-                act_dim: sac.act_dim,
-                num_tasks,
-                hidden: vec![],
-                care: Some(c.clone()),
-            }
-            .checked_num_params()
-            .map_or(u64::MAX, |n| n as u64);
+            let values = c
+                .policy_num_params(sac.obs_dim, num_tasks)
+                .map_or(u64::MAX, |n| n as u64);
             let layers = (c.num_experts * (c.expert_hidden.len() + 1)
                 + c.gate_hidden.len()
                 + 1

@@ -776,7 +776,11 @@ pub fn resolve_checkpoint(path: &std::path::Path) -> Result<std::path::PathBuf, 
         .filter_map(|e| e.ok())
         .filter(|e| {
             let name = e.file_name().to_string_lossy().into_owned();
-            name.ends_with(".safetensors") && !name.starts_with("planner")
+            // Regular files only (a symbolic link is followed): a pipe or device under a
+            // checkpoint's name would block or never end.
+            name.ends_with(".safetensors")
+                && !name.starts_with("planner")
+                && std::fs::metadata(e.path()).is_ok_and(|m| m.is_file())
         })
         .filter_map(|e| {
             let name = e.file_name().to_string_lossy().into_owned();
@@ -908,6 +912,16 @@ mod tests {
         touch("final.safetensors", 500);
         let got = resolve_checkpoint(dir.path()).unwrap();
         assert!(got.ends_with("final.safetensors"), "{got:?}");
+        // A pipe under the best checkpoint name is passed over, not opened (it would block).
+        let fifo = ck.join("latest.safetensors");
+        assert!(std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap()
+            .success());
+        std::fs::remove_file(ck.join("final.safetensors")).unwrap();
+        let got = resolve_checkpoint(dir.path()).unwrap();
+        assert!(got.ends_with("update-0000000010.safetensors"), "{got:?}");
         // A device is named as what it is, a missing path as missing.
         let e = resolve_checkpoint(std::path::Path::new("/dev/null")).unwrap_err();
         assert!(e.to_string().contains("neither a checkpoint file"), "{e}");

@@ -82,21 +82,29 @@ fn numbered_path(run_dir: &Path, stem: &str, k: u64) -> PathBuf {
     }
 }
 
+/// Something is at `path` (a file, a folder, or a symbolic link even if dangling or looping):
+/// unlike [`Path::exists`], a damaged link under a log's name is not mistaken for no log.
+fn present(path: &Path) -> bool {
+    std::fs::symlink_metadata(path).is_ok()
+}
+
 /// `run_dir/<stem>.mcap`, or `run_dir/<stem>.<k>.mcap` (k = 2, 3, …) for the first that does not
 /// exist yet: a service restarted into the same run folder starts a new file next to the
 /// earlier ones instead of failing or overwriting them.
 pub fn fresh_path(run_dir: &Path, stem: &str) -> PathBuf {
     (1u64..)
         .map(|k| numbered_path(run_dir, stem, k))
-        .find(|p| !p.exists())
+        .find(|p| !present(p))
         .expect("some index is free")
 }
 
-/// The files of a log that [`fresh_path`] handed out, in order (empty if there is none).
+/// The files of a log that [`fresh_path`] handed out, in order (empty if there is none). An
+/// entry that cannot be read (a dangling or looping link) is listed, so that reading it fails
+/// loudly instead of the log silently ending before it.
 pub fn existing_paths(run_dir: &Path, stem: &str) -> Vec<PathBuf> {
     (1u64..)
         .map(|k| numbered_path(run_dir, stem, k))
-        .take_while(|p| p.exists())
+        .take_while(|p| present(p))
         .collect()
 }
 
@@ -195,6 +203,22 @@ mod tests {
             ["episodes.mcap", "episodes.2.mcap", "episodes.3.mcap"].map(|n| dir.join(n))
         );
         assert!(existing_paths(&dir, "metrics").is_empty());
+        // A link to itself under a log's name is listed (reading it then fails), not taken for
+        // the end of the log, and never handed out as a fresh file.
+        std::os::unix::fs::symlink("metrics.mcap", dir.join("metrics.mcap")).unwrap();
+        assert_eq!(existing_paths(&dir, "metrics"), [dir.join("metrics.mcap")]);
+        assert_eq!(fresh_path(&dir, "metrics"), dir.join("metrics.2.mcap"));
+        let e = read_log::<terl_wire::Metric>(dir.join("metrics.mcap")).unwrap_err();
+        assert!(e.to_string().contains("metrics.mcap"), "{e}");
+        // A pipe is refused without being opened (opening would wait for a writer).
+        let fifo = dir.join("eval.mcap");
+        assert!(std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap()
+            .success());
+        let e = read_log::<terl_wire::EvalResult>(&fifo).unwrap_err();
+        assert!(e.to_string().contains("not a regular file"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

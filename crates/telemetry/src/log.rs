@@ -224,6 +224,14 @@ pub(crate) fn read_channel<T>(
         path: path.to_owned(),
         source,
     };
+    // Only a regular file is opened: opening a pipe blocks until a writer comes, and a device
+    // has no size to bound the reading by.
+    if !std::fs::metadata(path).map_err(io_err)?.is_file() {
+        return Err(io_err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            "not a regular file (a folder, pipe, socket or device)",
+        )));
+    }
     let file = File::open(path).map_err(io_err)?;
     let size = file.metadata().map_err(io_err)?.len();
     let mut input = BufReader::with_capacity(IO_BUFFER, file.take(size));

@@ -294,8 +294,9 @@ pub(crate) fn part_path(path: &Path) -> PathBuf {
     path.with_file_name(format!("{name}.{}.part", std::process::id()))
 }
 
-/// Removes the `<name>.<pid>.part` files in `dir` whose writer no longer runs (a render or
-/// report killed mid-file); parts of a live process are left alone. Returns how many went.
+/// Removes the `<name>.<pid>.part` files of videos, strips and `render.json` in `dir` whose
+/// writer no longer runs (a render killed mid-file); parts of a live process and files of any
+/// other name are left alone. Returns how many went.
 pub(crate) fn remove_stale_parts(dir: &Path) -> usize {
     let Ok(entries) = std::fs::read_dir(dir) else {
         return 0;
@@ -303,19 +304,46 @@ pub(crate) fn remove_stale_parts(dir: &Path) -> usize {
     let mut removed = 0;
     for entry in entries.filter_map(std::result::Result::ok) {
         let name = entry.file_name().to_string_lossy().into_owned();
-        let Some(pid) = name
+        let Some((file, pid)) = name
             .strip_suffix(".part")
             .and_then(|stem| stem.rsplit_once('.'))
-            .and_then(|(_, pid)| pid.parse::<u32>().ok())
+            .and_then(|(file, pid)| Some((file, pid.parse::<u32>().ok()?)))
         else {
             continue;
         };
+        let ours = file.ends_with(".mp4") || file.ends_with(".png") || file == "render.json";
+        if !ours {
+            continue;
+        }
         let alive = pid == std::process::id() || Path::new(&format!("/proc/{pid}")).exists();
         if !alive && std::fs::remove_file(entry.path()).is_ok() {
             removed += 1;
         }
     }
     removed
+}
+
+/// An exclusive lock on `<dir>/.render.lock` (released when the file is dropped or the
+/// process ends, however it ends): a second render into the same folder is refused instead of
+/// mixing its files and `render.json` with the first's.
+fn lock_folder(dir: &Path) -> Result<std::fs::File> {
+    let path = dir.join(".render.lock");
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&path)
+        .with_context(|| format!("opening {}", path.display()))?;
+    match file.try_lock() {
+        Ok(()) => Ok(file),
+        Err(std::fs::TryLockError::WouldBlock) => bail!(
+            "another terl render is writing into {}; wait for it or choose another --out",
+            dir.display()
+        ),
+        Err(std::fs::TryLockError::Error(e)) => {
+            Err(e).with_context(|| format!("locking {}", path.display()))
+        }
+    }
 }
 
 /// Writes `path` through [`part_path`] and a rename (`write` gets the temporary path).
@@ -527,6 +555,8 @@ pub fn run(args: RenderArgs) -> Result<ExitCode> {
             b.inc(n);
         }
     };
+    // Held from the folder's creation to the end: one render writes into a folder at a time.
+    let mut lock: Option<std::fs::File> = None;
     for task in &loaded.tasks {
         let mut env = Env::for_rendering(task.name)?;
         let mut renderer = Renderer::new(&env.scene().sim, size.0, size.1)?;
@@ -543,6 +573,7 @@ pub fn run(args: RenderArgs) -> Result<ExitCode> {
             // names only this render's finished episodes.
             std::fs::create_dir_all(&args.out)
                 .with_context(|| format!("creating {}", args.out.display()))?;
+            lock = Some(lock_folder(&args.out)?);
             let stale = remove_stale_parts(&args.out);
             if stale > 0 {
                 eprintln!(
@@ -598,6 +629,7 @@ pub fn run(args: RenderArgs) -> Result<ExitCode> {
     }
     out.complete = true;
     out.write(&args.out)?;
+    drop(lock);
     for e in &out.episodes {
         println!(
             "{}  variation {:>2}  {}  return {:>8.1}  {} frames  {}  {}",
@@ -645,6 +677,7 @@ mod tests {
             format!("reach-v3-v0.mp4.{gone}.part"),
             format!("reach-v3-v0.png.{}.part", std::process::id()),
             "notes.part".to_string(),
+            format!("notes.txt.{gone}.part"),
             "reach-v3-v0.mp4".to_string(),
         ];
         for n in &names {

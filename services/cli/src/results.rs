@@ -103,12 +103,49 @@ impl std::fmt::Display for NoEvaluations {
 
 impl std::error::Error for NoEvaluations {}
 
+/// Largest `eval-final.json` or `progress.jsonl` read (far above any real one: a 50-task final
+/// evaluation is a few KB, a progress line a few hundred bytes).
+const MAX_EVAL_FILE_BYTES: u64 = 64 << 20;
+
+/// Whether a run's file is there: `Ok(false)` when nothing is at `path`, `Ok(true)` for a
+/// regular file (a link to one included), an error for anything else (a dangling or looping
+/// link, a folder, pipe or device, an unreadable folder), so that damage is never mistaken
+/// for a missing file.
+fn present_file(path: &Path) -> Result<bool> {
+    match std::fs::symlink_metadata(path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(false),
+        Err(e) => return Err(e).with_context(|| format!("cannot look at {}", path.display())),
+        Ok(_) => {}
+    }
+    let meta =
+        std::fs::metadata(path).with_context(|| format!("cannot open {}", path.display()))?;
+    anyhow::ensure!(
+        meta.is_file(),
+        "{} is not a regular file (a folder, pipe, socket or device)",
+        path.display()
+    );
+    Ok(true)
+}
+
+/// The text of a run's evaluation file, refused above [`MAX_EVAL_FILE_BYTES`].
+fn read_eval_file(path: &Path) -> Result<String> {
+    let len = std::fs::metadata(path)
+        .with_context(|| format!("reading {}", path.display()))?
+        .len();
+    anyhow::ensure!(
+        len <= MAX_EVAL_FILE_BYTES,
+        "{} has {len} bytes, more than any evaluation file ({MAX_EVAL_FILE_BYTES} at most)",
+        path.display()
+    );
+    std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))
+}
+
 /// Reads a run folder's config and evaluations. A folder without a run file or without any
 /// evaluation is a [`NoEvaluations`] error naming what was looked for; damaged evaluations are
 /// other errors.
 pub fn load_run(dir: &Path) -> Result<RunEval> {
     let cfg_path = dir.join("config.toml");
-    if !cfg_path.exists() {
+    if !present_file(&cfg_path).with_context(|| format!("{}: its run file", dir.display()))? {
         return Err(NoEvaluations(format!(
             "{} is not a run folder (no config.toml)",
             dir.display()
@@ -123,7 +160,7 @@ pub fn load_run(dir: &Path) -> Result<RunEval> {
         .collect();
     let mut points = Vec::new();
     let progress = dir.join("progress.jsonl");
-    if progress.exists() {
+    if present_file(&progress)? {
         points.extend(progress_points(
             &progress,
             cfg.eval_envs_per_task * cfg.train.eval_episodes_per_env,
@@ -162,7 +199,7 @@ pub fn load_run(dir: &Path) -> Result<RunEval> {
     points.sort_by_key(|p| p.env_steps);
     let in_run = points.clone();
     let final_eval = dir.join(FINAL_EVAL);
-    let has_final_eval = final_eval.exists();
+    let has_final_eval = present_file(&final_eval)?;
     if has_final_eval {
         let at = if cfg.train.total_env_steps > 0 {
             cfg.train.total_env_steps
@@ -250,8 +287,7 @@ pub const FINAL_EVAL: &str = "eval-final.json";
 /// The point of a `terl eval --json` output, per task in `tasks` order (a task the file lacks
 /// is an error).
 fn final_eval_point(path: &Path, tasks: &[String], env_steps: u64) -> Result<EvalPoint> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let text = read_eval_file(path)?;
     let v: serde_json::Value =
         serde_json::from_str(&text).with_context(|| format!("{} is not JSON", path.display()))?;
     let field = |v: &serde_json::Value, k: &str| {
@@ -266,15 +302,22 @@ fn final_eval_point(path: &Path, tasks: &[String], env_steps: u64) -> Result<Eva
     let per_task_success = tasks
         .iter()
         .map(|t| {
-            let e = entries
+            let mut found = entries
                 .iter()
-                .find(|e| e.get("task").and_then(serde_json::Value::as_str) == Some(t))
+                .filter(|e| e.get("task").and_then(serde_json::Value::as_str) == Some(t));
+            let e = found
+                .next()
                 .with_context(|| format!("{}: no result for {t}", path.display()))?;
+            anyhow::ensure!(
+                found.next().is_none(),
+                "{}: {t} has two results",
+                path.display()
+            );
             let rate = field(e, "success_rate")?;
             if let Some(n) = e.get("episodes").and_then(serde_json::Value::as_f64) {
                 anyhow::ensure!(
-                    n >= 1.0 && n.fract() == 0.0,
-                    "{}: {t} has {n} episodes (a whole number ≥ 1 expected)",
+                    (1.0..=1e9).contains(&n) && n.fract() == 0.0,
+                    "{}: {t} has {n} episodes (a whole number in 1..=1e9 expected)",
                     path.display()
                 );
             }
@@ -283,8 +326,13 @@ fn final_eval_point(path: &Path, tasks: &[String], env_steps: u64) -> Result<Eva
                 e.get("episodes").and_then(serde_json::Value::as_f64),
             ) {
                 anyhow::ensure!(
-                    (0.0..=n).contains(&k),
+                    (0.0..=n).contains(&k) && k.fract() == 0.0,
                     "{}: {t} has {k} successes in {n} episodes",
+                    path.display()
+                );
+                anyhow::ensure!(
+                    (rate - k / n).abs() <= 1e-9,
+                    "{}: {t} has success_rate {rate} but {k} successes in {n} episodes",
                     path.display()
                 );
             }
@@ -321,8 +369,7 @@ fn final_eval_point(path: &Path, tasks: &[String], env_steps: u64) -> Result<Eva
 /// The evaluations in a `terl train` `progress.jsonl`. A damaged last line (a run killed while
 /// writing) is skipped; damage elsewhere is an error with its line number.
 fn progress_points(path: &Path, episodes_per_task: usize) -> Result<Vec<EvalPoint>> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let text = read_eval_file(path)?;
     let lines: Vec<&str> = text.lines().filter(|l| !l.trim().is_empty()).collect();
     let mut out = Vec::new();
     for (i, line) in lines.iter().enumerate() {

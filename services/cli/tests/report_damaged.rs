@@ -118,9 +118,12 @@ fn report_refuses_unbounded_options_and_impossible_final_evaluations() {
     }
 }
 
-/// Several runs, one of them with a damaged final evaluation: the report covers the others,
-/// names the damaged one in `results.md` and on stderr, and exits 1 so a script notices that a
-/// run is missing from the comparison. Folders that are not runs are only noted.
+/// Several runs, some with a damaged final evaluation: the report covers the others, names
+/// each damaged one with its reason in `results.md` and on stderr, and exits 1 so a script
+/// notices that a run is missing from the comparison. A link to itself or a pipe under the
+/// file's name is damage, not "no final evaluation", and a pipe is never opened (it would wait
+/// for a writer forever). Folders that are not runs are only noted; a folder named twice is
+/// read once.
 #[test]
 fn a_run_left_out_of_a_multi_run_report_is_named_and_fails_the_command() {
     let dir = tempfile::tempdir().unwrap();
@@ -132,7 +135,7 @@ fn a_run_left_out_of_a_multi_run_report_is_named_and_fails_the_command() {
     })
     .to_string();
     let mut runs = Vec::new();
-    for seed in 1..=3 {
+    for seed in 1..=7 {
         let run = dir.path().join(format!("x-mtsac-s{seed}"));
         std::fs::create_dir_all(&run).unwrap();
         std::fs::write(
@@ -140,20 +143,34 @@ fn a_run_left_out_of_a_multi_run_report_is_named_and_fails_the_command() {
             config.replace("SEED", &seed.to_string()),
         )
         .unwrap();
-        // Seed 2's file is cut in the middle (a copy interrupted by a full disk).
-        let text = if seed == 2 {
-            &eval[..eval.len() / 2]
-        } else {
-            &eval[..]
-        };
-        std::fs::write(run.join("eval-final.json"), text).unwrap();
+        let final_eval = run.join("eval-final.json");
+        match seed {
+            // Cut in the middle (a copy interrupted by a full disk).
+            2 => std::fs::write(&final_eval, &eval[..eval.len() / 2]).unwrap(),
+            4 => std::os::unix::fs::symlink("eval-final.json", &final_eval).unwrap(),
+            5 => assert!(Command::new("mkfifo")
+                .arg(&final_eval)
+                .status()
+                .unwrap()
+                .success()),
+            // The rate contradicts the counts.
+            6 => std::fs::write(
+                &final_eval,
+                eval.replace("\"success_rate\":0.5", "\"success_rate\":0.1"),
+            )
+            .unwrap(),
+            _ => std::fs::write(&final_eval, &eval).unwrap(),
+        }
         runs.push(run);
     }
+    runs.push(dir.path().join("x-mtsac-s1/"));
     let not_a_run = dir.path().join("notes");
     std::fs::create_dir_all(&not_a_run).unwrap();
     runs.push(not_a_run);
     let out_dir = dir.path().join("out");
-    let out = Command::new(env!("CARGO_BIN_EXE_terl"))
+    let out = Command::new("timeout")
+        .arg("120")
+        .arg(env!("CARGO_BIN_EXE_terl"))
         .arg("report")
         .args(&runs)
         .arg("--out")
@@ -162,24 +179,30 @@ fn a_run_left_out_of_a_multi_run_report_is_named_and_fails_the_command() {
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{err}");
-    assert!(
-        err.contains("1 run folder(s) left out") && err.contains("x-mtsac-s2"),
-        "{err}"
-    );
+    assert!(err.contains("4 run folder(s) left out"), "{err}");
     assert!(err.contains("notes is not a run folder"), "{err}");
+    assert!(err.contains("given twice"), "{err}");
     let md = std::fs::read_to_string(out_dir.join("results.md")).unwrap();
     let (tables, left) = md.split_once("## Run folders left out").expect(&md);
+    for (seed, why) in [
+        (2, "not JSON"),
+        (4, "cannot open"),
+        (5, "not a regular file"),
+        (6, "success_rate 0.1 but 25 successes in 50"),
+    ] {
+        let line = left
+            .lines()
+            .find(|l| l.contains(&format!("x-mtsac-s{seed}`")))
+            .unwrap_or_else(|| panic!("seed {seed} not listed: {left}"));
+        assert!(line.contains(why), "seed {seed}: {line}");
+    }
+    for seed in [1, 3, 7] {
+        assert!(!left.contains(&format!("x-mtsac-s{seed}`")), "{left}");
+    }
+    assert!(!left.contains("notes"), "{left}");
+    // The three readable seeds are in the table.
     assert!(
-        left.contains("x-mtsac-s2") && left.contains("not JSON"),
-        "{left}"
-    );
-    assert!(
-        !left.contains("x-mtsac-s1") && !left.contains("notes"),
-        "{left}"
-    );
-    // The two readable seeds are in the table.
-    assert!(
-        tables.contains("| x | mtsac |") && tables.contains("| 2 |"),
+        tables.contains("| x | mtsac |") && tables.contains("| 3 |"),
         "{tables}"
     );
 }

@@ -358,23 +358,33 @@ mod tests {
         );
         assert!(!dir.path().join("run").join("learner.addr").exists());
 
-        // The bound against a real message of a small policy.
-        let mut sac_config = terl_rl::SacConfig {
-            num_tasks: 10,
-            policy_hidden: vec![64, 32],
-            ..terl_rl::SacConfig::default()
+        // The bound against a real message of a small policy, MTSAC's and CARE's (whose
+        // message also carries its experts, attention, task encoder and context table).
+        let care = terl_rl::CareConfig {
+            context: terl_rl::CareContext::OneHot,
+            ..terl_rl::CareConfig::default()
         };
-        sac_config.batch_size = 8;
-        let sac = terl_rl::Sac::<f32>::new(sac_config.clone()).unwrap();
-        let weights =
-            to_weights(terl_wire::WeightsKind::Policy, 1, 0, sac.policy_tensors()).unwrap();
-        let encoded = prost::Message::encoded_len(&terl_wire::pb::WeightsUpdate::from(&weights));
-        let mut cfg = terl_runtime::RunConfig::load(&path).unwrap();
-        cfg.sac = sac_config;
-        let bound = cfg.weight_message_bytes(10)[0].1;
-        assert!(
-            encoded as u64 <= bound && bound < encoded as u64 + 2048,
-            "encoded {encoded}, bound {bound}"
-        );
+        for care in [None, Some(care)] {
+            let mut sac_config = terl_rl::SacConfig {
+                num_tasks: 10,
+                policy_hidden: vec![64, 32],
+                care,
+                ..terl_rl::SacConfig::default()
+            };
+            sac_config.batch_size = 8;
+            let sac = terl_rl::Sac::<f32>::new(sac_config.clone()).unwrap();
+            let weights =
+                to_weights(terl_wire::WeightsKind::Policy, 1, 0, sac.policy_tensors()).unwrap();
+            let encoded =
+                prost::Message::encoded_len(&terl_wire::pb::WeightsUpdate::from(&weights));
+            let mut cfg = terl_runtime::RunConfig::load(&path).unwrap();
+            cfg.sac = sac_config;
+            let bound = cfg.weight_message_bytes(10)[0].1;
+            assert!(
+                encoded as u64 <= bound && bound < encoded as u64 + 4096,
+                "CARE {}: encoded {encoded}, bound {bound}",
+                cfg.sac.care.is_some()
+            );
+        }
     }
 }
