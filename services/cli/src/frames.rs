@@ -44,17 +44,7 @@ impl FrameSources {
     pub(crate) fn load(runs: &[PathBuf], camera: &str) -> Result<Self> {
         crate::charts::register_font()?;
         let mut by_experiment: BTreeMap<String, Vec<Source>> = BTreeMap::new();
-        let mut seen = Vec::new();
-        for dir in runs {
-            let key = dir.canonicalize().unwrap_or_else(|_| dir.clone());
-            if seen.contains(&key) {
-                eprintln!(
-                    "note: --frames-from {} is given twice; drawn once",
-                    dir.display()
-                );
-                continue;
-            }
-            seen.push(key);
+        for dir in crate::results::distinct_dirs(runs, "--frames-from ", "drawn once") {
             let run = load_run(dir)
                 .with_context(|| format!("--frames-from {}: not a run folder", dir.display()))?;
             let loaded = PolicyAndTasks::load(dir, None, None, UnseenTaskEncoding::Uniform)

@@ -333,15 +333,7 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
     let mut anything = false;
     let mut used_names: Vec<String> = Vec::new();
     let mut left_out: Vec<(PathBuf, String)> = Vec::new();
-    let mut seen: Vec<PathBuf> = Vec::new();
-    for dir in &args.run_dirs {
-        // The same folder named twice (`runs/a runs/a/ ./runs/a`) is one run.
-        let key = dir.canonicalize().unwrap_or_else(|_| dir.clone());
-        if seen.contains(&key) {
-            eprintln!("note: {} is given twice; read once", dir.display());
-            continue;
-        }
-        seen.push(key);
+    for dir in crate::results::distinct_dirs(&args.run_dirs, "", "read once") {
         if !dir.is_dir() {
             eprintln!("note: {} is not a run folder; skipped", dir.display());
             continue;

@@ -103,6 +103,28 @@ impl std::fmt::Display for NoEvaluations {
 
 impl std::error::Error for NoEvaluations {}
 
+/// `dirs` with each folder once, in order, compared by canonical path (`runs/a`, `runs/a/` and
+/// `./runs/a` are one folder); each repeat is noted on stderr as
+/// `note: <flag><dir> is given twice; <outcome>`.
+pub(crate) fn distinct_dirs<'a>(
+    dirs: &'a [PathBuf],
+    flag: &str,
+    outcome: &str,
+) -> Vec<&'a PathBuf> {
+    let mut seen = Vec::new();
+    dirs.iter()
+        .filter(|dir| {
+            let key = dir.canonicalize().unwrap_or_else(|_| (*dir).clone());
+            if seen.contains(&key) {
+                eprintln!("note: {flag}{} is given twice; {outcome}", dir.display());
+                return false;
+            }
+            seen.push(key);
+            true
+        })
+        .collect()
+}
+
 /// Largest `eval-final.json` or `progress.jsonl` read (far above any real one: a 50-task final
 /// evaluation is a few KB, a progress line a few hundred bytes).
 const MAX_EVAL_FILE_BYTES: u64 = 64 << 20;
