@@ -218,6 +218,35 @@ fn content_checksum<'a>(
     format!("crc32:{:08x}", h.finalize())
 }
 
+/// Most bytes of a safetensors header this crate reads (the format's own limit: 100 MB).
+pub const MAX_HEADER_BYTES: u64 = 100_000_000;
+
+/// The tensor data bytes a safetensors JSON header describes: the largest end offset of its
+/// tensors (`data_offsets`), 0 for none.
+fn header_data_len(header: &[u8]) -> Result<u64, NnError> {
+    let bad = |m: &str| NnError::Format(format!("safetensors header: {m}"));
+    let json: serde_json::Value =
+        serde_json::from_slice(header).map_err(|e| bad(&format!("invalid JSON ({e})")))?;
+    let entries = json.as_object().ok_or_else(|| bad("not a JSON object"))?;
+    let mut end = 0u64;
+    for (name, entry) in entries {
+        if name == "__metadata__" {
+            continue;
+        }
+        let offsets = entry
+            .get("data_offsets")
+            .and_then(|o| o.as_array())
+            .filter(|o| o.len() == 2)
+            .and_then(|o| Some((o[0].as_u64()?, o[1].as_u64()?)))
+            .ok_or_else(|| bad(&format!("tensor `{name}` has no valid data_offsets")))?;
+        if offsets.0 > offsets.1 {
+            return Err(bad(&format!("tensor `{name}` ends before it starts")));
+        }
+        end = end.max(offsets.1);
+    }
+    Ok(end)
+}
+
 /// Writes tensors to a safetensors file durably and atomically, with a format version
 /// ([`FORMAT_VERSION_KEY`]) and a content checksum ([`CHECKSUM_KEY`]) added to `metadata`.
 ///
@@ -356,10 +385,39 @@ impl TensorFile {
 
     /// Reads and decodes a safetensors file.
     pub fn load(path: &Path) -> Result<Self, NnError> {
-        let bytes = std::fs::read(path).map_err(|source| NnError::Io {
+        use std::io::Read;
+        let io = |source| NnError::Io {
             path: path.display().to_string(),
             source,
-        })?;
+        };
+        let mut file = std::fs::File::open(path).map_err(io)?;
+        let file_len = file.metadata().map_err(io)?.len();
+        // The layout is checked against the file's size before the data is read, so a damaged or
+        // foreign file (a huge one included) is refused after reading its header only.
+        let mut len = [0u8; 8];
+        file.read_exact(&mut len)
+            .map_err(|_| NnError::Format(format!("{file_len} bytes: no safetensors header")))?;
+        let header_len = u64::from_le_bytes(len);
+        if header_len > MAX_HEADER_BYTES || header_len > file_len.saturating_sub(8) {
+            return Err(NnError::Format(format!(
+                "header of {header_len} bytes does not fit (file of {file_len} bytes, headers of \
+                 at most {MAX_HEADER_BYTES})"
+            )));
+        }
+        let mut header = vec![0u8; header_len as usize];
+        file.read_exact(&mut header).map_err(io)?;
+        let data_len = header_data_len(&header)?;
+        if 8 + header_len + data_len != file_len {
+            return Err(NnError::Format(format!(
+                "the header describes {data_len} bytes of tensor data after its {header_len} \
+                 bytes, but the file has {} (cut or padded)",
+                file_len.saturating_sub(8 + header_len)
+            )));
+        }
+        let mut bytes = Vec::with_capacity(file_len as usize);
+        bytes.extend_from_slice(&len);
+        bytes.extend_from_slice(&header);
+        file.read_to_end(&mut bytes).map_err(io)?;
         Self::from_bytes(&bytes)
     }
 

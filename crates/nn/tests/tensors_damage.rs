@@ -201,3 +201,41 @@ fn a_damaged_checksum_key_is_an_error() {
         original().tensors
     );
 }
+
+/// `TensorFile::load` checks the layout against the file's size before it reads the data: a cut
+/// or padded file, or a header length past the end, is an error that names it, and a file that
+/// is mostly a hole (a damaged multi-GB checkpoint) is refused from its header alone. An intact
+/// file loads as `from_bytes` reads it.
+#[test]
+fn load_checks_the_layout_against_the_file_size_first() {
+    let dir = std::env::temp_dir().join(format!("terl-nn-load-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let bytes = checkpoint_bytes();
+    let path = dir.join("c.safetensors");
+    std::fs::write(&path, bytes).unwrap();
+    let loaded = TensorFile::load(&path).unwrap();
+    assert_eq!(loaded.metadata, original().metadata);
+    assert_eq!(loaded.tensors.len(), original().tensors.len());
+    let expect = |data: &[u8], what: &str| {
+        std::fs::write(&path, data).unwrap();
+        let e = TensorFile::load(&path).unwrap_err().to_string();
+        assert!(e.contains(what), "{what}: {e}");
+    };
+    expect(&bytes[..bytes.len() - 1], "cut or padded");
+    expect(&[bytes, &[0u8; 3][..]].concat(), "cut or padded");
+    expect(&bytes[..5], "no safetensors header");
+    let mut long_header = bytes.to_vec();
+    long_header[..8].copy_from_slice(&(bytes.len() as u64).to_le_bytes());
+    expect(&long_header, "does not fit");
+    // A sparse 64 GiB file behind a valid header: refused without reading the hole.
+    std::fs::write(&path, bytes).unwrap();
+    std::fs::OpenOptions::new()
+        .write(true)
+        .open(&path)
+        .unwrap()
+        .set_len(64 << 30)
+        .unwrap();
+    let e = TensorFile::load(&path).unwrap_err().to_string();
+    std::fs::remove_dir_all(&dir).unwrap();
+    assert!(e.contains("cut or padded"), "{e}");
+}

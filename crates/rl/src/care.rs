@@ -129,9 +129,34 @@ impl CareConfig {
             if widths.contains(&0) {
                 return bad(format!("{name} widths must be positive"));
             }
+            if let Some(w) = widths.iter().find(|&&w| w > crate::tep::MAX_WIDTH) {
+                return bad(format!(
+                    "{name} width {w} is above {}",
+                    crate::tep::MAX_WIDTH
+                ));
+            }
+            if widths.len() > crate::config::MAX_LAYERS {
+                return bad(format!(
+                    "{name} has more than {} layers",
+                    crate::config::MAX_LAYERS
+                ));
+            }
         }
-        if !(self.temperature.is_finite() && self.temperature > 0.0) {
-            return bad(format!("temperature {} must be > 0", self.temperature));
+        for (name, v) in [
+            ("feature_dim", self.feature_dim),
+            ("encoding_dim", self.encoding_dim),
+        ] {
+            if v > crate::tep::MAX_WIDTH {
+                return bad(format!("{name} {v} is above {}", crate::tep::MAX_WIDTH));
+            }
+        }
+        // The attention's logits are divided by the temperature in f32: far below mtrl's 1 they
+        // overflow to inf and the softmax to NaN.
+        if !(self.temperature.is_finite() && (1e-3..=1e3).contains(&self.temperature)) {
+            return bad(format!(
+                "temperature {} must be in [0.001, 1000] (mtrl: 1)",
+                self.temperature
+            ));
         }
         if !(0.0..=1.0).contains(&self.encoder_tau) {
             return bad(format!(

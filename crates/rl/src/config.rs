@@ -236,6 +236,27 @@ impl SacConfig {
         if self.policy_hidden.contains(&0) || self.critic_hidden.contains(&0) {
             return bad("hidden layer widths must be positive".into());
         }
+        if self.batch_size > crate::tep::MAX_BATCH {
+            return bad(format!(
+                "batch_size {} is above {}",
+                self.batch_size,
+                crate::tep::MAX_BATCH
+            ));
+        }
+        if let Some(w) = [self.obs_dim, self.act_dim, self.num_tasks]
+            .into_iter()
+            .chain(self.policy_hidden.iter().copied())
+            .chain(self.critic_hidden.iter().copied())
+            .find(|&w| w > crate::tep::MAX_WIDTH)
+        {
+            return bad(format!(
+                "a width of {w} (obs_dim, act_dim, num_tasks or a hidden layer) is above {}",
+                crate::tep::MAX_WIDTH
+            ));
+        }
+        if self.policy_hidden.len() > MAX_LAYERS || self.critic_hidden.len() > MAX_LAYERS {
+            return bad(format!("networks have at most {MAX_LAYERS} hidden layers"));
+        }
         if !(0.0..=1.0).contains(&self.gamma) || !(0.0..=1.0).contains(&self.tau) {
             return bad(format!(
                 "gamma {} and tau {} must be in [0, 1]",
@@ -260,6 +281,26 @@ impl SacConfig {
         if let Some(care) = &self.care {
             care.validate()?;
         }
+        // Each network (with CARE, its encoder included; the critics carry their own) holds at
+        // most tep::MAX_PARAMETERS: with its target and Adam moments that is ~1 GB of f32.
+        let policy = crate::PolicySpec::from_config(self).checked_num_params();
+        let critic = critic_spec_params(self);
+        for (name, params) in [("policy", policy), ("critic", critic)] {
+            if params.is_none_or(|p| p > crate::tep::MAX_PARAMETERS) {
+                return bad(format!(
+                    "the {name} network (policy_hidden {:?}, critic_hidden {:?}{}) has more than \
+                     {} parameters: with its target and Adam moments it would not fit in memory",
+                    self.policy_hidden,
+                    self.critic_hidden,
+                    if self.care.is_some() {
+                        ", CARE encoder"
+                    } else {
+                        ""
+                    },
+                    crate::tep::MAX_PARAMETERS
+                ));
+            }
+        }
         for (name, v) in [
             ("policy_head_init", self.policy_head_init),
             ("critic_head_init", self.critic_head_init),
@@ -269,6 +310,24 @@ impl SacConfig {
             }
         }
         Ok(())
+    }
+}
+
+/// Most hidden layers of a policy or critic network.
+pub const MAX_LAYERS: usize = 16;
+
+/// Parameters of one critic (its CARE encoder included), `None` on overflow.
+fn critic_spec_params(cfg: &SacConfig) -> Option<usize> {
+    let mut width = cfg.critic_input();
+    let mut total = 0usize;
+    for &h in &cfg.critic_hidden {
+        total = total.checked_add(width.checked_mul(h)?.checked_add(h)?)?;
+        width = h;
+    }
+    total = total.checked_add(width.checked_add(1)?)?;
+    match &cfg.care {
+        Some(c) => total.checked_add(c.policy_num_params(cfg.obs_dim, cfg.num_tasks)?),
+        None => Some(total),
     }
 }
 
@@ -301,5 +360,66 @@ mod tests {
             let e = threads_of(bad).unwrap_err();
             assert!(e.contains(says), "{bad}: {e}");
         }
+    }
+
+    /// Sizes that would abort a process on allocation, or overflow f32 in CARE's attention,
+    /// are configuration errors; the largest accepted settings still validate.
+    #[test]
+    fn network_sizes_and_care_temperature_are_bounded() {
+        let base = || SacConfig {
+            obs_dim: 39,
+            act_dim: 4,
+            num_tasks: 10,
+            ..SacConfig::default()
+        };
+        let check = |c: SacConfig| c.validate().map_err(|e| e.to_string());
+        assert!(check(base()).is_ok());
+        let mut c = base();
+        c.policy_hidden = vec![100_000_000];
+        assert!(check(c).unwrap_err().contains("above 16384"));
+        let mut c = base();
+        c.critic_hidden = vec![crate::tep::MAX_WIDTH; 3];
+        assert!(check(c).unwrap_err().contains("would not fit in memory"));
+        let mut c = base();
+        c.critic_hidden = vec![64; MAX_LAYERS + 1];
+        assert!(check(c).unwrap_err().contains("hidden layers"));
+        let mut c = base();
+        c.batch_size = 100_000_000;
+        assert!(check(c).unwrap_err().contains("batch_size"));
+        // A 4096-wide pair of layers (16.8M parameters) is still a network one may train.
+        let mut c = base();
+        c.policy_hidden = vec![4096, 4096];
+        assert!(check(c).is_ok());
+        let care = |f: &dyn Fn(&mut crate::CareConfig)| {
+            let mut cc = crate::CareConfig::default();
+            f(&mut cc);
+            check(SacConfig {
+                care: Some(cc),
+                ..base()
+            })
+        };
+        assert!(care(&|_| {}).is_ok());
+        for t in [1e-300, 1e-4, 1e4, f64::NAN] {
+            assert!(
+                care(&|c| c.temperature = t)
+                    .unwrap_err()
+                    .contains("temperature"),
+                "{t}"
+            );
+        }
+        assert!(care(&|c| c.temperature = 1e-3).is_ok());
+        assert!(care(&|c| c.feature_dim = 100_000_000)
+            .unwrap_err()
+            .contains("feature_dim"));
+        assert!(care(&|c| c.expert_hidden = vec![100_000])
+            .unwrap_err()
+            .contains("expert_hidden"));
+        // 64 experts of 4096: each alone fits, together the encoder does not.
+        assert!(care(&|c| {
+            c.num_experts = 64;
+            c.expert_hidden = vec![4096, 4096];
+        })
+        .unwrap_err()
+        .contains("would not fit in memory"));
     }
 }

@@ -313,6 +313,18 @@ impl RunConfig {
             self.cluster.zenoh.connect = connect;
         }
     }
+
+    /// The run file's `[sac]` completed for Meta-World: observation and action widths
+    /// (`terl_sim::OBS_DIM`, `ACTION_DIM`) and `num_tasks`, the length of the run's task list
+    /// (the width of the task one-hot). The one place the SAC dimensions are filled in.
+    pub fn sac_config(&self, num_tasks: usize) -> SacConfig {
+        SacConfig {
+            obs_dim: terl_sim::OBS_DIM,
+            act_dim: terl_sim::ACTION_DIM,
+            num_tasks,
+            ..self.sac.clone()
+        }
+    }
 }
 
 /// The value of the `TERL_TOKEN` environment variable, if set and not empty (what the service
@@ -598,6 +610,13 @@ impl RunConfig {
                     }
                 }
             }
+        }
+        // The networks as the run's processes build them (sizes bounded, so that a huge width
+        // is refused here rather than aborting a process on allocation).
+        if let Ok(tasks) = crate::resolve_tasks(&cfg.tasks) {
+            cfg.sac_config(tasks.len())
+                .validate()
+                .map_err(|e| anyhow::anyhow!("[sac] in {}: {e}", path.display()))?;
         }
         anyhow::ensure!(
             c.policy_lag_rounds <= MAX_POLICY_LAG_ROUNDS,

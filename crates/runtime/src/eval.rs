@@ -24,7 +24,9 @@
 //! task-conditioning (the mean of their first-layer task columns), stays on the simplex the
 //! network was trained on (every training input's task part sums to 1), and prefers no trained
 //! task. All zeros ([`UnseenTaskEncoding::Zeros`]) drops the task term entirely, an input the
-//! network never saw (sum 0); it is offered for comparison.
+//! network never saw (sum 0); it is offered for comparison. A CARE policy with task-description
+//! context conditions such a task on that task's own published description embedding instead
+//! ([`UnseenTaskEncoding::TaskEmbedding`], the only setting that applies to it).
 //!
 //! # Parallelism and determinism
 //!
@@ -89,14 +91,48 @@ pub enum UnseenTaskEncoding {
     Uniform,
     /// All zeros: no task term.
     Zeros,
+    /// The task's own published description embedding: CARE with task-description context
+    /// (`[sac.care] context = "task_embeddings"`) only, where it is the only setting.
+    #[serde(rename = "task-embedding")]
+    TaskEmbedding,
 }
 
 impl UnseenTaskEncoding {
-    /// Its name, as `FromStr` and serde read it: `"uniform"` or `"zeros"`.
+    /// Its name, as `FromStr` and serde read it: `"uniform"`, `"zeros"` or `"task-embedding"`.
     pub fn as_str(self) -> &'static str {
         match self {
             Self::Uniform => "uniform",
             Self::Zeros => "zeros",
+            Self::TaskEmbedding => "task-embedding",
+        }
+    }
+
+    /// The setting for a policy: `chosen`, or by default `TaskEmbedding` for CARE with
+    /// task-description context and `Uniform` for any other policy.
+    ///
+    /// # Errors
+    /// [`EvalError::Settings`] when `chosen` does not apply to the policy: anything but
+    /// `TaskEmbedding` for CARE with task-description context, or `TaskEmbedding` for another
+    /// policy.
+    pub fn for_policy(chosen: Option<Self>, sac: &terl_rl::SacConfig) -> Result<Self, EvalError> {
+        let embeddings = sac
+            .care
+            .as_ref()
+            .is_some_and(|c| c.context == terl_rl::CareContext::TaskEmbeddings);
+        match (chosen, embeddings) {
+            (None | Some(Self::TaskEmbedding), true) => Ok(Self::TaskEmbedding),
+            (Some(other), true) => Err(EvalError::Settings(format!(
+                "unseen-task encoding `{}` does not apply to this CARE policy: it conditions a \
+                 task it was not trained on on that task's published description embedding \
+                 (task-embedding)",
+                other.as_str()
+            ))),
+            (Some(Self::TaskEmbedding), false) => Err(EvalError::Settings(
+                "unseen-task encoding `task-embedding` applies only to CARE policies with \
+                 context = \"task_embeddings\"; use uniform or zeros"
+                    .into(),
+            )),
+            (chosen, false) => Ok(chosen.unwrap_or_default()),
         }
     }
 }
@@ -107,8 +143,9 @@ impl FromStr for UnseenTaskEncoding {
         match s {
             "uniform" => Ok(Self::Uniform),
             "zeros" => Ok(Self::Zeros),
+            "task-embedding" => Ok(Self::TaskEmbedding),
             other => Err(format!(
-                "unknown task encoding `{other}` (uniform or zeros)"
+                "unknown task encoding `{other}` (uniform, zeros or task-embedding)"
             )),
         }
     }
@@ -124,6 +161,9 @@ pub enum TaskEncoding {
     Uniform,
     /// All zeros (an unseen task, [`UnseenTaskEncoding::Zeros`]).
     Zeros,
+    /// The task's own published description embedding (an unseen task of a CARE policy with
+    /// task-description context, [`encoding_row`]); no vector over the one-hot slots (zeros).
+    TaskEmbedding,
 }
 
 impl TaskEncoding {
@@ -135,16 +175,17 @@ impl TaskEncoding {
                 out[i] = 1.0;
             }
             Self::Uniform => out.fill(1.0 / out.len().max(1) as f32),
-            Self::Zeros => out.fill(0.0),
+            Self::Zeros | Self::TaskEmbedding => out.fill(0.0),
         }
     }
 
-    /// `one-hot:<i>`, `uniform` or `zeros`.
+    /// `one-hot:<i>`, `uniform`, `zeros` or `task-embedding`.
     pub fn label(self) -> String {
         match self {
             Self::OneHot(i) => format!("one-hot:{i}"),
             Self::Uniform => "uniform".into(),
             Self::Zeros => "zeros".into(),
+            Self::TaskEmbedding => "task-embedding".into(),
         }
     }
 }
@@ -200,6 +241,7 @@ pub fn plan_tasks(
                 None => match unseen {
                     UnseenTaskEncoding::Uniform => TaskEncoding::Uniform,
                     UnseenTaskEncoding::Zeros => TaskEncoding::Zeros,
+                    UnseenTaskEncoding::TaskEmbedding => TaskEncoding::TaskEmbedding,
                 },
             },
         })
@@ -699,6 +741,20 @@ impl PolicyCheckpoint {
     /// Task names the policy was trained on, in one-hot order, from the run's config.
     pub fn trained_tasks(&self) -> Option<Result<Vec<&'static str>, EvalError>> {
         if let Some(stored) = &self.stored_tasks {
+            // The run folder's config.toml must not contradict what the checkpoint records.
+            if let Some((path, cfg)) = &self.run_config {
+                let listed = crate::resolve_tasks(&cfg.tasks).ok();
+                if listed.is_some_and(|l| l.iter().copied().ne(stored.iter().map(String::as_str))) {
+                    return Some(Err(EvalError::Shape(format!(
+                        "{} records the task list [{}], but its run's {} says tasks = \"{}\": \
+                         the run file was changed after training",
+                        self.path.display(),
+                        stored.join(", "),
+                        path.display(),
+                        cfg.tasks
+                    ))));
+                }
+            }
             return Some(crate::resolve_tasks(&stored.join(",")).map_err(|e| {
                 EvalError::Checkpoint {
                     path: self.path.display().to_string(),
@@ -717,6 +773,23 @@ impl PolicyCheckpoint {
     /// Checks that `trained` (the run's task list) fits the policy: one one-hot slot per task,
     /// and, for a checkpoint that records its task list, the same tasks in the same order.
     pub fn check_trained_tasks(&self, trained: &[&str]) -> Result<(), EvalError> {
+        let nt = self.policy.spec().num_tasks;
+        if trained.len() != nt {
+            let input = match &self.sac.care {
+                None => format!(
+                    "input {} = {} observation + {nt} task values",
+                    self.sac.policy_input(),
+                    self.sac.obs_dim
+                ),
+                Some(_) => format!("CARE, a task context row for each of {nt}"),
+            };
+            return Err(EvalError::Shape(format!(
+                "{} has a policy for {nt} task(s) ({input}), but its task list [{}] has {}",
+                self.path.display(),
+                trained.join(", "),
+                trained.len()
+            )));
+        }
         if let Some(stored) = &self.stored_tasks {
             if stored
                 .iter()
@@ -730,18 +803,6 @@ impl PolicyCheckpoint {
                     trained.join(", ")
                 )));
             }
-        }
-        let nt = self.policy.spec().num_tasks;
-        if trained.len() != nt {
-            return Err(EvalError::Shape(format!(
-                "{} has a policy for {nt} task(s) (input {} = {} observation + {nt} task values), \
-                 but its task list [{}] has {}",
-                self.path.display(),
-                self.sac.policy_input(),
-                self.sac.obs_dim,
-                trained.join(", "),
-                trained.len()
-            )));
         }
         Ok(())
     }
@@ -807,6 +868,10 @@ pub fn resolve_checkpoint(path: &std::path::Path) -> Result<std::path::PathBuf, 
 /// Most episodes per task [`evaluate_policy`] accepts.
 pub const MAX_EPISODES_PER_TASK: usize = 100_000;
 
+/// Checkpoint metadata key of the trained task list in one-hot order, a JSON array of task
+/// names (written by `terl train`; a cluster learner records it in its `terl.learner_state`).
+pub const TASKS_KEY: &str = "terl.tasks";
+
 /// Reads the policy of a checkpoint file or run directory ([`resolve_checkpoint`]) and, when it
 /// sits in a run folder, that run's `config.toml`.
 ///
@@ -861,16 +926,21 @@ pub fn load_policy_checkpoint(path: &std::path::Path) -> Result<PolicyCheckpoint
             }),
         })
         .transpose()?;
+    // The task order: a cluster learner records it in its state, `terl train` under TASKS_KEY.
+    let string_list = |v: &serde_json::Value| {
+        v.as_array()?
+            .iter()
+            .map(|t| t.as_str().map(str::to_string))
+            .collect::<Option<Vec<String>>>()
+    };
     let stored_tasks = file
         .metadata
         .get("terl.learner_state")
         .and_then(|s| serde_json::from_str::<serde_json::Value>(s).ok())
-        .and_then(|v| {
-            v.get("tasks")?
-                .as_array()?
-                .iter()
-                .map(|t| t.as_str().map(str::to_string))
-                .collect::<Option<Vec<String>>>()
+        .and_then(|v| string_list(v.get("tasks")?))
+        .or_else(|| {
+            let v = serde_json::from_str(file.metadata.get(TASKS_KEY)?).ok()?;
+            string_list(&v)
         })
         .filter(|t| !t.is_empty());
     Ok(PolicyCheckpoint {
@@ -963,6 +1033,36 @@ mod tests {
         assert_eq!(plan[0].encoding, TaskEncoding::Zeros);
         assert_eq!("zeros".parse(), Ok(UnseenTaskEncoding::Zeros));
         assert!("nearest".parse::<UnseenTaskEncoding>().is_err());
+    }
+
+    /// A CARE policy with task-description context meets an unseen task through that task's
+    /// embedding, so that is its only setting (and the label its evaluations carry); any other
+    /// policy takes uniform or zeros, uniform by default.
+    #[test]
+    fn the_unseen_task_setting_is_resolved_for_the_policy() {
+        use UnseenTaskEncoding::{TaskEmbedding, Uniform, Zeros};
+        let mtsac = terl_rl::SacConfig::default();
+        let care = |context| terl_rl::SacConfig {
+            care: Some(terl_rl::CareConfig {
+                context,
+                ..terl_rl::CareConfig::default()
+            }),
+            ..terl_rl::SacConfig::default()
+        };
+        let embeddings = care(terl_rl::CareContext::TaskEmbeddings);
+        let one_hot = care(terl_rl::CareContext::OneHot);
+        let f = UnseenTaskEncoding::for_policy;
+        assert_eq!(f(None, &mtsac).unwrap(), Uniform);
+        assert_eq!(f(Some(Zeros), &mtsac).unwrap(), Zeros);
+        assert!(f(Some(TaskEmbedding), &mtsac).is_err());
+        assert_eq!(f(None, &embeddings).unwrap(), TaskEmbedding);
+        assert_eq!(f(Some(TaskEmbedding), &embeddings).unwrap(), TaskEmbedding);
+        assert!(f(Some(Uniform), &embeddings).is_err());
+        assert_eq!(f(None, &one_hot).unwrap(), Uniform);
+        assert!(f(Some(TaskEmbedding), &one_hot).is_err());
+        assert_eq!("task-embedding".parse(), Ok(TaskEmbedding));
+        let plan = plan_tasks(&["door-close-v3"], &["reach-v3"], TaskEmbedding);
+        assert_eq!(plan[0].encoding.label(), "task-embedding");
     }
 
     #[test]
@@ -1064,7 +1164,7 @@ mod tests {
         let mut meta = std::collections::BTreeMap::new();
         meta.insert(
             "terl.sac_config".to_string(),
-            "num_tasks = 2\npolicy_hidden = [200000, 200000]\n".to_string(),
+            "num_tasks = 2\npolicy_hidden = [4096, 4096]\n".to_string(),
         );
         let t = terl_nn::Tensor::from_values("counters", vec![2], &[0.0f32, 0.0]);
         terl_nn::tensors::save_file(&path, &[t], &meta).unwrap();

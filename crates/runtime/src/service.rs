@@ -14,6 +14,55 @@ use anyhow::Context;
 use tokio::net::TcpListener;
 use tracing::Instrument;
 
+/// The flags every cluster service takes (`terl-learner`, `terl-selector`, `terl-actor`),
+/// flattened into each service's own arguments.
+#[derive(Debug, Clone, clap::Args)]
+pub struct ServiceArgs {
+    /// Run file (TOML), e.g. deploy/configs/mt10.toml; every service of a run reads the same.
+    #[arg(long)]
+    pub config: PathBuf,
+    /// Run id: names the shared-memory services and the default run folder.
+    #[arg(long)]
+    pub run_id: String,
+    /// Number of actor processes of the run (sizes the shared-memory services).
+    #[arg(long, default_value_t = 1)]
+    pub num_actors: usize,
+    /// Stop (as on SIGTERM) when the process with this pid, the launcher, exits or is killed:
+    /// no orphans (deploy/local-cluster.sh passes its own pid).
+    #[arg(long)]
+    pub parent_pid: Option<u32>,
+    /// With `[cluster] transport = "zenoh"`: a Zenoh endpoint to listen on, e.g.
+    /// `tcp/0.0.0.0:7447` (repeatable; replaces the run file's `[cluster.zenoh] listen`).
+    #[arg(long = "zenoh-listen", value_name = "ENDPOINT")]
+    pub zenoh_listen: Vec<String>,
+    /// With `[cluster] transport = "zenoh"`: a Zenoh endpoint to connect to, e.g. the
+    /// learner host's `tcp/10.0.0.1:7447` (repeatable; replaces `[cluster.zenoh] connect`).
+    #[arg(long = "zenoh-connect", value_name = "ENDPOINT")]
+    pub zenoh_connect: Vec<String>,
+}
+
+impl ServiceArgs {
+    /// A service's start: stop with the parent (`--parent-pid`), then the run file with the
+    /// command line's Zenoh endpoints in place of its own.
+    ///
+    /// # Errors
+    /// The parent watch cannot be set up, or the run file cannot be read or is invalid
+    /// ([`crate::RunConfig::load`]).
+    pub fn start(&self) -> anyhow::Result<crate::RunConfig> {
+        if let Some(pid) = self.parent_pid {
+            crate::exit_with_parent(pid)?;
+        }
+        let mut run = crate::RunConfig::load(&self.config)?;
+        run.override_zenoh_endpoints(self.zenoh_listen.clone(), self.zenoh_connect.clone());
+        Ok(run)
+    }
+
+    /// The run folder: `flag` (`--run-dir`) when given, else `runs/<run-id>`.
+    pub fn run_dir(&self, flag: Option<PathBuf>) -> PathBuf {
+        flag.unwrap_or_else(|| PathBuf::from("runs").join(&self.run_id))
+    }
+}
+
 /// Opens the run's transport for `role` (`learner`, `selector`, `actor-3`) with `config`, on a
 /// plain thread outside the caller's async runtime: Zenoh's blocking calls refuse to run on
 /// a tokio current-thread runtime, which the selector and actor binaries use. Blocks the

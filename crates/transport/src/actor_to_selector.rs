@@ -6,8 +6,9 @@ use iceoryx2::prelude::*;
 use crate::flow::Losses;
 use crate::{ACTION_DIM, OBS_DIM};
 
-/// Meta-World episodes are 500 steps; the trajectory array holds one full episode.
-pub const MAX_EPISODE_STEPS: usize = 500;
+/// Meta-World episodes are 500 steps (`terl_spaces::MAX_PATH_LENGTH`); the trajectory array
+/// holds one full episode.
+pub const MAX_EPISODE_STEPS: usize = terl_spaces::MAX_PATH_LENGTH as usize;
 
 /// One step of a stored trajectory: the state, the executed action and its reward.
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend, bytemuck::Pod, bytemuck::Zeroable)]
@@ -71,7 +72,7 @@ pub struct EpisodeSummary {
     /// The steps in order; entries from `trajectory_len` on are unused.
     pub trajectory: [TrajectoryStep; MAX_EPISODE_STEPS],
     /// The goal variation the episode ran on (index into the task's 50 variations of the run's
-    /// `variation_seed`, `terl_sim::metaworld::goal_variations`); [`NO_VARIATION`]: unknown.
+    /// `variation_seed`, `goal_variations` in `terl-sim`'s Meta-World module); [`NO_VARIATION`]: unknown.
     /// Also the tail padding to the 8-byte alignment, so every byte is data.
     pub variation: u32,
 }

@@ -1,6 +1,6 @@
 //! The in-memory twin of the shared-memory transport, for tests of the logic above the seam.
 //!
-//! Same contract as [`crate::ipc`]: every subscriber gets every message sent after it
+//! Same contract as [`crate::shm`]: every subscriber gets every message sent after it
 //! subscribed (broadcast, no history), each subscriber has a bounded buffer of the
 //! configured size, a full buffer is handled by the same [`OverflowPolicy`] and counted the
 //! same way, publisher/subscriber limits are enforced, and run ids keep streams apart.

@@ -9,8 +9,8 @@ use tonic::Status;
 
 use crate::pb;
 
-/// Meta-World observation and action widths (defined once, in `terl_sim`).
-pub use terl_sim::{ACTION_DIM, OBS_DIM};
+/// Meta-World observation and action widths (defined once, in `terl_spaces`).
+pub use terl_spaces::{ACTION_DIM, OBS_DIM};
 
 /// One transition selected for the TEP dataset.
 #[derive(Debug, Clone, PartialEq)]

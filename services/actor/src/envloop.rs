@@ -584,13 +584,7 @@ pub(crate) fn run<T: ServiceTransport>(
         .train
         .seed
         .wrapping_add(7919 * (u64::from(actor_id) + 1));
-    let spec = PolicySpec {
-        obs_dim: OBS_DIM,
-        act_dim: ACTION_DIM,
-        num_tasks: tasks.len(),
-        hidden: run.sac.policy_hidden.clone(),
-        care: run.sac.care.clone(),
-    };
+    let spec = PolicySpec::from_config(&run.sac_config(tasks.len()));
     // TERL guidance (Eq. 15); `N` counts episodes since the first planner version, the actor's
     // or each environment's (`[guidance] episode_counter`).
     let guide = (run.algorithm == Algorithm::Terl).then(|| {

@@ -7,11 +7,7 @@ use terl_actor::args::{ActorIdArg, Args};
 async fn main() -> anyhow::Result<()> {
     terl_runtime::init_tracing();
     let a = Args::parse();
-    if let Some(pid) = a.parent_pid {
-        terl_runtime::exit_with_parent(pid)?;
-    }
-    let mut run = terl_runtime::RunConfig::load(&a.config)?;
-    run.override_zenoh_endpoints(a.zenoh_listen, a.zenoh_connect);
+    let run = a.service.start()?;
     let client_security = run
         .cluster
         .client_security(terl_runtime::token_from_env())?;
@@ -19,8 +15,13 @@ async fn main() -> anyhow::Result<()> {
         ActorIdArg::Auto => (0, true),
         ActorIdArg::Id(id) => (id, false),
     };
-    let mut config =
-        terl_actor::ActorConfig::new(run, a.run_id, actor_id, a.num_actors, a.learner_addr);
+    let mut config = terl_actor::ActorConfig::new(
+        run,
+        a.service.run_id,
+        actor_id,
+        a.service.num_actors,
+        a.learner_addr,
+    );
     config.auto_id = auto_id;
     config.client_security = client_security;
     let role = if auto_id {

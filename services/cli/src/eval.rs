@@ -36,9 +36,11 @@ pub struct EvalArgs {
     #[arg(long)]
     pub seed: Option<u64>,
     /// Task vector for a task the policy was not trained on: `uniform` (1/num_tasks in every
-    /// slot: the average of the trained tasks' conditioning) or `zeros`.
-    #[arg(long, default_value = "uniform")]
-    pub unseen_task_encoding: UnseenTaskEncoding,
+    /// slot: the average of the trained tasks' conditioning; the default) or `zeros`. A CARE
+    /// policy with task-description context takes the task's own description embedding
+    /// (`task-embedding`, its default and only setting).
+    #[arg(long)]
+    pub unseen_task_encoding: Option<UnseenTaskEncoding>,
     /// The task list the checkpoint was trained on, in order (default: from the run's
     /// config.toml next to the checkpoints folder).
     #[arg(long)]
@@ -67,18 +69,22 @@ pub(crate) struct PolicyAndTasks {
     pub(crate) ckpt: PolicyCheckpoint,
     pub(crate) trained: Vec<&'static str>,
     pub(crate) tasks: Vec<EvalTask>,
+    /// What a task outside `trained` is conditioned on (the option, resolved for the policy).
+    pub(crate) unseen: UnseenTaskEncoding,
 }
 
 impl PolicyAndTasks {
     /// Loads `checkpoint` and checks it against `trained_tasks` (default: the run's
-    /// config.toml); `tasks` defaults to the trained tasks.
+    /// config.toml); `tasks` defaults to the trained tasks; `unseen` to what fits the policy
+    /// ([`UnseenTaskEncoding::for_policy`]).
     pub(crate) fn load(
         checkpoint: &std::path::Path,
         trained_tasks: Option<&str>,
         tasks: Option<&str>,
-        unseen: UnseenTaskEncoding,
+        unseen: Option<UnseenTaskEncoding>,
     ) -> Result<Self> {
         let ckpt = load_policy_checkpoint(checkpoint)?;
+        let unseen = UnseenTaskEncoding::for_policy(unseen, &ckpt.sac)?;
         let trained: Vec<&'static str> = match (trained_tasks, ckpt.trained_tasks()) {
             (Some(spec), _) => terl_runtime::resolve_tasks(spec)?,
             (None, Some(tasks)) => tasks?,
@@ -98,6 +104,7 @@ impl PolicyAndTasks {
             ckpt,
             trained,
             tasks,
+            unseen,
         })
     }
 
@@ -120,6 +127,7 @@ pub fn run(args: EvalArgs) -> Result<ExitCode> {
         ckpt,
         trained,
         tasks,
+        unseen,
     } = loaded;
     let settings = EvalSettings {
         episodes_per_task: args.episodes_per_task,
@@ -155,7 +163,7 @@ pub fn run(args: EvalArgs) -> Result<ExitCode> {
     let out = EvalOutput {
         checkpoint: ckpt.path.display().to_string(),
         trained_tasks: trained,
-        unseen_task_encoding: args.unseen_task_encoding,
+        unseen_task_encoding: unseen,
         summary,
     };
     if args.json {

@@ -11,7 +11,6 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
-use terl_runtime::eval::UnseenTaskEncoding;
 use terl_sim::metaworld::goal_variations;
 use terl_sim::render::Renderer;
 use terl_sim::Env;
@@ -47,10 +46,9 @@ impl FrameSources {
         for dir in crate::results::distinct_dirs(runs, "--frames-from ", "drawn once") {
             let run = load_run(dir)
                 .with_context(|| format!("--frames-from {}: not a run folder", dir.display()))?;
-            let loaded = PolicyAndTasks::load(dir, None, None, UnseenTaskEncoding::Uniform)
-                .with_context(|| {
-                    format!("--frames-from {}: no usable checkpoint", dir.display())
-                })?;
+            let loaded = PolicyAndTasks::load(dir, None, None, None).with_context(|| {
+                format!("--frames-from {}: no usable checkpoint", dir.display())
+            })?;
             let seed = loaded.variation_seed(None);
             by_experiment
                 .entry(run.experiment.clone())

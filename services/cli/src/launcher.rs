@@ -380,6 +380,18 @@ pub fn up(args: UpArgs) -> Result<ExitCode> {
             pids.join(" ")
         ));
     }
+    // A fresh run never writes into another run's folder: its checkpoint rotation would delete
+    // that run's checkpoints, its logs would continue that run's numbering, and a later
+    // --resume could continue from either run's checkpoint.
+    let out = plan.runs_root.join(&plan.run_id);
+    if !plan.resume && holds_files(&out) {
+        return usage(format!(
+            "{} already holds a run: continue it with --resume {}, remove it, or choose \
+             another --run-id",
+            out.display(),
+            out.display()
+        ));
+    }
     let bin = std::env::current_exe()
         .context("cannot find the terl binary")?
         .parent()
@@ -397,6 +409,16 @@ pub fn up(args: UpArgs) -> Result<ExitCode> {
     });
     drop(lock);
     code
+}
+
+/// Whether `dir` exists and is anything but an empty folder (a file, a link or a folder with
+/// entries): an unreadable path counts as holding files.
+fn holds_files(dir: &Path) -> bool {
+    match std::fs::symlink_metadata(dir) {
+        Err(e) => e.kind() != std::io::ErrorKind::NotFound,
+        Ok(m) if m.is_dir() => std::fs::read_dir(dir).map_or(true, |mut d| d.next().is_some()),
+        Ok(_) => true,
+    }
 }
 
 /// SIGINT and SIGTERM, recorded; the launcher looks at them between its steps.

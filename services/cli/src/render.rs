@@ -61,8 +61,8 @@ pub struct RenderArgs {
     #[arg(long)]
     pub seed: Option<u64>,
     /// Task vector of a task the policy was not trained on (as `terl eval`).
-    #[arg(long, default_value = "uniform")]
-    pub unseen_task_encoding: UnseenTaskEncoding,
+    #[arg(long)]
+    pub unseen_task_encoding: Option<UnseenTaskEncoding>,
     /// The task list the checkpoint was trained on, in order (default: the run's config.toml).
     #[arg(long)]
     pub trained_tasks: Option<String>,
@@ -327,13 +327,30 @@ pub(crate) fn remove_stale_parts(dir: &Path) -> usize {
 /// process ends, however it ends): a second render into the same folder is refused instead of
 /// mixing its files and `render.json` with the first's.
 fn lock_folder(dir: &Path) -> Result<std::fs::File> {
+    use std::os::unix::fs::OpenOptionsExt;
     let path = dir.join(".render.lock");
+    let not_a_file = || {
+        anyhow::anyhow!(
+            "{} is not a regular file (a pipe, device or link?): remove it, or choose another \
+             --out",
+            path.display()
+        )
+    };
+    if std::fs::symlink_metadata(&path).is_ok_and(|m| !m.is_file()) {
+        return Err(not_a_file());
+    }
+    // Non-blocking and not through a link: what appears under the name after the check above
+    // fails to open or is refused below instead of blocking the open.
     let file = std::fs::OpenOptions::new()
         .create(true)
         .truncate(false)
         .write(true)
+        .custom_flags(nix::libc::O_NONBLOCK | nix::libc::O_NOFOLLOW)
         .open(&path)
         .with_context(|| format!("opening {}", path.display()))?;
+    if !file.metadata().is_ok_and(|m| m.is_file()) {
+        return Err(not_a_file());
+    }
     match file.try_lock() {
         Ok(()) => Ok(file),
         Err(std::fs::TryLockError::WouldBlock) => bail!(

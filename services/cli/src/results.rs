@@ -228,7 +228,14 @@ pub fn load_run(dir: &Path) -> Result<RunEval> {
         } else {
             points.last().map_or(0, |p| p.env_steps)
         };
-        let p = final_eval_point(&final_eval, &tasks, at)?;
+        // A zero-shot run folder (`run.sh mt-test`) evaluates another run's checkpoint and
+        // names it in its cluster.txt; every other run evaluates a policy trained on its tasks.
+        let info = dir.join("cluster.txt");
+        let zero_shot = present_file(&info)?
+            && read_eval_file(&info)?
+                .lines()
+                .any(|l| l.starts_with("source_run="));
+        let p = final_eval_point(&final_eval, &tasks, at, zero_shot)?;
         anyhow::ensure!(
             p.is_valid(tasks.len()),
             "{}: success rates must be in [0, 1]",
@@ -275,8 +282,9 @@ fn layers_label(hidden: &[usize]) -> String {
     }
 }
 
-/// The run file's networks: policy and critic (`π …, Q …` when they differ), and for TERL the
-/// TEP's forward model (`TEP f …, AN …` when its action network differs).
+/// The run file's networks: policy and critic (`π …, Q …` when they differ), CARE's encoder
+/// (experts, context, encoding width), and for TERL the TEP's forward model (`TEP f …, AN …`
+/// when its action network differs).
 fn networks_label(cfg: &RunConfig) -> String {
     let (pi, q) = (
         layers_label(&cfg.sac.policy_hidden),
@@ -287,6 +295,23 @@ fn networks_label(cfg: &RunConfig) -> String {
     } else {
         format!("π {pi}, Q {q}")
     };
+    if let Some(care) = &cfg.sac.care {
+        // CARE's encoder: k experts (hidden → feature width), the context and its encoder.
+        let experts = match care.expert_hidden.as_slice() {
+            [] => String::new(),
+            h => format!("{} → ", layers_label(h)),
+        };
+        let context = match care.context {
+            terl_rl::CareContext::TaskEmbeddings => "task embeddings",
+            terl_rl::CareContext::OneHot => "one-hot",
+        };
+        return format!(
+            "{sac}; CARE {k} experts {experts}{f}, {context} → {e}",
+            k = care.num_experts,
+            f = care.feature_dim,
+            e = care.encoding_dim
+        );
+    }
     if cfg.algorithm != terl_runtime::Algorithm::Terl {
         return sac;
     }
@@ -308,10 +333,48 @@ pub const FINAL_EVAL: &str = "eval-final.json";
 
 /// The point of a `terl eval --json` output, per task in `tasks` order (a task the file lacks
 /// is an error).
-fn final_eval_point(path: &Path, tasks: &[String], env_steps: u64) -> Result<EvalPoint> {
+fn final_eval_point(
+    path: &Path,
+    tasks: &[String],
+    env_steps: u64,
+    zero_shot: bool,
+) -> Result<EvalPoint> {
     let text = read_eval_file(path)?;
     let v: serde_json::Value =
         serde_json::from_str(&text).with_context(|| format!("{} is not JSON", path.display()))?;
+    // The evaluation must be of this run's policy on this run's tasks: the trained task list
+    // it records is the run's own (a zero-shot run's: not), and it lists no other task.
+    if let Some(trained) = v.get("trained_tasks").and_then(serde_json::Value::as_array) {
+        let trained: Vec<&str> = trained
+            .iter()
+            .filter_map(serde_json::Value::as_str)
+            .collect();
+        let own = trained.iter().copied().eq(tasks.iter().map(String::as_str));
+        anyhow::ensure!(
+            own != zero_shot,
+            "{}: made from a checkpoint trained on [{}]; {}",
+            path.display(),
+            trained.join(", "),
+            if zero_shot {
+                "this zero-shot run's tasks must be outside that list".to_string()
+            } else {
+                format!(
+                    "this run trains [{}]: not this run's evaluation",
+                    tasks.join(", ")
+                )
+            }
+        );
+        if let Some(t) = tasks
+            .iter()
+            .find(|t| zero_shot && trained.contains(&t.as_str()))
+        {
+            anyhow::bail!(
+                "{}: {t} is among the trained tasks [{}]: not a zero-shot evaluation",
+                path.display(),
+                trained.join(", ")
+            );
+        }
+    }
     let field = |v: &serde_json::Value, k: &str| {
         v.get(k)
             .and_then(serde_json::Value::as_f64)
@@ -321,6 +384,17 @@ fn final_eval_point(path: &Path, tasks: &[String], env_steps: u64) -> Result<Eva
         .get("tasks")
         .and_then(serde_json::Value::as_array)
         .with_context(|| format!("{}: no `tasks` list", path.display()))?;
+    if let Some(other) = entries
+        .iter()
+        .filter_map(|e| e.get("task").and_then(serde_json::Value::as_str))
+        .find(|t| !tasks.iter().any(|own| own == t))
+    {
+        anyhow::bail!(
+            "{}: has a result for {other}, which is not a task of this run [{}]",
+            path.display(),
+            tasks.join(", ")
+        );
+    }
     let per_task_success = tasks
         .iter()
         .map(|t| {
@@ -373,6 +447,13 @@ fn final_eval_point(path: &Path, tasks: &[String], env_steps: u64) -> Result<Eva
             path.display()
         );
     }
+    let task_mean = per_task_success.iter().sum::<f64>() / per_task_success.len().max(1) as f64;
+    anyhow::ensure!(
+        (mean_success - task_mean).abs() <= 1e-9,
+        "{}: mean_success_rate {mean_success} is not the mean of its tasks' success rates \
+         ({task_mean})",
+        path.display()
+    );
     let episodes_per_task = field(&v, "episodes_per_task")?;
     anyhow::ensure!(
         episodes_per_task >= 1.0 && episodes_per_task.fract() == 0.0 && episodes_per_task <= 1e9,

@@ -10,7 +10,6 @@ use clap::Args;
 use terl_rl::train::{train, TrainProgress};
 use terl_rl::Sac;
 pub use terl_runtime::{MetaWorldVec, RunConfig};
-use terl_sim::{ACTION_DIM, OBS_DIM};
 
 #[derive(Debug, Args)]
 pub struct TrainArgs {
@@ -58,6 +57,19 @@ fn progress_line(tasks: &[&str], p: &TrainProgress) -> String {
     s
 }
 
+/// Saves `sac` with its task list in order (metadata `terl.tasks`, a JSON array), so that a
+/// copy of the checkpoint outside its run folder is still evaluated with the right one-hot
+/// slots ([`terl_runtime::eval::load_policy_checkpoint`]).
+fn save_checkpoint(sac: &Sac<f32>, tasks: &[String], path: &std::path::Path) -> Result<()> {
+    let (tensors, mut meta) = sac.checkpoint_tensors();
+    meta.insert(
+        terl_runtime::eval::TASKS_KEY.to_string(),
+        serde_json::to_string(tasks)?,
+    );
+    terl_nn::tensors::save_file(path, &tensors, &meta)
+        .with_context(|| format!("cannot write the checkpoint {}", path.display()))
+}
+
 pub fn run(args: TrainArgs) -> Result<std::process::ExitCode> {
     let mut cfg = RunConfig::load(&args.config)?;
     if let Some(s) = args.steps {
@@ -68,9 +80,26 @@ pub fn run(args: TrainArgs) -> Result<std::process::ExitCode> {
         cfg.sac.seed = s;
     }
     let tasks = terl_runtime::resolve_tasks(&cfg.tasks)?;
-    cfg.sac.obs_dim = OBS_DIM;
-    cfg.sac.act_dim = ACTION_DIM;
-    cfg.sac.num_tasks = tasks.len();
+    anyhow::ensure!(
+        cfg.algorithm != terl_runtime::Algorithm::Terl,
+        "{}: algorithm = \"terl\" runs in a cluster only (its selector, planner and guided \
+         actors are processes): ./deploy/local-cluster.sh --config {}; terl train trains \
+         \"mtsac\" and \"care\"",
+        args.config.display(),
+        args.config.display()
+    );
+    // The trainer gives environment k the task k mod tasks: fewer environments than tasks
+    // would leave the last tasks untrained (the cluster's actors round up instead).
+    anyhow::ensure!(
+        cfg.num_envs >= tasks.len(),
+        "{}: num_envs = {} is fewer than the run's {} tasks, so some tasks would never be \
+         trained; set num_envs to at least {}",
+        args.config.display(),
+        cfg.num_envs,
+        tasks.len(),
+        tasks.len()
+    );
+    cfg.sac = cfg.sac_config(tasks.len());
     cfg.sac.validate()?;
 
     let stem = args
@@ -85,6 +114,18 @@ pub fn run(args: TrainArgs) -> Result<std::process::ExitCode> {
             .unwrap_or(0);
         PathBuf::from("runs").join(format!("{stem}-{t}"))
     });
+    // Another run's folder is never written into: its checkpoints and config would be
+    // replaced and its logs mixed with this run's.
+    let occupied = match std::fs::symlink_metadata(&out) {
+        Err(e) => e.kind() != std::io::ErrorKind::NotFound,
+        Ok(m) if m.is_dir() => std::fs::read_dir(&out).map_or(true, |mut d| d.next().is_some()),
+        Ok(_) => true,
+    };
+    anyhow::ensure!(
+        !occupied,
+        "--out {} already exists and is not an empty folder: choose a new folder",
+        out.display()
+    );
     std::fs::create_dir_all(out.join("checkpoints"))
         .with_context(|| format!("cannot create {}", out.display()))?;
     std::fs::write(out.join("config.toml"), toml::to_string_pretty(&cfg)?)?;
@@ -116,7 +157,11 @@ pub fn run(args: TrainArgs) -> Result<std::process::ExitCode> {
             io_error.get_or_insert(e);
         }
         if p.eval.is_some() {
-            if let Err(e) = sac.save_checkpoint(&out.join("checkpoints/latest.safetensors")) {
+            if let Err(e) = save_checkpoint(
+                sac,
+                &task_names,
+                &out.join("checkpoints/latest.safetensors"),
+            ) {
                 tracing::warn!("checkpoint failed: {e}");
             }
         }
@@ -124,7 +169,11 @@ pub fn run(args: TrainArgs) -> Result<std::process::ExitCode> {
     if let Some(e) = io_error {
         return Err(e).context("writing progress.jsonl");
     }
-    sac.save_checkpoint(&out.join("checkpoints/final.safetensors"))?;
+    save_checkpoint(
+        &sac,
+        &task_names,
+        &out.join("checkpoints/final.safetensors"),
+    )?;
     std::fs::write(
         out.join("report.json"),
         serde_json::to_string_pretty(&report)?,

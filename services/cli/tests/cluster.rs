@@ -1229,6 +1229,27 @@ fn launcher_refuses_bad_or_locked_run_ids_and_reports_a_start_up_failure_with_it
         );
     }
 
+    // A fresh run into another run's folder: refused, the folder untouched (its checkpoints
+    // would be rotated away and a later --resume could continue either run).
+    let taken = runs.join("it-taken");
+    std::fs::create_dir_all(taken.join("checkpoints")).unwrap();
+    std::fs::write(
+        taken.join("checkpoints/update-0000000010.safetensors"),
+        b"x",
+    )
+    .unwrap();
+    let (code, err) = run(&["--run-id", "it-taken"]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains("already holds a run") && err.contains("--resume"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read_dir(&taken).unwrap().count(),
+        1,
+        "nothing was written"
+    );
+
     // Another launcher of this run id holds its lock.
     let id = format!("it-lock-{}", std::process::id());
     let lock = locks.join("terl-run-locks").join(format!("{id}.lock"));

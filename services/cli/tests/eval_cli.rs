@@ -303,10 +303,31 @@ fn eval_reads_a_terl_train_run_folder_and_rejects_shapes_that_do_not_fit() {
     )
     .unwrap();
     let o = terl(&["eval", "--checkpoint", run.to_str().unwrap()]);
-    assert!(String::from_utf8_lossy(&o.stderr).contains("shape mismatch"));
-    // A lone checkpoint: the trained task order must be given.
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("shape mismatch") && err.contains("changed after training"),
+        "{err}"
+    );
+    // A lone checkpoint carries its task order (terl train records it).
     let lone = dir.path().join("lone.safetensors");
     std::fs::copy(&ckpt, &lone).unwrap();
+    let v = json(&terl(&[
+        "eval",
+        "--checkpoint",
+        lone.to_str().unwrap(),
+        "--episodes-per-task",
+        "1",
+        "--json",
+    ]));
+    assert_eq!(
+        v["trained_tasks"],
+        serde_json::json!(["reach-v3", "push-v3"])
+    );
+    // A checkpoint without a recorded order, alone: the order must be given.
+    let mut file = terl_nn::tensors::TensorFile::load(&lone).unwrap();
+    file.metadata.remove("terl.tasks");
+    let tensors: Vec<_> = file.tensors.into_values().collect();
+    terl_nn::tensors::save_file(&lone, &tensors, &file.metadata).unwrap();
     let o = terl(&["eval", "--checkpoint", lone.to_str().unwrap()]);
     assert!(String::from_utf8_lossy(&o.stderr).contains("--trained-tasks"));
     // Not a checkpoint at all.
@@ -524,4 +545,22 @@ fn render_writes_playable_videos_of_the_episodes_eval_scores() {
         assert!(err.contains(expect), "{err}");
         assert!(!not_made.exists(), "{args:?} made the output folder");
     }
+    // A pipe under the lock file's name is refused, not opened (that would wait forever).
+    let piped = dir.path().join("piped");
+    std::fs::create_dir(&piped).unwrap();
+    assert!(std::process::Command::new("mkfifo")
+        .arg(piped.join(".render.lock"))
+        .status()
+        .unwrap()
+        .success());
+    let o = std::process::Command::new("timeout")
+        .arg("60")
+        .arg(env!("CARGO_BIN_EXE_terl"))
+        .args(["render", "--checkpoint", run.to_str().unwrap(), "--out"])
+        .arg(&piped)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("not a regular file"), "{err}");
 }

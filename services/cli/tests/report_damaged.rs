@@ -135,7 +135,7 @@ fn a_run_left_out_of_a_multi_run_report_is_named_and_fails_the_command() {
     })
     .to_string();
     let mut runs = Vec::new();
-    for seed in 1..=7 {
+    for seed in 1..=9 {
         let run = dir.path().join(format!("x-mtsac-s{seed}"));
         std::fs::create_dir_all(&run).unwrap();
         std::fs::write(
@@ -159,6 +159,21 @@ fn a_run_left_out_of_a_multi_run_report_is_named_and_fails_the_command() {
                 eval.replace("\"success_rate\":0.5", "\"success_rate\":0.1"),
             )
             .unwrap(),
+            // Another run's evaluation: of a checkpoint trained on other tasks.
+            8 => std::fs::write(
+                &final_eval,
+                eval.replace("\"tasks\":[", "\"trained_tasks\":[\"push-v3\"],\"tasks\":["),
+            )
+            .unwrap(),
+            // A task the run does not have, which would enter the mean return.
+            9 => std::fs::write(
+                &final_eval,
+                eval.replace(
+                    "\"tasks\":[",
+                    "\"tasks\":[{\"task\":\"door-close-v3\",\"episodes\":50,\"successes\":0,\"success_rate\":0.0,\"mean_return\":1.0},",
+                ),
+            )
+            .unwrap(),
             _ => std::fs::write(&final_eval, &eval).unwrap(),
         }
         runs.push(run);
@@ -179,7 +194,7 @@ fn a_run_left_out_of_a_multi_run_report_is_named_and_fails_the_command() {
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{err}");
-    assert!(err.contains("4 run folder(s) left out"), "{err}");
+    assert!(err.contains("6 run folder(s) left out"), "{err}");
     assert!(err.contains("notes is not a run folder"), "{err}");
     assert!(err.contains("given twice"), "{err}");
     let md = std::fs::read_to_string(out_dir.join("results.md")).unwrap();
@@ -189,6 +204,8 @@ fn a_run_left_out_of_a_multi_run_report_is_named_and_fails_the_command() {
         (4, "cannot open"),
         (5, "not a regular file"),
         (6, "success_rate 0.1 but 25 successes in 50"),
+        (8, "not this run's evaluation"),
+        (9, "door-close-v3, which is not a task of this run"),
     ] {
         let line = left
             .lines()

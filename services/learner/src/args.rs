@@ -22,18 +22,12 @@ pub enum WhenFinished {
     about = "MTSAC learner of a terl cluster"
 )]
 pub struct Args {
-    /// Run file (TOML), e.g. deploy/configs/mt10.toml.
-    #[arg(long)]
-    pub config: PathBuf,
-    /// Run id: names the shared-memory services and the default run folder.
-    #[arg(long)]
-    pub run_id: String,
+    /// The flags every service takes (run file, run id, actor count, parent, Zenoh endpoints).
+    #[command(flatten)]
+    pub service: terl_runtime::service::ServiceArgs,
     /// gRPC listen address (port 0: any free port, written to `<run-dir>/learner.addr`).
     #[arg(long, default_value = terl_wire::DEFAULT_LEARNER_ADDR)]
     pub addr: std::net::SocketAddr,
-    /// Number of actor processes (sizes the shared-memory services).
-    #[arg(long, default_value_t = 1)]
-    pub num_actors: usize,
     /// Run folder (default `runs/<run-id>`).
     #[arg(long)]
     pub run_dir: Option<PathBuf>,
@@ -57,16 +51,4 @@ pub struct Args {
     /// writes no file either way.
     #[arg(long, value_enum, default_value_t = WhenFinished::Exit)]
     pub when_finished: WhenFinished,
-    /// Stop (as on SIGTERM) when the process with this pid, the launcher, exits or is killed:
-    /// no orphans (deploy/local-cluster.sh passes its own pid).
-    #[arg(long)]
-    pub parent_pid: Option<u32>,
-    /// With `[cluster] transport = "zenoh"`: a Zenoh endpoint to listen on, e.g.
-    /// `tcp/0.0.0.0:7447` (repeatable; replaces the run file's `[cluster.zenoh] listen`).
-    #[arg(long = "zenoh-listen", value_name = "ENDPOINT")]
-    pub zenoh_listen: Vec<String>,
-    /// With `[cluster] transport = "zenoh"`: a Zenoh endpoint to connect to, e.g. the
-    /// learner host's `tcp/10.0.0.1:7447` (repeatable; replaces `[cluster.zenoh] connect`).
-    #[arg(long = "zenoh-connect", value_name = "ENDPOINT")]
-    pub zenoh_connect: Vec<String>,
 }

@@ -1,8 +1,6 @@
 //! `terl-learner`: parse arguments, check the networks fit a message, listen, open the run's
 //! transport, then [`terl_learner::run`] until SIGINT/SIGTERM.
 
-use std::path::PathBuf;
-
 use anyhow::Context;
 use clap::Parser;
 use terl_learner::args::Args;
@@ -11,15 +9,15 @@ use terl_learner::args::Args;
 async fn main() -> anyhow::Result<()> {
     terl_runtime::init_tracing();
     let a = Args::parse();
-    if let Some(pid) = a.parent_pid {
-        terl_runtime::exit_with_parent(pid)?;
-    }
-    let mut run = terl_runtime::RunConfig::load(&a.config)?;
-    run.override_zenoh_endpoints(a.zenoh_listen, a.zenoh_connect);
-    let run_dir = a
-        .run_dir
-        .unwrap_or_else(|| PathBuf::from("runs").join(&a.run_id));
-    let mut config = terl_learner::LearnerConfig::new(run, a.run_id, a.addr, a.num_actors, run_dir);
+    let run = a.service.start()?;
+    let run_dir = a.service.run_dir(a.run_dir);
+    let mut config = terl_learner::LearnerConfig::new(
+        run,
+        a.service.run_id,
+        a.addr,
+        a.service.num_actors,
+        run_dir,
+    );
     config.tep_datasets = a.tep_dataset;
     config.server_security = config
         .run

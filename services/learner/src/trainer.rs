@@ -181,11 +181,7 @@ impl Learning<'_> {
 /// the run's task count.
 pub(crate) fn sac_config(config: &LearnerConfig) -> anyhow::Result<terl_rl::SacConfig> {
     let tasks = terl_runtime::resolve_tasks(&config.run.tasks)?;
-    let mut sac_config = config.run.sac.clone();
-    sac_config.obs_dim = OBS_DIM;
-    sac_config.act_dim = ACTION_DIM;
-    sac_config.num_tasks = tasks.len();
-    Ok(sac_config)
+    Ok(config.run.sac_config(tasks.len()))
 }
 
 /// The learner's standalone update rate ([`terl_rl::sac::standalone_update_rate`]) over

@@ -39,10 +39,7 @@ pub(crate) fn run(config: &SelectorConfig, shared: &Shared, learner_addr: &str) 
         }
     };
     let plan = plan_tasks(&tasks, &tasks, UnseenTaskEncoding::Uniform);
-    let mut sac = run.sac.clone();
-    sac.obs_dim = terl_sim::OBS_DIM;
-    sac.act_dim = terl_sim::ACTION_DIM;
-    sac.num_tasks = tasks.len();
+    let sac = run.sac_config(tasks.len());
     let mut policy = terl_rl::Policy::new(terl_rl::PolicySpec::from_config(&sac), 1);
     let settings = EvalSettings {
         episodes_per_task: run.cluster.eval_episodes_per_task,

@@ -30,7 +30,7 @@ use terl_rl::SuccessWindow;
 use terl_runtime::Algorithm;
 use terl_transport::{
     EpisodeSummary, LossTracker, Message, MessageSink, SelectedBatch, SelectedSample,
-    ServiceTransport, Transport, TransportError, ACTION_DIM, OBS_DIM, SELECTED_PER_BATCH,
+    ServiceTransport, Transport, TransportError, SELECTED_PER_BATCH,
 };
 use terl_wire::{PriorityStats, SelectorBackend, SelectorStatus, TaskSuccess, WeightsKind};
 use tonic::Status;
@@ -299,10 +299,7 @@ fn receive_loop<T: Transport>(
     let mut episodes = transport.source::<EpisodeSummary>()?;
     let tasks: Vec<&str> = terl_runtime::resolve_tasks(&run.tasks)?;
     let mut selecting = if run.algorithm == Algorithm::Terl {
-        let mut sac = run.sac.clone();
-        sac.obs_dim = OBS_DIM;
-        sac.act_dim = ACTION_DIM;
-        sac.num_tasks = tasks.len();
+        let sac = run.sac_config(tasks.len());
         let path = terl_telemetry::fresh_path(&config.run_dir, "tep-dataset");
         let dataset = terl_telemetry::TepDatasetWriter::create(&path)
             .with_context(|| format!("cannot create the TEP dataset {}", path.display()))?;
@@ -715,8 +712,8 @@ mod tests {
             ..terl_rl::ptr::PtrConfig::default()
         };
         let sac = terl_rl::SacConfig {
-            obs_dim: OBS_DIM,
-            act_dim: ACTION_DIM,
+            obs_dim: terl_transport::OBS_DIM,
+            act_dim: terl_transport::ACTION_DIM,
             num_tasks: 2,
             ..terl_rl::SacConfig::default()
         };

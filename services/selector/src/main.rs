@@ -1,7 +1,5 @@
 //! `terl-selector`: parse arguments, then [`terl_selector::run`] until SIGINT/SIGTERM.
 
-use std::path::PathBuf;
-
 use anyhow::Context;
 use clap::Parser;
 use terl_selector::args::Args;
@@ -10,16 +8,15 @@ use terl_selector::args::Args;
 async fn main() -> anyhow::Result<()> {
     terl_runtime::init_tracing();
     let a = Args::parse();
-    if let Some(pid) = a.parent_pid {
-        terl_runtime::exit_with_parent(pid)?;
-    }
-    let mut run = terl_runtime::RunConfig::load(&a.config)?;
-    run.override_zenoh_endpoints(a.zenoh_listen, a.zenoh_connect);
-    let run_dir = a
-        .run_dir
-        .unwrap_or_else(|| PathBuf::from("runs").join(&a.run_id));
-    let mut config =
-        terl_selector::SelectorConfig::new(run, a.run_id, a.addr, a.num_actors, run_dir);
+    let run = a.service.start()?;
+    let run_dir = a.service.run_dir(a.run_dir);
+    let mut config = terl_selector::SelectorConfig::new(
+        run,
+        a.service.run_id,
+        a.addr,
+        a.service.num_actors,
+        run_dir,
+    );
     config.learner_addr = a.learner_addr;
     let cluster = &config.run.cluster;
     config.server_security = cluster.server_security(terl_runtime::token_from_env())?;

@@ -25,15 +25,9 @@ use crate::mujoco::{Model, Simulation};
 pub use scene::{Density, Scene, FRAME_SKIP, TARGET_RADIUS};
 pub use tasks::{task_names, task_set, task_set_names, TaskSpec};
 
-/// Observation length (fully observable Meta-World: hand, gripper, two objects, goal). The one
-/// definition: `terl_transport` and `terl_wire` re-export it.
-pub const OBS_DIM: usize = 39;
-/// Action length (hand delta xyz, gripper), each in `[-1, 1]`. The one definition.
-pub const ACTION_DIM: usize = 4;
-/// Episode length (`max_path_length`).
-pub const MAX_PATH_LENGTH: u32 = 500;
-/// Goal variations per task, as in the Meta-World benchmarks.
-pub const NUM_VARIATIONS: usize = 50;
+/// The benchmark's fixed sizes, defined once in `terl_spaces` (which the message crates share
+/// without this crate's FFI): observation and action widths, episode length, goal variations.
+pub use terl_spaces::{ACTION_DIM, MAX_PATH_LENGTH, NUM_VARIATIONS, OBS_DIM};
 
 const HAND_SPACE_LOW: [f64; 3] = [-0.525, 0.348, -0.0525];
 const HAND_SPACE_HIGH: [f64; 3] = [0.525, 1.025, 0.7];

@@ -30,7 +30,14 @@ use crate::channel::{Message, MessageSink, MessageSource, Transport};
 use crate::config::{TransportConfig, PUBLISHER_MAX_LOANED, SUBSCRIBER_MAX_BORROWED};
 use crate::error::TransportError;
 use crate::flow::{OverflowPolicy, SendOutcome, StatsSnapshot, TransportStats};
-use crate::shm::{check_free_space, SHM_PATH};
+use space::{check_free_space, SHM_PATH};
+
+mod sink;
+mod source;
+pub mod space;
+
+pub use sink::ShmSink;
+pub use source::ShmSource;
 
 /// The iceoryx2 service flavour: inter-process, ports usable from any thread.
 pub type ShmService = iceoryx2::service::ipc_threadsafe::Service;
@@ -326,180 +333,5 @@ impl core::fmt::Debug for SenderClaim {
         f.debug_struct("SenderClaim")
             .field("service", &self.label)
             .finish()
-    }
-}
-
-/// Publisher side of one stream over shared memory.
-pub struct ShmSink<M: Message> {
-    label: String,
-    factory: PubSubFactory<ShmService, M, ()>,
-    publisher: Publisher<ShmService, M, ()>,
-    policy: OverflowPolicy,
-    block_timeout: Duration,
-    /// Receivers found full, counted by the back-pressure handler.
-    full_hits: Arc<AtomicU64>,
-    /// Set by `cancel_blocked_sends`: blocked sends give up.
-    cancel: Arc<AtomicBool>,
-    stats: Arc<TransportStats>,
-    // Keeps the node alive as long as its ports.
-    _node: Arc<Node<ShmService>>,
-}
-
-impl<M: Message> core::fmt::Debug for ShmSink<M> {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.debug_struct("ShmSink")
-            .field("service", &self.label)
-            .field("policy", &self.policy)
-            .field("stats", &self.stats.snapshot())
-            .finish()
-    }
-}
-
-/// Poll interval of a `Block` send waiting for a receiver that has not attached yet.
-const UNATTACHED_RETRY: Duration = Duration::from_micros(200);
-
-impl<M: Message> ShmSink<M> {
-    /// A `Block` send gives up on a full receiver: the message is dropped and counted (and
-    /// reported in the stamp of the next message).
-    fn give_up(&self, message: &M) -> TransportError {
-        self.stats.record_given_up(message.items());
-        self.block_timeout_error()
-    }
-
-    fn block_timeout_error(&self) -> TransportError {
-        if self.cancel.load(Ordering::Relaxed) {
-            return TransportError::Cancelled(self.label.clone());
-        }
-        TransportError::BlockTimeout {
-            service: self.label.clone(),
-            waited: self.block_timeout,
-        }
-    }
-
-    /// Shared counters, for a metrics exporter that outlives borrowing the sink.
-    pub fn stats_handle(&self) -> Arc<TransportStats> {
-        Arc::clone(&self.stats)
-    }
-
-    /// The iceoryx2 service this sink publishes on (`terl/<run_id>/<topic>`).
-    pub fn service_name(&self) -> &str {
-        &self.label
-    }
-}
-
-impl<M: Message> MessageSink<M> for ShmSink<M> {
-    fn send(&mut self, message: &M) -> Result<SendOutcome, TransportError> {
-        let start = Instant::now();
-        let mut saw_full = false;
-        loop {
-            let hits_before = self.full_hits.load(Ordering::Relaxed);
-            let sample = self
-                .publisher
-                .loan_uninit()
-                .map_err(|e| ipc_err("loan", &self.label, e))?;
-            let mut sample = sample.write_payload(*message);
-            sample.payload_mut().set_losses(self.stats.losses());
-            let result = sample.send();
-            // The handler runs when an attached receiver is full.
-            let handler_saw_full = self.full_hits.load(Ordering::Relaxed) != hits_before;
-            let delivered = match result {
-                Ok(n) => n,
-                Err(SendError::UnableToDeliver) => return Err(self.give_up(message)),
-                Err(e) => return Err(ipc_err("send", &self.label, e)),
-            };
-            // A subscriber attaches its end of the queue on its first receive; until then
-            // messages queue up to its buffer size and beyond that iceoryx2 reports 0
-            // recipients instead of calling the handler. That is a full receiver too.
-            let unattached_full = delivered == 0 && !handler_saw_full && self.receivers() > 0;
-            if (handler_saw_full || unattached_full) && !saw_full {
-                saw_full = true;
-                self.stats.add_full_event();
-            }
-            let outcome = if unattached_full {
-                match self.policy {
-                    OverflowPolicy::DropNewest => SendOutcome::Full,
-                    OverflowPolicy::Block
-                        if start.elapsed() >= self.block_timeout
-                            || self.cancel.load(Ordering::Relaxed) =>
-                    {
-                        return Err(self.give_up(message))
-                    }
-                    OverflowPolicy::Block => {
-                        std::thread::sleep(UNATTACHED_RETRY);
-                        continue;
-                    }
-                }
-            } else if handler_saw_full && self.policy == OverflowPolicy::DropNewest {
-                SendOutcome::Full
-            } else if delivered == 0 {
-                SendOutcome::NoReceiver
-            } else {
-                SendOutcome::Delivered
-            };
-            self.stats.record(outcome, message.items());
-            return Ok(outcome);
-        }
-    }
-
-    fn receivers(&self) -> usize {
-        self.factory.dynamic_config().number_of_subscribers()
-    }
-
-    fn stats(&self) -> StatsSnapshot {
-        self.stats.snapshot()
-    }
-}
-
-/// Subscriber side of one stream over shared memory.
-pub struct ShmSource<M: Message> {
-    label: String,
-    factory: PubSubFactory<ShmService, M, ()>,
-    subscriber: Subscriber<ShmService, M, ()>,
-    stats: Arc<TransportStats>,
-    _node: Arc<Node<ShmService>>,
-}
-
-impl<M: Message> core::fmt::Debug for ShmSource<M> {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.debug_struct("ShmSource")
-            .field("service", &self.label)
-            .field("stats", &self.stats.snapshot())
-            .finish()
-    }
-}
-
-impl<M: Message> ShmSource<M> {
-    /// Shared counters, for a metrics exporter that outlives borrowing the source.
-    pub fn stats_handle(&self) -> Arc<TransportStats> {
-        Arc::clone(&self.stats)
-    }
-
-    /// Zero-copy receive: runs `f` on the message in shared memory and releases it.
-    pub fn try_receive_with<R>(
-        &mut self,
-        f: impl FnOnce(&M) -> R,
-    ) -> Result<Option<R>, TransportError> {
-        match self.subscriber.receive() {
-            Ok(Some(sample)) => {
-                self.stats.add_received(1);
-                Ok(Some(f(sample.payload())))
-            }
-            Ok(None) => Ok(None),
-            Err(e) => Err(ipc_err("receive", &self.label, e)),
-        }
-    }
-}
-
-impl<M: Message> MessageSource<M> for ShmSource<M> {
-    fn try_receive_into(&mut self, out: &mut M) -> Result<bool, TransportError> {
-        Ok(self.try_receive_with(|m| *out = *m)?.is_some())
-    }
-
-    fn senders(&self) -> usize {
-        self.factory.dynamic_config().number_of_publishers()
-    }
-
-    fn stats(&self) -> StatsSnapshot {
-        self.stats.snapshot()
     }
 }

@@ -6,7 +6,7 @@ use std::time::Duration;
 use crate::channel::{Message, MessageSink, MessageSource, ServiceTransport, Transport};
 use crate::config::{TransportConfig, TransportKind};
 use crate::error::TransportError;
-use crate::ipc::{SenderClaim, ShmTransport};
+use crate::shm::{SenderClaim, ShmTransport};
 use crate::zenoh_net::{ZenohClaim, ZenohTransport};
 
 /// Shared memory or Zenoh, as `TransportConfig::transport` says.
