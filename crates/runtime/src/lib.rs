@@ -106,20 +106,28 @@ pub fn resolve_tasks(spec: &str) -> anyhow::Result<Vec<&'static str>> {
 }
 
 /// Completes on the first SIGINT or SIGTERM: the shutdown future every service `main` passes
-/// to its `run`.
-pub async fn shutdown_signal() {
+/// to its `run`. The handlers are installed when this is called, not when the future is first
+/// polled, so a service calls it first thing: a signal that arrives during its start-up
+/// (compiling scenes, opening the transport) is then kept and stops the service as soon as its
+/// loop begins, instead of killing it with the default action (exit 143). Must be called
+/// inside a tokio runtime.
+pub fn shutdown_signal() -> impl std::future::Future<Output = ()> + Send + 'static {
     use tokio::signal::unix::{signal, SignalKind};
-    let mut term = match signal(SignalKind::terminate()) {
-        Ok(s) => s,
-        Err(e) => {
-            tracing::warn!("cannot listen for SIGTERM ({e}); only Ctrl-C stops this process");
-            let _ = tokio::signal::ctrl_c().await;
-            return;
+    let term = signal(SignalKind::terminate());
+    let int = signal(SignalKind::interrupt());
+    async move {
+        match (term, int) {
+            (Ok(mut term), Ok(mut int)) => tokio::select! {
+                _ = int.recv() => tracing::info!("SIGINT: shutting down"),
+                _ = term.recv() => tracing::info!("SIGTERM: shutting down"),
+            },
+            (Err(e), _) | (_, Err(e)) => {
+                tracing::warn!(
+                    "cannot listen for SIGTERM/SIGINT ({e}); only Ctrl-C stops this process"
+                );
+                let _ = tokio::signal::ctrl_c().await;
+            }
         }
-    };
-    tokio::select! {
-        _ = tokio::signal::ctrl_c() => tracing::info!("SIGINT: shutting down"),
-        _ = term.recv() => tracing::info!("SIGTERM: shutting down"),
     }
 }
 

@@ -6,6 +6,8 @@ use terl_actor::args::{ActorIdArg, Args};
 #[tokio::main(flavor = "current_thread")]
 async fn main() -> anyhow::Result<()> {
     terl_runtime::init_tracing();
+    // Before anything slow: a SIGTERM during start-up then stops the service cleanly.
+    let shutdown = terl_runtime::shutdown_signal();
     let a = Args::parse();
     let run = a.service.start()?;
     let client_security = run
@@ -36,5 +38,5 @@ async fn main() -> anyhow::Result<()> {
             .transport_config(config.run_id.as_str(), config.num_actors),
         &role,
     )?;
-    terl_actor::run(config, transport, terl_runtime::shutdown_signal()).await
+    terl_actor::run(config, transport, shutdown).await
 }

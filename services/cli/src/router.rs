@@ -34,7 +34,7 @@ pub fn run(args: RouterArgs) -> Result<ExitCode> {
     tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?
-        .block_on(terl_runtime::shutdown_signal());
+        .block_on(async { terl_runtime::shutdown_signal().await });
     eprintln!("zenoh router stopped");
     Ok(ExitCode::SUCCESS)
 }

@@ -8,6 +8,8 @@ use terl_learner::args::Args;
 #[tokio::main]
 async fn main() -> anyhow::Result<()> {
     terl_runtime::init_tracing();
+    // Before anything slow: a SIGTERM during start-up then stops the service cleanly.
+    let shutdown = terl_runtime::shutdown_signal();
     let a = Args::parse();
     let run = a.service.start()?;
     let run_dir = a.service.run_dir(a.run_dir);
@@ -37,5 +39,5 @@ async fn main() -> anyhow::Result<()> {
             .transport_config(config.run_id.as_str(), config.num_actors),
         "learner",
     )?;
-    terl_learner::run(config, listener, transport, terl_runtime::shutdown_signal()).await
+    terl_learner::run(config, listener, transport, shutdown).await
 }

@@ -7,6 +7,8 @@ use terl_selector::args::Args;
 #[tokio::main(flavor = "current_thread")]
 async fn main() -> anyhow::Result<()> {
     terl_runtime::init_tracing();
+    // Before anything slow: a SIGTERM during start-up then stops the service cleanly.
+    let shutdown = terl_runtime::shutdown_signal();
     let a = Args::parse();
     let run = a.service.start()?;
     let run_dir = a.service.run_dir(a.run_dir);
@@ -32,5 +34,5 @@ async fn main() -> anyhow::Result<()> {
             .transport_config(config.run_id.as_str(), config.num_actors),
         "selector",
     )?;
-    terl_selector::run(config, listener, transport, terl_runtime::shutdown_signal()).await
+    terl_selector::run(config, listener, transport, shutdown).await
 }
