@@ -413,7 +413,7 @@ pub fn up(args: UpArgs) -> Result<ExitCode> {
 
 /// Whether `dir` exists and is anything but an empty folder (a file, a link or a folder with
 /// entries): an unreadable path counts as holding files.
-fn holds_files(dir: &Path) -> bool {
+pub(crate) fn holds_files(dir: &Path) -> bool {
     match std::fs::symlink_metadata(dir) {
         Err(e) => e.kind() != std::io::ErrorKind::NotFound,
         Ok(m) if m.is_dir() => std::fs::read_dir(dir).map_or(true, |mut d| d.next().is_some()),

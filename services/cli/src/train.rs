@@ -116,13 +116,8 @@ pub fn run(args: TrainArgs) -> Result<std::process::ExitCode> {
     });
     // Another run's folder is never written into: its checkpoints and config would be
     // replaced and its logs mixed with this run's.
-    let occupied = match std::fs::symlink_metadata(&out) {
-        Err(e) => e.kind() != std::io::ErrorKind::NotFound,
-        Ok(m) if m.is_dir() => std::fs::read_dir(&out).map_or(true, |mut d| d.next().is_some()),
-        Ok(_) => true,
-    };
     anyhow::ensure!(
-        !occupied,
+        !crate::launcher::holds_files(&out),
         "--out {} already exists and is not an empty folder: choose a new folder",
         out.display()
     );
