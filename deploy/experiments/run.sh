@@ -238,19 +238,25 @@ train_run() {
         say "$id: processes of a run with this id are still running (another experiment, or a killed one's orphans): not touched"
         return 1
     fi
-    rm -rf "$dir"
+    rm -rf "$dir" "$runs/$id.cluster.log"
     mkdir -p "$runs"
     local cfg
     cfg=$(mktemp "${TMPDIR:-/tmp}/terl-$id.XXXXXX.toml") || return 1
     current_tmp=$cfg
     cat > "$cfg" || return 1
-    say "$id: training (log: $dir/cluster.log)"
-    mkdir -p "$dir"
+    # The launcher refuses a run folder that already holds files, so the launcher's own output
+    # goes beside the folder while it runs and into it afterwards.
+    local log="$runs/$id.cluster.log"
+    rm -f "$log"
+    say "$id: training (log: $log)"
     local start=$SECONDS
     local rc=0
     ./deploy/local-cluster.sh --config "$cfg" --run-id "$id" --actors "$actors" --no-build \
         --learner-addr 127.0.0.1:0 --selector-addr 127.0.0.1:0 --runs-root "$runs" "$@" \
-        > "$dir/cluster.log" 2>&1 || rc=$?
+        > "$log" 2>&1 || rc=$?
+    if [ -d "$dir" ]; then
+        mv "$log" "$dir/cluster.log" && log="$dir/cluster.log"
+    fi
     if [ "$rc" != 0 ]; then
         rm -f "$cfg"
         # Stopped by Ctrl-C or SIGTERM (the launcher exits 130 or 143): the whole experiment stops.
@@ -258,7 +264,7 @@ train_run() {
             say "$id: interrupted; stopping the experiment (run it again to continue)"
             exit "$rc"
         fi
-        say "$id: the cluster failed; see $dir/cluster.log"
+        say "$id: the cluster failed; see $log"
         return 1
     fi
     rm -f "$cfg"

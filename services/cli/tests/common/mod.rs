@@ -21,7 +21,25 @@ pub fn service_binaries() -> PathBuf {
         None => "dev".to_string(),
     };
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    let status = Command::new(cargo)
+    let mut build = Command::new(cargo);
+    // The variables cargo sets for this test (CARGO_MANIFEST_DIR, CARGO_PKG_*, OUT_DIR, …)
+    // would reach build scripts that watch them (ring's does) and rebuild their crates here
+    // and again in the next ordinary build.
+    for (name, _) in std::env::vars_os() {
+        let Some(name) = name.to_str() else { continue };
+        let set_by_cargo_for_tests = name == "OUT_DIR"
+            || name == "CARGO_MANIFEST_DIR"
+            || name == "CARGO_MANIFEST_PATH"
+            || name == "CARGO_CRATE_NAME"
+            || name == "CARGO_PRIMARY_PACKAGE"
+            || name == "CARGO_TARGET_TMPDIR"
+            || name.starts_with("CARGO_PKG_")
+            || name.starts_with("CARGO_BIN_EXE_");
+        if set_by_cargo_for_tests {
+            build.env_remove(name);
+        }
+    }
+    let status = build
         .current_dir(workspace())
         .args(["build", "-q", "--profile", &profile])
         // terl-cli too: its dependencies (plotters, image) turn on features of shared crates
