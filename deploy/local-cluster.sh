@@ -33,7 +33,7 @@
 # algorithm = "terl" the selected samples also go to runs/<id>/tep-dataset.mcap.
 #
 # This script builds the release binaries and then becomes `target/release/terl cluster up` with
-# the same options (same pid): the launcher itself is Rust (services/cli/src/launcher.rs).
+# the same options (same pid): the launcher itself is Rust (services/cli/src/cluster/launcher.rs).
 # Exit codes: 0 when the training budget is reached or `terl cluster down` stopped the run, 1
 # when a process did not start or died too often, 2 for bad options, 130/143 on SIGINT/SIGTERM.
 # `terl cluster clean ID` removes the launcher files of a run whose launcher was killed.

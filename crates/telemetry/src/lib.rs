@@ -59,8 +59,8 @@ mod tep;
 use std::path::{Path, PathBuf};
 
 pub use records::{
-    episodes_path, eval_path, metrics_path, read_log, EpisodeLogWriter, EvalLogWriter, LogRecord,
-    LogWriter, Logged, MetricsWriter,
+    episodes_path, eval_path, metrics_path, read_log, read_run_log, CutSegment, EpisodeLogWriter,
+    EvalLogWriter, LogRecord, LogWriter, Logged, MetricsWriter, RunLog,
 };
 pub use tensorboard::EventWriter;
 pub use tep::{read_tep_dataset, TepDataset, TepDatasetWriter, TEP_SCHEMA_NAME, TEP_TOPIC};

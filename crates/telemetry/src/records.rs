@@ -165,6 +165,61 @@ pub fn read_log<R: LogRecord>(path: impl AsRef<Path>) -> Result<Logged<R>> {
     })
 }
 
+/// Every record of a run's `<kind>.mcap` log and its restarted segments (`<kind>.2.mcap`, …,
+/// [`crate::existing_paths`]), in order, with the segments read only in part.
+///
+/// Errors: as [`read_log`], for the first segment that cannot be read at all.
+pub fn read_run_log<R: LogRecord>(run_dir: &Path, kind: &str) -> Result<RunLog<R>> {
+    let mut log = RunLog {
+        records: Vec::new(),
+        cut: Vec::new(),
+    };
+    for path in crate::existing_paths(run_dir, kind) {
+        let segment = read_log::<R>(&path)?;
+        if let Some(reason) = segment.truncation {
+            log.cut.push(CutSegment {
+                path,
+                reason,
+                kept: segment.records.len(),
+            });
+        }
+        log.records.extend(segment.records);
+    }
+    Ok(log)
+}
+
+/// The records of one kind of a run's log over all its segments ([`read_run_log`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunLog<R> {
+    /// The records of every segment, in segment and file order.
+    pub records: Vec<R>,
+    /// The segments read only in part (a stopped writer, a cut or damage).
+    pub cut: Vec<CutSegment>,
+}
+
+/// A log segment read only in part.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CutSegment {
+    /// The segment's file.
+    pub path: std::path::PathBuf,
+    /// Why reading stopped ([`Logged::truncation`]).
+    pub reason: String,
+    /// Records kept from before that point.
+    pub kept: usize,
+}
+
+impl std::fmt::Display for CutSegment {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "note: {} is read only in part: {}; using the {} records before that point",
+            self.path.display(),
+            self.reason,
+            self.kept
+        )
+    }
+}
+
 /// Where a run keeps its learner metrics: `run_dir/metrics.mcap`.
 pub fn metrics_path(run_dir: &Path) -> std::path::PathBuf {
     run_dir.join("metrics.mcap")

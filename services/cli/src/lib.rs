@@ -5,19 +5,14 @@
 #![warn(missing_docs)]
 
 mod bench;
-mod bench_netns;
-mod bench_tep;
 mod certs;
-mod charts;
 mod cluster;
 mod env;
 mod eval;
-mod frames;
-mod launcher;
+mod font;
 mod planner;
 mod render;
 mod report;
-mod results;
 mod router;
 mod status;
 mod train;

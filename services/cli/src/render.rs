@@ -537,7 +537,7 @@ pub fn run(args: RenderArgs) -> Result<ExitCode> {
     if !(1..=240).contains(&args.fps) {
         bail!("--fps must be in 1..=240");
     }
-    crate::charts::register_font()?;
+    crate::font::register_font()?;
     let loaded = PolicyAndTasks::load(
         &args.checkpoint,
         args.trained_tasks.as_deref(),

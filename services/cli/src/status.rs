@@ -81,7 +81,7 @@ fn read_launcher(run: &std::path::Path) -> Launcher {
             let (role, pid) = l.split_once(' ')?;
             let pid: u32 = pid.trim().parse().ok()?;
             // A learner, selector or actor that has not exited (a zombie has).
-            let alive = crate::launcher::is_service(pid)
+            let alive = crate::cluster::launcher::is_service(pid)
                 && terl_runtime::process::usage(Some(pid)).is_ok_and(|u| !u.exited);
             Some(Process {
                 role: role.to_string(),

@@ -117,7 +117,7 @@ pub fn run(args: TrainArgs) -> Result<std::process::ExitCode> {
     // Another run's folder is never written into: its checkpoints and config would be
     // replaced and its logs mixed with this run's.
     anyhow::ensure!(
-        !crate::launcher::holds_files(&out),
+        !crate::cluster::launcher::holds_files(&out),
         "--out {} already exists and is not an empty folder: choose a new folder",
         out.display()
     );

@@ -108,7 +108,9 @@ fn netns_bench_removes_stale_namespaces_and_its_own_on_sigterm() {
     };
     while !ready() {
         if let Some(status) = bench.try_wait().unwrap() {
-            panic!("the bench ended ({status}) before creating its namespace");
+            let mut err = String::new();
+            let _ = std::io::Read::read_to_string(bench.stderr.as_mut().unwrap(), &mut err);
+            panic!("the bench ended ({status}) before creating its namespace:\n{err}");
         }
         assert!(Instant::now() < deadline, "no namespace {own} within 120 s");
         std::thread::sleep(Duration::from_millis(20));

@@ -1175,7 +1175,25 @@ fn launcher_refuses_bad_or_locked_run_ids_and_reports_a_start_up_failure_with_it
     for bad in ["bk(p", "a/b", ".."] {
         let (code, err) = run(&["--run-id", bad]);
         assert_eq!(code, Some(2), "{bad:?}: {err}");
-        assert!(err.contains("--run-id must be"), "{bad:?}: {err}");
+        assert!(
+            err.contains("--run-id") && err.contains("must be 1 to 64 characters"),
+            "{bad:?}: {err}"
+        );
+    }
+    for (flag, bad) in [
+        ("--actors", "0"),
+        ("--actors", "07"),
+        ("--actors", "two"),
+        ("--restarts", "three"),
+        ("--restart-backoff", "1.5"),
+    ] {
+        let (code, err) = run(&[flag, bad, "--run-id", "it-bad-option"]);
+        assert_eq!(code, Some(2), "{flag} {bad}: {err}");
+        assert!(
+            err.contains(flag) && err.contains("must be"),
+            "{flag} {bad}: {err}"
+        );
+        assert!(!runs.join("it-bad-option").exists(), "nothing was started");
     }
     // More actors than the machine can hold: refused before anything starts.
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());

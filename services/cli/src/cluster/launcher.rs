@@ -52,10 +52,10 @@ pub struct UpArgs {
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Actor processes (default: cores - 1, at least 1).
-    #[arg(long)]
-    pub actors: Option<String>,
+    #[arg(long, value_parser = actor_count)]
+    pub actors: Option<usize>,
     /// Run id, 1 to 64 characters of A-Z a-z 0-9 . _ - (default: <config name>-<date>-<time>).
-    #[arg(long)]
+    #[arg(long, value_parser = run_id_arg)]
     pub run_id: Option<String>,
     /// With algorithm = "terl": start the planner's buffer from an earlier run's
     /// runs/<id>/tep-dataset.mcap (repeat to load several).
@@ -76,11 +76,11 @@ pub struct UpArgs {
     #[arg(long, value_name = "RUN_DIR")]
     pub resume: Option<PathBuf>,
     /// Restart a process that dies up to N times per process (0: a death stops the cluster).
-    #[arg(long, default_value = "3", value_name = "N")]
-    pub restarts: String,
+    #[arg(long, default_value = "3", value_name = "N", value_parser = restart_count)]
+    pub restarts: u32,
     /// Wait before a restart, doubled for each further restart of the same process, at most 60 s.
-    #[arg(long, default_value = "2", value_name = "SECS")]
-    pub restart_backoff: String,
+    #[arg(long, default_value = "2", value_name = "SECS", value_parser = backoff_seconds)]
+    pub restart_backoff: u64,
     /// Accepted for deploy/local-cluster.sh, which builds unless given it; `terl` never builds.
     #[arg(long)]
     pub no_build: bool,
@@ -122,6 +122,40 @@ pub fn max_local_actors() -> usize {
 
 fn all_digits(s: &str, nonzero_first: bool) -> bool {
     !s.is_empty() && s.chars().all(|c| c.is_ascii_digit()) && !(nonzero_first && s.starts_with('0'))
+}
+
+/// `--actors`: a positive whole number without leading zeros (the machine's limit is checked
+/// once the options are resolved, [`max_local_actors`]).
+fn actor_count(s: &str) -> std::result::Result<usize, String> {
+    if !all_digits(s, true) {
+        return Err("must be a positive integer".into());
+    }
+    s.parse().map_err(|_| "must be a positive integer".into())
+}
+
+/// `--run-id`: see [`valid_run_id`].
+fn run_id_arg(s: &str) -> std::result::Result<String, String> {
+    if valid_run_id(s) {
+        Ok(s.to_string())
+    } else {
+        Err("must be 1 to 64 characters of A-Z a-z 0-9 . _ - (not . or ..)".into())
+    }
+}
+
+/// `--restarts`: a whole number; a larger one than `u32` holds means "always restart".
+fn restart_count(s: &str) -> std::result::Result<u32, String> {
+    if !all_digits(s, false) {
+        return Err("must be a non-negative integer".into());
+    }
+    Ok(s.parse().unwrap_or(u32::MAX))
+}
+
+/// `--restart-backoff`: whole seconds; a larger one than `u64` holds waits the longest backoff.
+fn backoff_seconds(s: &str) -> std::result::Result<u64, String> {
+    if !all_digits(s, false) {
+        return Err("must be a whole number of seconds".into());
+    }
+    Ok(s.parse().unwrap_or(MAX_BACKOFF_SECS))
 }
 
 /// The lock file of a run id: `${TMPDIR:-/tmp}/terl-run-locks/<id>.lock`.
@@ -228,14 +262,7 @@ struct Plan {
 /// The options checked and resolved as the launcher script did (same messages); `Err(code)`
 /// after printing a usage error.
 fn plan(args: UpArgs) -> std::result::Result<Plan, Result<ExitCode>> {
-    if !all_digits(&args.restarts, false) {
-        return Err(usage("--restarts must be a non-negative integer"));
-    }
-    if !all_digits(&args.restart_backoff, false) {
-        return Err(usage("--restart-backoff must be a whole number of seconds"));
-    }
-    let restarts: u32 = args.restarts.parse().unwrap_or(u32::MAX);
-    let backoff: u64 = args.restart_backoff.parse().unwrap_or(MAX_BACKOFF_SECS);
+    let (restarts, backoff) = (args.restarts, args.restart_backoff);
     let mut config = args
         .config
         .clone()
@@ -243,7 +270,7 @@ fn plan(args: UpArgs) -> std::result::Result<Plan, Result<ExitCode>> {
     let mut run_id = args.run_id.clone();
     let mut runs_root = args.runs_root.clone().unwrap_or_else(|| "runs".into());
     let mut tep_datasets = args.tep_dataset.clone();
-    let mut actors = args.actors.clone();
+    let mut actors = args.actors;
     let mut learner_addr = args.learner_addr.clone();
     let mut selector_addr = args.selector_addr.clone();
     if let Some(resume) = &args.resume {
@@ -282,7 +309,18 @@ fn plan(args: UpArgs) -> std::result::Result<Plan, Result<ExitCode>> {
             if let Some(d) = line.strip_prefix("tep_dataset=") {
                 tep_datasets.push(d.into());
             } else if let Some(n) = line.strip_prefix("actors=") {
-                actors.get_or_insert_with(|| n.to_string());
+                if actors.is_none() {
+                    match actor_count(n) {
+                        Ok(n) => actors = Some(n),
+                        Err(_) => {
+                            return Err(usage(format!(
+                                "--resume: {} says actors={n}, not a positive integer: give \
+                                 --actors",
+                                resume.join("cluster.txt").display()
+                            )))
+                        }
+                    }
+                }
             } else if let Some(a) = line.strip_prefix("learner_addr=") {
                 learner_addr.get_or_insert_with(|| a.to_string());
             } else if let Some(a) = line.strip_prefix("selector_addr=") {
@@ -292,7 +330,7 @@ fn plan(args: UpArgs) -> std::result::Result<Plan, Result<ExitCode>> {
     }
     let actors = actors.unwrap_or_else(|| {
         let cores = std::thread::available_parallelism().map_or(2, usize::from);
-        cores.saturating_sub(1).max(1).to_string()
+        cores.saturating_sub(1).max(1)
     });
     if !config.is_file() {
         return Err(usage(format!("config not found: {}", config.display())));
@@ -307,12 +345,6 @@ fn plan(args: UpArgs) -> std::result::Result<Plan, Result<ExitCode>> {
     if let Some(d) = tep_datasets.iter().find(|d| !d.is_file()) {
         return Err(usage(format!("TEP dataset not found: {}", d.display())));
     }
-    if !all_digits(&actors, true) {
-        return Err(usage("--actors must be a positive integer"));
-    }
-    let Ok(actors) = actors.parse::<usize>() else {
-        return Err(usage("--actors must be a positive integer"));
-    };
     let most = max_local_actors();
     if actors > most {
         return Err(usage(format!(

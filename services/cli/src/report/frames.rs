@@ -15,9 +15,10 @@ use terl_sim::metaworld::goal_variations;
 use terl_sim::render::Renderer;
 use terl_sim::Env;
 
+use super::runs::{load_run, RunEval};
+use super::tables::file_stem;
 use crate::eval::PolicyAndTasks;
 use crate::render::{record_episode, write_grid, Shot};
-use crate::results::{file_stem, load_run, RunEval};
 
 /// Side of one frame of the figure, pixels.
 const SIDE: u32 = 240;
@@ -41,9 +42,9 @@ impl FrameSources {
     /// twice counts once) and checks the camera against the scenes and that offscreen OpenGL
     /// works.
     pub(crate) fn load(runs: &[PathBuf], camera: &str) -> Result<Self> {
-        crate::charts::register_font()?;
+        crate::font::register_font()?;
         let mut by_experiment: BTreeMap<String, Vec<Source>> = BTreeMap::new();
-        for dir in crate::results::distinct_dirs(runs, "--frames-from ", "drawn once") {
+        for dir in super::runs::distinct_dirs(runs, "--frames-from ", "drawn once") {
             let run = load_run(dir)
                 .with_context(|| format!("--frames-from {}: not a run folder", dir.display()))?;
             let loaded = PolicyAndTasks::load(dir, None, None, None).with_context(|| {

@@ -1,6 +1,9 @@
 //! `terl bench ...`: benchmarks that print one JSON object. The measurements are crate
 //! `terl-bench`'s; this module parses the flags and prints the reports.
 
+pub mod netns;
+pub mod tep;
+
 use std::process::ExitCode;
 
 use anyhow::Result;
@@ -214,11 +217,11 @@ pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
             publishers,
             seconds,
         } => {
-            crate::bench_netns::publish(&connect, &run_id, publishers, seconds)?;
+            netns::publish(&connect, &run_id, publishers, seconds)?;
             Ok(ExitCode::SUCCESS)
         }
         BenchCommand::BroadcastSubscribe { addr, subscribers } => {
-            crate::bench_netns::subscribe(&addr, subscribers)?;
+            netns::subscribe(&addr, subscribers)?;
             Ok(ExitCode::SUCCESS)
         }
         BenchCommand::Transport {
@@ -257,10 +260,10 @@ pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
             let across = if netns {
                 anyhow::ensure!(versions >= 1, "--versions must be at least 1");
                 anyhow::ensure!(subscribers >= 1, "--subscribers must be at least 1");
-                let ns = crate::bench_netns::Namespace::create()?;
-                let one = crate::bench_netns::transport_across(&ns, 1, seconds)?;
-                let many = crate::bench_netns::transport_across(&ns, publishers, seconds)?;
-                let broadcast = crate::bench_netns::broadcast_across(&ns, subscribers, versions)?;
+                let ns = netns::Namespace::create()?;
+                let one = netns::transport_across(&ns, 1, seconds)?;
+                let many = netns::transport_across(&ns, publishers, seconds)?;
+                let broadcast = netns::broadcast_across(&ns, subscribers, versions)?;
                 Some((one, many, broadcast))
             } else {
                 None
@@ -328,7 +331,7 @@ pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
             let tasks = terl_runtime::resolve_tasks(&tasks)?;
             let mut report = terl_bench::tep::tep_bench(&cfg)?;
             if !no_guidance {
-                report.guidance = Some(crate::bench_tep::guidance_overhead(
+                report.guidance = Some(tep::guidance_overhead(
                     &tasks,
                     envs,
                     &[policy_hidden; 3],

@@ -1,8 +1,10 @@
 //! `terl cluster up|down|clean`: the local cluster from the CLI. `up` is the launcher
-//! (`deploy/local-cluster.sh` builds, then runs it; see [`crate::launcher`]); `down [RUN_ID]`
+//! (`deploy/local-cluster.sh` builds, then runs it; see [`launcher`]); `down [RUN_ID]`
 //! sends SIGTERM to that run's launcher (`runs/<id>/launcher.pid`, or `runs/.cluster.pid` for the
 //! last one started), which stops and waits for every process of its run; `clean RUN_ID` removes
 //! the launcher files a killed launcher left behind.
+
+pub mod launcher;
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -10,7 +12,7 @@ use std::process::ExitCode;
 use anyhow::{Context, Result};
 use clap::Subcommand;
 
-use crate::launcher::{self, UpArgs};
+use launcher::UpArgs;
 
 #[derive(Debug, Subcommand)]
 pub enum ClusterCommand {
