@@ -106,6 +106,32 @@ pub fn norm(a: [f64; 3]) -> f64 {
 pub fn norm2(a: [f64; 3]) -> f64 {
     (a[0] * a[0] + a[1] * a[1]).sqrt()
 }
+/// Norm of `(a − b) * scale` (component-wise scaling): the weighted distances the rewards
+/// write as `np.linalg.norm((a - b) * scaling)`, e.g. `in_place_scaling` in
+/// `metaworld/envs/sawyer_pick_place_wall_v3.py`'s `compute_reward`.
+pub fn scaled_dist(a: [f64; 3], b: [f64; 3], scale: [f64; 3]) -> f64 {
+    norm([
+        (a[0] - b[0]) * scale[0],
+        (a[1] - b[1]) * scale[1],
+        (a[2] - b[2]) * scale[2],
+    ])
+}
+/// Norm of the x and z components of `a − b`: the `xz` terms of the
+/// `_gripper_caging_reward` overrides (`np.linalg.norm(tcp[[0, 2]] - obj[[0, 2]])`, e.g. in
+/// `metaworld/envs/sawyer_pick_place_v3.py`).
+pub fn dist_xz(a: [f64; 3], b: [f64; 3]) -> f64 {
+    dist([a[0], 0.0, a[2]], [b[0], 0.0, b[2]])
+}
+/// `_reward_quat` of `metaworld/envs/sawyer_assembly_peg_v3.py` (and of box-close, disassemble,
+/// hammer): 1 for the object's quaternion (`obs[7..11]`) at `ideal`, falling linearly to 0 at
+/// a quaternion error (Euclidean norm) of `zero_at`.
+pub fn quat_reward(obs: &[f64], ideal: [f64; 4], zero_at: f64) -> f64 {
+    let error = (0..4)
+        .map(|i| (obs[7 + i] - ideal[i]).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    (1.0 - error / zero_at).max(0.0)
+}
 /// Quaternion (x, y, z, w) of a row-major rotation matrix exactly as
 /// `scipy.spatial.transform.Rotation.from_matrix(m).as_quat()` computes it (no sign
 /// canonicalisation: the branch is `argmax(m00, m11, m22, trace)`, first on ties).

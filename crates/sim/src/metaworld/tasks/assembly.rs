@@ -2,7 +2,7 @@
 
 use super::{obj_goal_apart, TaskSpec};
 use crate::error::Result;
-use crate::metaworld::reward::{norm, norm2, sub, tolerance, Sigmoid};
+use crate::metaworld::reward::{self, norm, norm2, sub, tolerance, Sigmoid};
 use crate::metaworld::{Density, Eval, Scene, Task, ACTION_DIM, OBS_DIM};
 
 pub const SPEC: TaskSpec = TaskSpec {
@@ -50,11 +50,7 @@ pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
 /// `_reward_quat`: 1 for a nut lying flat, falling to 0 at a quaternion error of 0.4
 /// (shared with disassemble).
 pub(super) fn quat_reward(obs: &[f64; OBS_DIM]) -> f64 {
-    let error = (0..4)
-        .map(|i| (obs[7 + i] - IDEAL_QUAT[i]).powi(2))
-        .sum::<f64>()
-        .sqrt();
-    (1.0 - error / 0.4).max(0.0)
+    reward::quat_reward(obs, IDEAL_QUAT, 0.4)
 }
 
 /// The nut's position for the caging reward: that reward treats its object as a sphere, so

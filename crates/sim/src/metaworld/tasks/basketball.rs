@@ -2,7 +2,7 @@
 
 use super::{obj_goal_apart, TaskSpec};
 use crate::error::Result;
-use crate::metaworld::reward::{dist, hamacher_product, norm, tolerance, Sigmoid};
+use crate::metaworld::reward::{dist, hamacher_product, scaled_dist, tolerance, Sigmoid};
 use crate::metaworld::{Density, Eval, Scene, Task, ACTION_DIM, OBS_DIM};
 
 pub const SPEC: TaskSpec = TaskSpec {
@@ -44,10 +44,8 @@ pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
     }))
 }
 
-/// Distance with the z error counted twice.
-fn scaled_dist(a: [f64; 3], b: [f64; 3]) -> f64 {
-    norm([a[0] - b[0], a[1] - b[1], 2.0 * (a[2] - b[2])])
-}
+/// The z error counts twice in the ball-to-goal distance.
+const Z_SCALING: [f64; 3] = [1.0, 1.0, 2.0];
 
 impl Task for Basketball {
     fn spec(&self) -> &'static TaskSpec {
@@ -79,8 +77,8 @@ impl Task for Basketball {
     ) -> Eval {
         let obj = [obs[4], obs[5], obs[6]];
         let target = [scene.target_pos[0], scene.target_pos[1], AIM_Z];
-        let target_to_obj = scaled_dist(obj, target);
-        let target_to_obj_init = scaled_dist(scene.obj_init_pos, target);
+        let target_to_obj = scaled_dist(obj, target, Z_SCALING);
+        let target_to_obj_init = scaled_dist(scene.obj_init_pos, target, Z_SCALING);
         let in_place = tolerance(
             target_to_obj,
             (0.0, TARGET_RADIUS),

@@ -2,7 +2,9 @@
 
 use super::{obj_goal_apart, TaskSpec};
 use crate::error::Result;
-use crate::metaworld::reward::{dist, hamacher_product, norm, norm2, sub, tolerance, Sigmoid};
+use crate::metaworld::reward::{
+    self, dist, hamacher_product, norm, norm2, sub, tolerance, Sigmoid,
+};
 use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, FRAME_SKIP, OBS_DIM};
 
 pub const SPEC: TaskSpec = TaskSpec {
@@ -50,11 +52,7 @@ fn grab_effort(action: &[f32; ACTION_DIM]) -> f64 {
 
 /// `_reward_quat`: 1 for an upright lid, falling to 0 at a quaternion error of 0.2.
 fn quat_reward(obs: &[f64; OBS_DIM]) -> f64 {
-    let error = (0..4)
-        .map(|i| (obs[7 + i] - IDEAL_QUAT[i]).powi(2))
-        .sum::<f64>()
-        .sqrt();
-    (1.0 - error / 0.2).max(0.0)
+    reward::quat_reward(obs, IDEAL_QUAT, 0.2)
 }
 
 /// `_reward_pos`: (ready to lift, lifted and placed).

@@ -3,7 +3,7 @@
 use super::{obj_goal_apart, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{
-    dist, hamacher_product, norm, scipy_quat_from_mat, tolerance, Sigmoid,
+    dist, hamacher_product, scaled_dist, scipy_quat_from_mat, tolerance, Sigmoid,
 };
 use crate::metaworld::{Density, Eval, Scene, Task, ACTION_DIM, OBS_DIM};
 
@@ -26,6 +26,8 @@ pub const SPEC: TaskSpec = TaskSpec {
 const MACHINE_OFFSET: [f64; 3] = [0.0, 0.22, 0.0];
 /// Gripper effort the caging reward asks for.
 const DESIRED_EFFORT: f64 = 0.7;
+/// x and y weighted twice in the mug-to-goal distance of the reward.
+const XY_SCALING: [f64; 3] = [2.0, 2.0, 1.0];
 /// Success: the mug within this distance of the goal.
 const SUCCESS_DISTANCE: f64 = 0.07;
 
@@ -42,11 +44,6 @@ pub(super) struct Coffee {
 
 pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
     Ok(Box::new(Coffee::new(scene, &SPEC, false)?))
-}
-
-/// x and y weighted twice in the mug-to-goal distance of the reward.
-fn scaled_dist(a: [f64; 3], b: [f64; 3]) -> f64 {
-    norm([2.0 * (a[0] - b[0]), 2.0 * (a[1] - b[1]), a[2] - b[2]])
 }
 
 impl Coffee {
@@ -102,8 +99,8 @@ impl Task for Coffee {
     ) -> Eval {
         let obj = [obs[4], obs[5], obs[6]];
         let target = scene.target_pos;
-        let target_to_obj = scaled_dist(obj, target);
-        let target_to_obj_init = scaled_dist(scene.obj_init_pos, target);
+        let target_to_obj = scaled_dist(obj, target, XY_SCALING);
+        let target_to_obj_init = scaled_dist(scene.obj_init_pos, target, XY_SCALING);
         let in_place = tolerance(
             target_to_obj,
             (0.0, 0.05),

@@ -2,7 +2,7 @@
 
 use super::{always_ok, TaskSpec};
 use crate::error::Result;
-use crate::metaworld::reward::{dist, norm, tolerance, Sigmoid};
+use crate::metaworld::reward::{dist, scaled_dist, tolerance, Sigmoid};
 use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM};
 
 pub const SPEC: TaskSpec = TaskSpec {
@@ -77,13 +77,10 @@ impl Task for DrawerOpen {
         // x/y errors weigh more so the gripper can drop down next to the handle.
         let scale = [3.0, 3.0, 1.0];
         let handle_pos_init = [target[0], target[1] + MAX_DIST, target[2]];
-        let gripper_error: [f64; 3] = std::array::from_fn(|i| (handle[i] - gripper[i]) * scale[i]);
-        let gripper_error_init: [f64; 3] =
-            std::array::from_fn(|i| (handle_pos_init[i] - scene.init_tcp[i]) * scale[i]);
         let caging = tolerance(
-            norm(gripper_error),
+            scaled_dist(handle, gripper, scale),
             (0.0, 0.01),
-            norm(gripper_error_init),
+            scaled_dist(handle_pos_init, scene.init_tcp, scale),
             Sigmoid::LongTail,
         );
         Eval {

@@ -1,8 +1,9 @@
-//! The `_gripper_caging_reward` override shared by push-back, soccer and sweep: caging in y by
-//! both pads, caging in x-z by the TCP, and a gripping term from the pads' y distance (the
-//! gripper effort is not used).
+//! The `_gripper_caging_reward` override shared by push-back, soccer, sweep and sweep-into
+//! (`metaworld/envs/sawyer_push_back_v3.py` and the others'): caging in y by both pads, caging
+//! in x-z by the TCP, and a gripping term from the pads' y distance (the gripper effort is not
+//! used). pick-place (`metaworld/envs/sawyer_pick_place_v3.py`) shares its caging part.
 
-use crate::metaworld::reward::{dist, hamacher_product, tolerance, Sigmoid};
+use crate::metaworld::reward::{dist_xz, hamacher_product, tolerance, Sigmoid};
 use crate::metaworld::Scene;
 
 const PAD_SUCCESS_MARGIN: f64 = 0.05;
@@ -18,16 +19,12 @@ pub(super) struct PadCaging {
     pub xz_success_margin: f64,
 }
 
-/// Norm of the x and z components of `a - b`.
-fn dist_xz(a: [f64; 3], b: [f64; 3]) -> f64 {
-    dist([a[0], 0.0, a[2]], [b[0], 0.0, b[2]])
-}
-
 impl PadCaging {
-    /// Reward in [0, 1] for caging (and gripping) the object at `obj`. The pad margins use
+    /// The caging part in [0, 1] (y caging by both pads, then x-z caging by the TCP) and the
+    /// y gripping term for the object at `obj`. The pad margins use
     /// `init_left_pad`/`init_right_pad`, which in Python are live views of `data.xpos`: the
     /// current pad positions.
-    pub fn reward(&self, scene: &Scene, obj: [f64; 3]) -> f64 {
+    pub fn caging(&self, scene: &Scene, obj: [f64; 3]) -> (f64, f64) {
         let tcp = scene.tcp_center();
         let left_pad = scene.left_pad_pos();
         let right_pad = scene.right_pad_pos();
@@ -51,7 +48,12 @@ impl PadCaging {
             xz_margin,
             Sigmoid::LongTail,
         );
-        let caging = hamacher_product(y_caging, xz_caging);
+        (hamacher_product(y_caging, xz_caging), y_gripping)
+    }
+
+    /// Reward in [0, 1] for caging (and gripping) the object at `obj`.
+    pub fn reward(&self, scene: &Scene, obj: [f64; 3]) -> f64 {
+        let (caging, y_gripping) = self.caging(scene, obj);
         let gripping = if caging > 0.95 { y_gripping } else { 0.0 };
         (caging + gripping) / 2.0
     }

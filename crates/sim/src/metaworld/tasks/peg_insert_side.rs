@@ -3,7 +3,8 @@
 use super::{obj_goal_apart, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{
-    dist, hamacher_product, norm, rect_prism_tolerance, scipy_quat_from_mat, tolerance, Sigmoid,
+    dist, hamacher_product, rect_prism_tolerance, scaled_dist, scipy_quat_from_mat, tolerance,
+    Sigmoid,
 };
 use crate::metaworld::{Density, Eval, Scene, Task, ACTION_DIM, OBS_DIM};
 
@@ -78,10 +79,6 @@ pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
     }))
 }
 
-fn scaled_dist(a: [f64; 3], b: [f64; 3]) -> f64 {
-    norm(std::array::from_fn(|i| (a[i] - b[i]) * HEAD_ERROR_SCALE[i]))
-}
-
 impl Task for PegInsertSide {
     fn spec(&self) -> &'static TaskSpec {
         &SPEC
@@ -115,8 +112,8 @@ impl Task for PegInsertSide {
         let tcp_opened = obs[3];
         let target = scene.target_pos;
         let tcp_to_obj = dist(obj, scene.tcp_center());
-        let obj_to_target = scaled_dist(obj_head, target);
-        let in_place_margin = scaled_dist(self.peg_head_pos_init, target);
+        let obj_to_target = scaled_dist(obj_head, target, HEAD_ERROR_SCALE);
+        let in_place_margin = scaled_dist(self.peg_head_pos_init, target, HEAD_ERROR_SCALE);
         let in_place = tolerance(
             obj_to_target,
             (0.0, TARGET_RADIUS),

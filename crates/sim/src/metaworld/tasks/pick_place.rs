@@ -1,5 +1,6 @@
 //! pick-place-v3: pick up a puck and hold it at a goal in the air.
 
+use super::pad_caging::PadCaging;
 use super::{obj_goal_apart, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{dist, hamacher_product, scipy_quat_from_mat, tolerance, Sigmoid};
@@ -20,10 +21,13 @@ pub const SPEC: TaskSpec = TaskSpec {
     rand_vec_ok: obj_goal_apart::<15>,
 };
 
-/// Parameters of the task's own caging reward.
-const PAD_SUCCESS_MARGIN: f64 = 0.05;
-const XZ_SUCCESS_MARGIN: f64 = 0.005;
-const OBJ_RADIUS: f64 = 0.015;
+/// Parameters of the task's own caging reward (its gripping term reads the action instead
+/// of the pads, so `grip_extra` is unused).
+const CAGING: PadCaging = PadCaging {
+    obj_radius: 0.015,
+    grip_extra: 0.0,
+    xz_success_margin: 0.005,
+};
 /// Success: the puck within this distance of the goal.
 const SUCCESS_RADIUS: f64 = 0.07;
 
@@ -40,41 +44,14 @@ pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
     }))
 }
 
-/// Norm of the x and z components of `a - b`.
-fn dist_xz(a: [f64; 3], b: [f64; 3]) -> f64 {
-    dist([a[0], 0.0, a[2]], [b[0], 0.0, b[2]])
-}
-
 impl PickPlace {
     /// The task's override of `_gripper_caging_reward` (high density). Its margins are measured
     /// from `init_left_pad`/`init_right_pad`, which in Python are live views of `data.xpos`
     /// (`get_body_com` returns no copy): they are the *current* pad positions, not the ones at
     /// reset.
     fn caging_reward(scene: &Scene, action: &[f32; ACTION_DIM], obj: [f64; 3]) -> f64 {
-        let tcp = scene.tcp_center();
-        let left_pad = scene.left_pad_pos();
-        let right_pad = scene.right_pad_pos();
-        let right_margin = ((obj[1] - right_pad[1]).abs() - PAD_SUCCESS_MARGIN).abs();
-        let left_margin = ((obj[1] - left_pad[1]).abs() - PAD_SUCCESS_MARGIN).abs();
-        let bounds = (OBJ_RADIUS, PAD_SUCCESS_MARGIN);
-        let right_caging = tolerance(
-            obj[1] - right_pad[1],
-            bounds,
-            right_margin,
-            Sigmoid::LongTail,
-        );
-        let left_caging = tolerance(left_pad[1] - obj[1], bounds, left_margin, Sigmoid::LongTail);
-        let y_caging = hamacher_product(left_caging, right_caging);
-
-        let xz_margin = dist_xz(scene.obj_init_pos, scene.init_tcp) - XZ_SUCCESS_MARGIN;
-        let xz_caging = tolerance(
-            dist_xz(tcp, obj),
-            (0.0, XZ_SUCCESS_MARGIN),
-            xz_margin,
-            Sigmoid::LongTail,
-        );
+        let (caging, _) = CAGING.caging(scene, obj);
         let gripper_closed = f64::from(action[3].clamp(0.0, 1.0));
-        let caging = hamacher_product(y_caging, xz_caging);
         let gripping = if caging > 0.97 { gripper_closed } else { 0.0 };
         (hamacher_product(caging, gripping) + caging) / 2.0
     }

@@ -3,7 +3,7 @@
 use super::{obj_goal_apart, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{
-    dist, hamacher_product, norm, scipy_quat_from_mat, tolerance, Sigmoid,
+    dist, hamacher_product, scaled_dist, scipy_quat_from_mat, tolerance, Sigmoid,
 };
 use crate::metaworld::{Density, Eval, Scene, Task, ACTION_DIM, OBS_DIM, TARGET_RADIUS};
 
@@ -34,15 +34,6 @@ pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
     Ok(Box::new(PickPlaceWall {
         obj_geom: scene.sim.geom("objGeom")?,
     }))
-}
-
-/// Norm of `(a - b) * scale` (component-wise scaling).
-pub(super) fn scaled_dist(a: [f64; 3], b: [f64; 3], scale: [f64; 3]) -> f64 {
-    norm([
-        (a[0] - b[0]) * scale[0],
-        (a[1] - b[1]) * scale[1],
-        (a[2] - b[2]) * scale[2],
-    ])
 }
 
 impl Task for PickPlaceWall {

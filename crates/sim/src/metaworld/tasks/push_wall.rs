@@ -1,9 +1,8 @@
 //! push-wall-v3: push a puck around a wall to a goal on the table surface.
 
-use super::pick_place_wall::scaled_dist;
 use super::{obj_goal_apart, TaskSpec};
 use crate::error::Result;
-use crate::metaworld::reward::{dist, scipy_quat_from_mat, tolerance, Sigmoid};
+use crate::metaworld::reward::{dist, scaled_dist, scipy_quat_from_mat, tolerance, Sigmoid};
 use crate::metaworld::{Density, Eval, Scene, Task, ACTION_DIM, OBS_DIM, TARGET_RADIUS};
 
 pub const SPEC: TaskSpec = TaskSpec {

@@ -1,10 +1,9 @@
 //! soccer-v3: push a ball into a goal box on the table.
 
 use super::pad_caging::PadCaging;
-use super::pick_place_wall::scaled_dist;
 use super::{obj_goal_apart, TaskSpec};
 use crate::error::Result;
-use crate::metaworld::reward::{dist, scipy_quat_from_mat, tolerance, Sigmoid};
+use crate::metaworld::reward::{dist, scaled_dist, scipy_quat_from_mat, tolerance, Sigmoid};
 use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM};
 
 pub const SPEC: TaskSpec = TaskSpec {

@@ -1,11 +1,10 @@
 //! stick-pull-v3: grasp a stick, hook it into a container's handle and pull the container to a
 //! goal.
 
-use super::pick_place_wall::scaled_dist;
 use super::stick_push::{StickScene, STICK_Z};
 use super::{obj_goal_apart, TaskSpec};
 use crate::error::Result;
-use crate::metaworld::reward::{add, dist, hamacher_product, tolerance, Sigmoid};
+use crate::metaworld::reward::{add, dist, hamacher_product, scaled_dist, tolerance, Sigmoid};
 use crate::metaworld::{Density, Eval, Scene, Task, ACTION_DIM, OBS_DIM, TARGET_RADIUS};
 
 pub const SPEC: TaskSpec = TaskSpec {

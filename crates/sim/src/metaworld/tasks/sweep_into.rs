@@ -1,5 +1,6 @@
 //! sweep-into-v3: sweep a puck across the table into a hole.
 
+use super::pad_caging::PadCaging;
 use super::TaskSpec;
 use crate::error::Result;
 use crate::metaworld::reward::{dist, hamacher_product, scipy_quat_from_mat, tolerance, Sigmoid};
@@ -24,12 +25,13 @@ pub const SPEC: TaskSpec = TaskSpec {
 const GOAL: [f64; 3] = [0.0, 0.84, 0.02];
 /// Minimum planar distance of the puck's start from the goal (reset rejection rule).
 const MIN_START_DISTANCE: f64 = 0.15;
-const OBJ_RADIUS: f64 = 0.02;
 const TARGET_RADIUS: f64 = 0.05;
 /// Constants of the task's own `_gripper_caging_reward`.
-const PAD_SUCCESS_MARGIN: f64 = 0.05;
-const GRIP_SUCCESS_MARGIN: f64 = OBJ_RADIUS + 0.005;
-const XZ_SUCCESS_MARGIN: f64 = 0.01;
+const CAGING: PadCaging = PadCaging {
+    obj_radius: 0.02,
+    grip_extra: 0.005,
+    xz_success_margin: 0.01,
+};
 
 /// The reset re-draws while the puck starts within 15 cm (in the plane) of the fixed goal.
 fn puck_away_from_hole(rv: &[f64]) -> bool {
@@ -50,45 +52,6 @@ pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
         obj_geom: scene.sim.geom("objGeom")?,
         goal_site: scene.sim.site("goal")?,
     }))
-}
-
-/// Distance in the x-z plane.
-fn dist_xz(a: [f64; 3], b: [f64; 3]) -> f64 {
-    ((a[0] - b[0]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
-}
-
-impl SweepInto {
-    /// The task's `_gripper_caging_reward` override. Python's `init_left_pad`/`init_right_pad`
-    /// are live views of `data.xpos`, so the caging margins use the *current* pad positions.
-    fn caging_reward(&self, scene: &Scene, obj: [f64; 3]) -> f64 {
-        let left = scene.left_pad_pos();
-        let right = scene.right_pad_pos();
-        let left_delta = left[1] - obj[1];
-        let right_delta = obj[1] - right[1];
-        let right_margin = ((obj[1] - right[1]).abs() - PAD_SUCCESS_MARGIN).abs();
-        let left_margin = ((obj[1] - left[1]).abs() - PAD_SUCCESS_MARGIN).abs();
-        let pad = |delta: f64, upper: f64, margin: f64| {
-            tolerance(delta, (OBJ_RADIUS, upper), margin, Sigmoid::LongTail)
-        };
-        let y_caging = hamacher_product(
-            pad(right_delta, PAD_SUCCESS_MARGIN, right_margin),
-            pad(left_delta, PAD_SUCCESS_MARGIN, left_margin),
-        );
-        let y_gripping = hamacher_product(
-            pad(right_delta, GRIP_SUCCESS_MARGIN, right_margin),
-            pad(left_delta, GRIP_SUCCESS_MARGIN, left_margin),
-        );
-        let xz_margin = dist_xz(scene.obj_init_pos, scene.init_tcp) - XZ_SUCCESS_MARGIN;
-        let xz_caging = tolerance(
-            dist_xz(scene.tcp_center(), obj),
-            (0.0, XZ_SUCCESS_MARGIN),
-            xz_margin,
-            Sigmoid::LongTail,
-        );
-        let caging = hamacher_product(y_caging, xz_caging);
-        let gripping = if caging > 0.95 { y_gripping } else { 0.0 };
-        (caging + gripping) / 2.0
-    }
 }
 
 impl Task for SweepInto {
@@ -122,7 +85,7 @@ impl Task for SweepInto {
             dist(scene.obj_init_pos, target),
             Sigmoid::LongTail,
         );
-        let object_grasped = self.caging_reward(scene, obj);
+        let object_grasped = CAGING.reward(scene, obj);
         let reward = if obj_to_target < TARGET_RADIUS {
             10.0
         } else {
