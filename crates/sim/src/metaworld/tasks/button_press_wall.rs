@@ -1,97 +1,31 @@
-//! button-press-wall-v3: press a button along +y behind a low wall.
+//! button-press-wall-v3 (`metaworld/envs/sawyer_button_press_wall_v3.py`): press a button
+//! along +y behind a low wall.
+//!
+//! button-press-v3's task ([`super::button_press`]) with its own reward shape and radii.
 
-use super::{always_ok, TaskSpec};
+use super::button_press::{self, Shaping, Variant};
+use super::TaskSpec;
 use crate::error::Result;
-use crate::metaworld::reward::{dist, hamacher_product, tolerance, Sigmoid};
-use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM};
+use crate::metaworld::{Scene, Task};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "button-press-wall-v3",
     xml: "sawyer_xyz/sawyer_button_press_wall.xml",
-    hand_low: [-0.5, 0.40, 0.05],
-    hand_high: [0.5, 1.0, 0.5],
-    mocap_low: None,
-    mocap_high: None,
-    // float32 in Python's init_config.
-    hand_init_pos: [0.0, 0.4f32 as f64, 0.2f32 as f64],
     rand_low: &[-0.05, 0.85, 0.1149],
     rand_high: &[0.05, 0.9, 0.1151],
-    goal_low: [-0.5, 0.40, 0.05],
-    goal_high: [0.5, 1.0, 0.5],
-    rand_vec_ok: always_ok,
+    ..button_press::SPEC
 };
 
-/// The button's slide joint (`qpos[9]`, `qvel[9]` in Python).
-const BUTTON_JOINT_ADR: usize = 9;
-/// From the button body to its pressing surface.
-const BUTTON_FACE_OFFSET: f64 = -0.193;
-/// Beyond this hand-to-button distance only the approach is rewarded.
-const NEAR_BUTTON: f64 = 0.07;
-const SUCCESS_DISTANCE: f64 = 0.03;
-
-#[derive(Debug)]
-struct ButtonPressWall {
-    box_body: usize,
-    button: usize,
-    hole: usize,
-    button_start: usize,
-    obj_to_target_init: f64,
-}
+const VARIANT: Variant = Variant {
+    axis: 1,
+    face_offset: -0.193,
+    zero_button_joint: true,
+    near_radius: 0.01,
+    // Beyond 7 cm hand-to-button distance only the approach is rewarded.
+    shaping: Shaping::Wall { far: 0.07 },
+    success_distance: 0.03,
+};
 
 pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
-    Ok(Box::new(ButtonPressWall {
-        box_body: scene.sim.body("box")?,
-        button: scene.sim.body("button")?,
-        hole: scene.sim.site("hole")?,
-        button_start: scene.sim.site("buttonStart")?,
-        obj_to_target_init: 0.0,
-    }))
-}
-
-impl Task for ButtonPressWall {
-    fn spec(&self) -> &'static TaskSpec {
-        &SPEC
-    }
-
-    fn reset_model(&mut self, scene: &mut Scene, rv: &[f64]) -> Result<()> {
-        scene.reset_hand();
-        scene.obj_init_pos = [rv[0], rv[1], rv[2]];
-        scene.sim.set_body_pos(self.box_body, scene.obj_init_pos);
-        scene.set_scalar_joint(BUTTON_JOINT_ADR, BUTTON_JOINT_ADR, 0.0);
-        scene.target_pos = scene.sim.site_xpos(self.hole);
-        self.obj_to_target_init =
-            (scene.target_pos[1] - scene.sim.site_xpos(self.button_start)[1]).abs();
-        Ok(())
-    }
-
-    fn objects(&self, scene: &Scene, out: &mut [f64; 14]) {
-        let [x, y, z] = scene.body_com(self.button);
-        out[..3].copy_from_slice(&[x, y + BUTTON_FACE_OFFSET, z]);
-        out[3..7].copy_from_slice(&scene.sim.body_xquat(self.button));
-    }
-
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], _a: &[f32; ACTION_DIM]) -> Eval {
-        let obj = [obs[4], obs[5], obs[6]];
-        let tcp_to_obj = dist(obj, scene.tcp_center());
-        let tcp_to_obj_init = dist(obj, scene.init_tcp);
-        let obj_to_target = (scene.target_pos[1] - obj[1]).abs();
-
-        let near_button = tolerance(tcp_to_obj, (0.0, 0.01), tcp_to_obj_init, Sigmoid::LongTail);
-        let button_pressed = tolerance(
-            obj_to_target,
-            (0.0, 0.005),
-            self.obj_to_target_init,
-            Sigmoid::LongTail,
-        );
-        let reward = if tcp_to_obj > NEAR_BUTTON {
-            let tcp_status = (1.0 - obs[3]) / 2.0;
-            2.0 * hamacher_product(tcp_status, near_button)
-        } else {
-            2.0 + 2.0 * (1.0 + obs[3]) + 4.0 * button_pressed.powi(2)
-        };
-        Eval {
-            reward,
-            success: obj_to_target <= SUCCESS_DISTANCE,
-        }
-    }
+    button_press::build_with(scene, &SPEC, &VARIANT)
 }
