@@ -1,94 +1,30 @@
-//! faucet-close-v3: rotate the faucet handle to the closed side (-x).
+//! faucet-close-v3 (`metaworld/envs/sawyer_faucet_close_v3.py`): rotate the faucet handle to
+//! the closed side (-x).
+//!
+//! faucet-open-v3's task ([`super::faucet_open`]) with the goal on the other side.
 
-use super::{always_ok, TaskSpec};
+use super::faucet_open::{self, Variant, HANDLE_LENGTH};
+use super::TaskSpec;
 use crate::error::Result;
-use crate::metaworld::reward::{add, dist, tolerance, Sigmoid};
-use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM};
+use crate::metaworld::{Scene, Task};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "faucet-close-v3",
-    xml: "sawyer_xyz/sawyer_faucet.xml",
-    hand_low: [-0.5, 0.40, -0.15],
-    hand_high: [0.5, 1.0, 0.5],
-    mocap_low: None,
-    mocap_high: None,
-    hand_init_pos: [0.0, 0.4, 0.2],
     rand_low: &[-0.1, 0.8, 0.0],
     rand_high: &[0.1, 0.85, 0.0],
-    goal_low: [-0.5, 0.40, -0.15],
-    goal_high: [0.5, 1.0, 0.5],
-    rand_vec_ok: always_ok,
+    ..faucet_open::SPEC
 };
 
-/// Length of the faucet handle: the goal sits at its tip when closed.
-const HANDLE_LENGTH: f64 = 0.175;
-/// Goal offset from the faucet base.
-const GOAL_OFFSET: [f64; 3] = [-HANDLE_LENGTH, 0.0, 0.125];
-/// The observed handle point is this far below the `handleStartClose` site.
-const HANDLE_OBS_OFFSET: [f64; 3] = [0.0, 0.0, -0.01];
-const TARGET_RADIUS: f64 = 0.07;
-const REACH_RADIUS: f64 = 0.01;
-
-#[derive(Debug)]
-struct FaucetClose {
-    base: usize,
-    handle: usize,
-    goal_site: usize,
-}
+const VARIANT: Variant = Variant {
+    handle_site: "handleStartClose",
+    goal_site: "goal_close",
+    goal_offset: [-HANDLE_LENGTH, 0.0, 0.125],
+    // Unlike faucet-open, the reset ends with a kinematics pass (before the goal site moves).
+    forward_at_reset: true,
+    // The reward measures the observed handle point itself.
+    reward_handle_offset: None,
+};
 
 pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
-    Ok(Box::new(FaucetClose {
-        base: scene.sim.body("faucetBase")?,
-        handle: scene.sim.site("handleStartClose")?,
-        goal_site: scene.sim.site("goal_close")?,
-    }))
-}
-
-impl Task for FaucetClose {
-    fn spec(&self) -> &'static TaskSpec {
-        &SPEC
-    }
-
-    fn reset_model(&mut self, scene: &mut Scene, rv: &[f64]) -> Result<()> {
-        scene.reset_hand();
-        scene.obj_init_pos = [rv[0], rv[1], rv[2]];
-        scene.sim.set_body_pos(self.base, scene.obj_init_pos);
-        scene.target_pos = add(scene.obj_init_pos, GOAL_OFFSET);
-        // Unlike faucet-open, the reset ends with a kinematics pass (before the goal site moves).
-        scene.forward();
-        scene.sim.set_site_pos(self.goal_site, scene.target_pos);
-        Ok(())
-    }
-
-    fn objects(&self, scene: &Scene, out: &mut [f64; 14]) {
-        out[..3].copy_from_slice(&add(scene.sim.site_xpos(self.handle), HANDLE_OBS_OFFSET));
-        out[3..7].copy_from_slice(&scene.sim.body_xquat(self.base));
-    }
-
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], _a: &[f32; ACTION_DIM]) -> Eval {
-        let obj = [obs[4], obs[5], obs[6]];
-        let target_to_obj = dist(obj, scene.target_pos);
-        let target_to_obj_init = dist(scene.obj_init_pos, scene.target_pos);
-        let in_place = tolerance(
-            target_to_obj,
-            (0.0, TARGET_RADIUS),
-            (target_to_obj_init - TARGET_RADIUS).abs(),
-            Sigmoid::LongTail,
-        );
-        let tcp_to_obj = dist(obj, scene.tcp_center());
-        let tcp_to_obj_init = dist(scene.obj_init_pos, scene.init_tcp);
-        let reach = tolerance(
-            tcp_to_obj,
-            (0.0, REACH_RADIUS),
-            (tcp_to_obj_init - REACH_RADIUS).abs(),
-            Sigmoid::Gaussian,
-        );
-        let success = target_to_obj <= TARGET_RADIUS;
-        let reward = if success {
-            10.0
-        } else {
-            2.0 * (2.0 * reach + 3.0 * in_place)
-        };
-        Eval { reward, success }
-    }
+    faucet_open::build_with(scene, &SPEC, &VARIANT)
 }

@@ -1,4 +1,7 @@
-//! faucet-open-v3: rotate the faucet handle to the open side (+x).
+//! faucet-open-v3 (`metaworld/envs/sawyer_faucet_open_v3.py`): rotate the faucet handle to
+//! the open side (+x).
+//!
+//! The body of both faucet tasks: faucet-close builds it with its own [`Variant`].
 
 use super::{always_ok, TaskSpec};
 use crate::error::Result;
@@ -20,42 +23,77 @@ pub const SPEC: TaskSpec = TaskSpec {
     rand_vec_ok: always_ok,
 };
 
-/// Length of the faucet handle: the goal sits at its tip when opened.
-const HANDLE_LENGTH: f64 = 0.175;
-/// Goal offset from the faucet base.
-const GOAL_OFFSET: [f64; 3] = [HANDLE_LENGTH, 0.0, 0.125];
-/// The observed handle point is this far below the `handleStartOpen` site.
+/// Length of the faucet handle: the goal sits at its tip when opened (or closed).
+pub(super) const HANDLE_LENGTH: f64 = 0.175;
+/// The observed handle point is this far below the handle site.
 const HANDLE_OBS_OFFSET: [f64; 3] = [0.0, 0.0, -0.01];
-/// The reward measures a point shifted from the observed handle position by this much.
-const REWARD_HANDLE_OFFSET: [f64; 3] = [-0.04, 0.0, 0.03];
 const TARGET_RADIUS: f64 = 0.07;
 const REACH_RADIUS: f64 = 0.01;
 
+const VARIANT: Variant = Variant {
+    handle_site: "handleStartOpen",
+    goal_site: "goal_open",
+    goal_offset: [HANDLE_LENGTH, 0.0, 0.125],
+    forward_at_reset: false,
+    reward_handle_offset: Some([-0.04, 0.0, 0.03]),
+};
+
+/// What differs between faucet-open and faucet-close.
 #[derive(Debug)]
-struct FaucetOpen {
+pub(super) struct Variant {
+    /// The site observed as the handle.
+    pub handle_site: &'static str,
+    /// The goal's site.
+    pub goal_site: &'static str,
+    /// Goal offset from the faucet base.
+    pub goal_offset: [f64; 3],
+    /// Whether the reset ends with a kinematics pass (before the goal site moves).
+    pub forward_at_reset: bool,
+    /// The reward measures a point shifted from the observed handle position by this much.
+    pub reward_handle_offset: Option<[f64; 3]>,
+}
+
+#[derive(Debug)]
+struct Faucet {
+    spec: &'static TaskSpec,
+    variant: &'static Variant,
     base: usize,
     handle: usize,
     goal_site: usize,
 }
 
 pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
-    Ok(Box::new(FaucetOpen {
+    build_with(scene, &SPEC, &VARIANT)
+}
+
+/// A faucet task with another layout and variant.
+pub(super) fn build_with(
+    scene: &Scene,
+    spec: &'static TaskSpec,
+    variant: &'static Variant,
+) -> Result<Box<dyn Task>> {
+    Ok(Box::new(Faucet {
+        spec,
+        variant,
         base: scene.sim.body("faucetBase")?,
-        handle: scene.sim.site("handleStartOpen")?,
-        goal_site: scene.sim.site("goal_open")?,
+        handle: scene.sim.site(variant.handle_site)?,
+        goal_site: scene.sim.site(variant.goal_site)?,
     }))
 }
 
-impl Task for FaucetOpen {
+impl Task for Faucet {
     fn spec(&self) -> &'static TaskSpec {
-        &SPEC
+        self.spec
     }
 
     fn reset_model(&mut self, scene: &mut Scene, rv: &[f64]) -> Result<()> {
         scene.reset_hand();
         scene.obj_init_pos = [rv[0], rv[1], rv[2]];
         scene.sim.set_body_pos(self.base, scene.obj_init_pos);
-        scene.target_pos = add(scene.obj_init_pos, GOAL_OFFSET);
+        scene.target_pos = add(scene.obj_init_pos, self.variant.goal_offset);
+        if self.variant.forward_at_reset {
+            scene.forward();
+        }
         scene.sim.set_site_pos(self.goal_site, scene.target_pos);
         Ok(())
     }
@@ -66,7 +104,11 @@ impl Task for FaucetOpen {
     }
 
     fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], _a: &[f32; ACTION_DIM]) -> Eval {
-        let obj = add([obs[4], obs[5], obs[6]], REWARD_HANDLE_OFFSET);
+        let obj = [obs[4], obs[5], obs[6]];
+        let obj = match self.variant.reward_handle_offset {
+            Some(offset) => add(obj, offset),
+            None => obj,
+        };
         let target_to_obj = dist(obj, scene.target_pos);
         let target_to_obj_init = dist(scene.obj_init_pos, scene.target_pos);
         let in_place = tolerance(

@@ -1,4 +1,4 @@
-//! handle-press-v3: press a handle down.
+//! handle-press-v3 (`metaworld/envs/sawyer_handle_press_v3.py`): press a handle down.
 
 use super::{always_ok, TaskSpec};
 use crate::error::Result;

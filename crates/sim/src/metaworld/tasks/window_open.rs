@@ -1,4 +1,7 @@
-//! window-open-v3: slide a horizontal window open by pushing its handle 20 cm along +x.
+//! window-open-v3 (`metaworld/envs/sawyer_window_open_v3.py`): slide a horizontal window open
+//! by pushing its handle 20 cm along +x.
+//!
+//! The body of both window tasks: window-close builds it with [`Direction::Close`].
 
 use super::{always_ok, TaskSpec};
 use crate::error::Result;
@@ -21,12 +24,23 @@ pub const SPEC: TaskSpec = TaskSpec {
     rand_vec_ok: always_ok,
 };
 
-/// How far the handle has to travel along x.
+/// How far the handle has to travel along x (window-close: how far the window starts open).
 const OPEN_DISTANCE: f64 = 0.2;
 const HANDLE_RADIUS: f64 = 0.02;
 
+/// Which way the window is slid.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Direction {
+    /// window-open-v3: from closed to `OPEN_DISTANCE` along +x; the reach term is long-tailed.
+    Open,
+    /// window-close-v3: from `OPEN_DISTANCE` open back to closed; the reach term is Gaussian.
+    Close,
+}
+
 #[derive(Debug)]
-struct WindowOpen {
+struct Window {
+    spec: &'static TaskSpec,
+    direction: Direction,
     window: usize,
     handle: usize,
     slide_qpos: usize,
@@ -34,29 +48,57 @@ struct WindowOpen {
 }
 
 pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
+    build_with(scene, &SPEC, Direction::Open, "handleOpenStart")
+}
+
+/// A window task sliding the other way, observing the handle at `handle_site`.
+pub(super) fn build_with(
+    scene: &Scene,
+    spec: &'static TaskSpec,
+    direction: Direction,
+    handle_site: &str,
+) -> Result<Box<dyn Task>> {
     let slide = scene.sim.joint("window_slide")?;
-    Ok(Box::new(WindowOpen {
+    Ok(Box::new(Window {
+        spec,
+        direction,
         window: scene.sim.body("window")?,
-        handle: scene.sim.site("handleOpenStart")?,
+        handle: scene.sim.site(handle_site)?,
         slide_qpos: scene.sim.jnt_qposadr(slide),
         handle_pos_init: [0.0; 3],
     }))
 }
 
-impl Task for WindowOpen {
+impl Task for Window {
     fn spec(&self) -> &'static TaskSpec {
-        &SPEC
+        self.spec
     }
 
     fn reset_model(&mut self, scene: &mut Scene, rv: &[f64]) -> Result<()> {
         scene.reset_hand();
         scene.obj_init_pos = [rv[0], rv[1], rv[2]];
-        scene.target_pos = [rv[0] + OPEN_DISTANCE, rv[1], rv[2]];
-        scene.sim.set_body_pos(self.window, scene.obj_init_pos);
-        // Read before any forward pass: the kinematics of the hand reset's last substep.
-        self.handle_pos_init = scene.sim.site_xpos(self.handle);
-        // Written without mj_forward; the reset observation keeps the stale kinematics.
-        scene.sim.qpos_mut()[self.slide_qpos] = 0.0;
+        match self.direction {
+            Direction::Open => {
+                scene.target_pos = [rv[0] + OPEN_DISTANCE, rv[1], rv[2]];
+                scene.sim.set_body_pos(self.window, scene.obj_init_pos);
+                // Read before any forward pass: the kinematics of the hand reset's last substep.
+                self.handle_pos_init = scene.sim.site_xpos(self.handle);
+                // Written without mj_forward; the reset observation keeps the stale kinematics.
+                scene.sim.qpos_mut()[self.slide_qpos] = 0.0;
+            }
+            Direction::Close => {
+                scene.target_pos = scene.obj_init_pos;
+                scene.sim.set_body_pos(self.window, scene.obj_init_pos);
+                // The handle is read while the window is still closed (kinematics of the hand
+                // reset's last substep) and shifted by hand to where opening the window will
+                // put it.
+                let [x, y, z] = scene.sim.site_xpos(self.handle);
+                self.handle_pos_init = [x + OPEN_DISTANCE, y, z];
+                // Opened without mj_forward: the reset observation still shows the closed
+                // window.
+                scene.sim.qpos_mut()[self.slide_qpos] = OPEN_DISTANCE;
+            }
+        }
         scene.set_site_pos("goal", scene.target_pos)?;
         Ok(())
     }
@@ -69,9 +111,13 @@ impl Task for WindowOpen {
         let obj = scene.sim.site_xpos(self.handle);
         let tcp = scene.tcp_center();
         let target = scene.target_pos;
+        let (obj_init_x, reach_sigmoid) = match self.direction {
+            Direction::Open => (scene.obj_init_pos[0], Sigmoid::LongTail),
+            Direction::Close => (self.handle_pos_init[0], Sigmoid::Gaussian),
+        };
 
         let target_to_obj = (obj[0] - target[0]).abs();
-        let target_to_obj_init = (scene.obj_init_pos[0] - target[0]).abs();
+        let target_to_obj_init = (obj_init_x - target[0]).abs();
         let in_place = tolerance(
             target_to_obj,
             (0.0, TARGET_RADIUS),
@@ -85,7 +131,7 @@ impl Task for WindowOpen {
             tcp_to_obj,
             (0.0, HANDLE_RADIUS),
             (tcp_to_obj_init - HANDLE_RADIUS).abs(),
-            Sigmoid::LongTail,
+            reach_sigmoid,
         );
 
         Eval {
