@@ -1,59 +1,30 @@
-//! plate-slide-side-v3: slide a puck sideways (towards -x) into a goal beside the table centre.
+//! plate-slide-side-v3 (`metaworld/envs/sawyer_plate_slide_side_v3.py`): slide a puck
+//! sideways (towards -x) into a goal beside the table centre.
+//!
+//! plate-slide-v3's task ([`super::plate_slide`]) on the sideways table, with the low-push
+//! reward.
 
-use super::plate_slide_back::{low_push_eval, puck_objects, set_puck_joints};
-use super::{always_ok, TaskSpec};
+use super::plate_slide::{self, PuckGoal, Reward, Variant};
+use super::TaskSpec;
 use crate::error::Result;
-use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM};
+use crate::metaworld::{Scene, Task};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "plate-slide-side-v3",
     xml: "sawyer_xyz/sawyer_plate_slide_sideway.xml",
-    hand_low: [-0.5, 0.40, 0.05],
-    hand_high: [0.5, 1.0, 0.5],
-    mocap_low: None,
-    mocap_high: None,
-    // Python declares it as float32.
-    hand_init_pos: [0.0, 0.6f32 as f64, 0.2f32 as f64],
     rand_low: &[0.0, 0.6, 0.0, -0.3, 0.54, 0.0],
     rand_high: &[0.0, 0.6, 0.0, -0.25, 0.66, 0.0],
     goal_low: [-0.3, 0.54, 0.0],
     goal_high: [-0.25, 0.66, 0.0],
-    rand_vec_ok: always_ok,
+    ..plate_slide::SPEC
 };
 
-#[derive(Debug)]
-struct PlateSlideSide {
-    puck: usize,
-    goal_site: usize,
-}
+const VARIANT: Variant = Variant {
+    puck_goal: PuckGoal::Unmoved,
+    puck_joints: [0.0, 0.0],
+    reward: Reward::LowPush,
+};
 
 pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
-    Ok(Box::new(PlateSlideSide {
-        puck: scene.sim.geom("puck")?,
-        goal_site: scene.sim.site("goal")?,
-    }))
-}
-
-impl Task for PlateSlideSide {
-    fn spec(&self) -> &'static TaskSpec {
-        &SPEC
-    }
-
-    fn reset_model(&mut self, scene: &mut Scene, rv: &[f64]) -> Result<()> {
-        scene.reset_hand();
-        scene.obj_init_pos = [rv[0], rv[1], rv[2]];
-        scene.target_pos = [rv[3], rv[4], rv[5]];
-        // Python writes `data.body("puck_goal").xpos`, which the next mj_forward overwrites.
-        set_puck_joints(scene, [0.0, 0.0]);
-        scene.sim.set_site_pos(self.goal_site, scene.target_pos);
-        Ok(())
-    }
-
-    fn objects(&self, scene: &Scene, out: &mut [f64; 14]) {
-        puck_objects(scene, self.puck, out);
-    }
-
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], _a: &[f32; ACTION_DIM]) -> Eval {
-        low_push_eval(scene, obs)
-    }
+    plate_slide::build_with(scene, &SPEC, &VARIANT)
 }
