@@ -1,4 +1,5 @@
-//! coffee-pull-v3: pull a mug out from under a coffee machine to a goal in front of it.
+//! coffee-pull-v3 (`metaworld/envs/sawyer_coffee_pull_v3.py`): pull a mug out from under a
+//! coffee machine to a goal in front of it.
 
 use super::{obj_goal_apart, TaskSpec};
 use crate::error::Result;

@@ -1,28 +1,17 @@
-//! drawer-close-v3: push an open drawer shut.
+//! drawer-close-v3 (`metaworld/envs/sawyer_drawer_close_v3.py`): push an open drawer shut.
+//!
+//! Its layout is drawer-open-v3's ([`super::drawer_open`]).
 
-use super::{always_ok, TaskSpec};
+use super::{drawer_open, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{dist, hamacher_product, tolerance, Sigmoid};
 use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM, TARGET_RADIUS};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "drawer-close-v3",
-    xml: "sawyer_xyz/sawyer_drawer.xml",
-    hand_low: HAND_LOW,
-    hand_high: HAND_HIGH,
-    mocap_low: None,
-    mocap_high: None,
-    // Python stores it as float32.
-    hand_init_pos: [0.0, 0.6f32 as f64, 0.2f32 as f64],
-    rand_low: &[-0.1, 0.9, 0.0],
-    rand_high: &[0.1, 0.9, 0.0],
-    goal_low: HAND_LOW,
-    goal_high: HAND_HIGH,
-    rand_vec_ok: always_ok,
+    ..drawer_open::SPEC
 };
 
-const HAND_LOW: [f64; 3] = [-0.5, 0.40, 0.05];
-const HAND_HIGH: [f64; 3] = [0.5, 1.0, 0.5];
 /// How far the drawer is pulled out at reset (`maxDist`).
 const MAX_DIST: f64 = 0.15;
 /// Handle position relative to the drawer link.

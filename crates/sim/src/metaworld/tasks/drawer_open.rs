@@ -1,4 +1,5 @@
-//! drawer-open-v3: pull a drawer open by its handle.
+//! drawer-open-v3 (`metaworld/envs/sawyer_drawer_open_v3.py`): pull a drawer open by its
+//! handle.
 
 use super::{always_ok, TaskSpec};
 use crate::error::Result;
