@@ -44,6 +44,7 @@ mod plate_slide;
 mod plate_slide_back;
 mod plate_slide_back_side;
 mod plate_slide_side;
+mod puck;
 mod push;
 mod push_back;
 mod push_wall;

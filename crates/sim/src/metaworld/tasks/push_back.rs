@@ -1,10 +1,12 @@
-//! push-back-v3: push a puck from the back of the table towards the robot, to a goal on the
+//! push-back-v3 (`metaworld/envs/sawyer_push_back_v3.py`): push a puck from the back of the table
+//! towards the robot, to a goal on the
 //! table surface.
 
 use super::pad_caging::PadCaging;
+use super::puck::{self, Variant};
 use super::{obj_goal_apart, TaskSpec};
 use crate::error::Result;
-use crate::metaworld::reward::{dist, hamacher_product, scipy_quat_from_mat, tolerance, Sigmoid};
+use crate::metaworld::reward::{dist, hamacher_product, tolerance, Sigmoid};
 use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM, TARGET_RADIUS};
 
 pub const SPEC: TaskSpec = TaskSpec {
@@ -31,66 +33,45 @@ const CAGING: PadCaging = PadCaging {
 /// Success: the puck within this distance of the goal.
 const SUCCESS_RADIUS: f64 = 0.07;
 
-#[derive(Debug)]
-struct PushBack {
-    obj_geom: usize,
-}
+const VARIANT: Variant = Variant {
+    observe_body: false,
+    // The puck geom's resting height after the hand reset is both the object and the goal
+    // height (Python's `adjust_initObjPos`).
+    resting_height: true,
+    goal_site_first: false,
+    evaluate,
+};
 
 pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
-    Ok(Box::new(PushBack {
-        obj_geom: scene.sim.geom("objGeom")?,
-    }))
+    puck::build_with(scene, &SPEC, &VARIANT)
 }
 
-impl Task for PushBack {
-    fn spec(&self) -> &'static TaskSpec {
-        &SPEC
+fn evaluate(scene: &Scene, obs: &[f64; OBS_DIM], _a: &[f32; ACTION_DIM]) -> Eval {
+    let obj = [obs[4], obs[5], obs[6]];
+    let tcp_opened = obs[3];
+    let tcp_to_obj = dist(obj, scene.tcp_center());
+    let target_to_obj = dist(obj, scene.target_pos);
+    let target_to_obj_init = dist(scene.obj_init_pos, scene.target_pos);
+    let in_place = tolerance(
+        target_to_obj,
+        (0.0, TARGET_RADIUS),
+        target_to_obj_init,
+        Sigmoid::LongTail,
+    );
+    let object_grasped = CAGING.reward(scene, obj);
+    let mut reward = hamacher_product(object_grasped, in_place);
+    if tcp_to_obj < 0.01
+        && 0.0 < tcp_opened
+        && tcp_opened < 0.55
+        && target_to_obj_init - target_to_obj > 0.01
+    {
+        reward += 1.0 + 5.0 * in_place;
     }
-
-    fn reset_model(&mut self, scene: &mut Scene, rv: &[f64]) -> Result<()> {
-        scene.reset_hand();
-        // The puck geom's resting height after the hand reset is both the object and the goal
-        // height (Python's `adjust_initObjPos`).
-        let height = scene.sim.geom_xpos(self.obj_geom)[2];
-        scene.target_pos = [rv[3], rv[4], height];
-        scene.obj_init_pos = [rv[0], rv[1], height];
-        scene.set_obj_xyz(scene.obj_init_pos);
-        scene.set_site_pos("goal", scene.target_pos)?;
-        Ok(())
+    if target_to_obj < TARGET_RADIUS {
+        reward = 10.0;
     }
-
-    fn objects(&self, scene: &Scene, out: &mut [f64; 14]) {
-        out[..3].copy_from_slice(&scene.sim.geom_xpos(self.obj_geom));
-        out[3..7].copy_from_slice(&scipy_quat_from_mat(scene.sim.geom_xmat(self.obj_geom)));
-    }
-
-    fn evaluate(&mut self, scene: &Scene, obs: &[f64; OBS_DIM], _a: &[f32; ACTION_DIM]) -> Eval {
-        let obj = [obs[4], obs[5], obs[6]];
-        let tcp_opened = obs[3];
-        let tcp_to_obj = dist(obj, scene.tcp_center());
-        let target_to_obj = dist(obj, scene.target_pos);
-        let target_to_obj_init = dist(scene.obj_init_pos, scene.target_pos);
-        let in_place = tolerance(
-            target_to_obj,
-            (0.0, TARGET_RADIUS),
-            target_to_obj_init,
-            Sigmoid::LongTail,
-        );
-        let object_grasped = CAGING.reward(scene, obj);
-        let mut reward = hamacher_product(object_grasped, in_place);
-        if tcp_to_obj < 0.01
-            && 0.0 < tcp_opened
-            && tcp_opened < 0.55
-            && target_to_obj_init - target_to_obj > 0.01
-        {
-            reward += 1.0 + 5.0 * in_place;
-        }
-        if target_to_obj < TARGET_RADIUS {
-            reward = 10.0;
-        }
-        Eval {
-            reward,
-            success: target_to_obj <= SUCCESS_RADIUS,
-        }
+    Eval {
+        reward,
+        success: target_to_obj <= SUCCESS_RADIUS,
     }
 }

@@ -1,8 +1,9 @@
-//! reach-v3: move the gripper to a goal in the air.
+//! reach-v3 (`metaworld/envs/sawyer_reach_v3.py`): move the gripper to a goal in the air.
 
+use super::puck::{self, Variant};
 use super::{obj_goal_apart, TaskSpec};
 use crate::error::Result;
-use crate::metaworld::reward::{dist, scipy_quat_from_mat, tolerance, Sigmoid};
+use crate::metaworld::reward::{dist, tolerance, Sigmoid};
 use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM, TARGET_RADIUS};
 
 pub const SPEC: TaskSpec = TaskSpec {
@@ -20,58 +21,30 @@ pub const SPEC: TaskSpec = TaskSpec {
     rand_vec_ok: obj_goal_apart::<15>,
 };
 
-#[derive(Debug)]
-struct Reach {
-    spec: &'static TaskSpec,
-    obj: usize,
-    obj_geom: usize,
-}
+/// reach-v3's variant of the puck tasks (reach-wall-v3 has the same).
+pub(super) const VARIANT: Variant = Variant {
+    observe_body: true,
+    resting_height: false,
+    goal_site_first: false,
+    evaluate,
+};
 
 pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
-    build_with(scene, &SPEC)
+    puck::build_with(scene, &SPEC, &VARIANT)
 }
 
-/// The reach task with another layout (reach-wall-v3: same reset, observation and reward,
-/// another model and ranges).
-pub(super) fn build_with(scene: &Scene, spec: &'static TaskSpec) -> Result<Box<dyn Task>> {
-    Ok(Box::new(Reach {
-        spec,
-        obj: scene.sim.body("obj")?,
-        obj_geom: scene.sim.geom("objGeom")?,
-    }))
-}
-
-impl Task for Reach {
-    fn spec(&self) -> &'static TaskSpec {
-        self.spec
-    }
-
-    fn reset_model(&mut self, scene: &mut Scene, rv: &[f64]) -> Result<()> {
-        scene.reset_hand();
-        scene.target_pos = [rv[3], rv[4], rv[5]];
-        scene.obj_init_pos = [rv[0], rv[1], rv[2]];
-        scene.set_obj_xyz(scene.obj_init_pos);
-        scene.set_site_pos("goal", scene.target_pos)?;
-        Ok(())
-    }
-
-    fn objects(&self, scene: &Scene, out: &mut [f64; 14]) {
-        out[..3].copy_from_slice(&scene.body_com(self.obj));
-        out[3..7].copy_from_slice(&scipy_quat_from_mat(scene.sim.geom_xmat(self.obj_geom)));
-    }
-
-    fn evaluate(&mut self, scene: &Scene, _obs: &[f64; OBS_DIM], _a: &[f32; ACTION_DIM]) -> Eval {
-        let tcp_to_target = dist(scene.tcp_center(), scene.target_pos);
-        let in_place_margin = dist(scene.hand_init_pos, scene.target_pos);
-        let in_place = tolerance(
-            tcp_to_target,
-            (0.0, TARGET_RADIUS),
-            in_place_margin,
-            Sigmoid::LongTail,
-        );
-        Eval {
-            reward: 10.0 * in_place,
-            success: tcp_to_target <= 0.05,
-        }
+/// The reward and success of reach-v3 and reach-wall-v3.
+fn evaluate(scene: &Scene, _obs: &[f64; OBS_DIM], _a: &[f32; ACTION_DIM]) -> Eval {
+    let tcp_to_target = dist(scene.tcp_center(), scene.target_pos);
+    let in_place_margin = dist(scene.hand_init_pos, scene.target_pos);
+    let in_place = tolerance(
+        tcp_to_target,
+        (0.0, TARGET_RADIUS),
+        in_place_margin,
+        Sigmoid::LongTail,
+    );
+    Eval {
+        reward: 10.0 * in_place,
+        success: tcp_to_target <= 0.05,
     }
 }
