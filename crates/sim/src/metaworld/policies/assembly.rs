@@ -1,7 +1,7 @@
 //! `SawyerAssemblyV3Policy`: above the nut's handle, down, grip, up to the peg's height,
 //! over the peg, then down onto it.
 
-use super::{act, add, goal, hand, object, xy_dist, V3};
+use super::{act, add, goal, grab_near, hand, object, xy_dist, V3};
 use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
 pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
@@ -31,9 +31,5 @@ fn desired_pos(hand: V3, wrench: V3, peg: V3) -> V3 {
 }
 
 fn grab_effort(hand: V3, wrench: V3) -> f64 {
-    if xy_dist(hand, wrench) > 0.02 || (hand[2] - wrench[2]).abs() > 0.12 {
-        0.0
-    } else {
-        0.6
-    }
+    grab_near(hand, wrench, 0.02, 0.12, 0.0, 0.6)
 }

@@ -1,6 +1,6 @@
 //! `SawyerBasketballV3Policy`: above the ball, down, grip, up to the hoop's height, over it.
 
-use super::{act, add, hand, object, xy_dist, V3};
+use super::{act, add, grab_near, hand, object, xy_dist, V3};
 use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
 pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
@@ -29,9 +29,5 @@ fn desired_pos(hand: V3, ball: V3, hoop: V3) -> V3 {
 }
 
 fn grab_effort(hand: V3, ball: V3) -> f64 {
-    if xy_dist(hand, ball) > 0.04 || (hand[2] - ball[2]).abs() > 0.15 {
-        -1.0
-    } else {
-        0.6
-    }
+    grab_near(hand, ball, 0.04, 0.15, -1.0, 0.6)
 }

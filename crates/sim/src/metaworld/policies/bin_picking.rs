@@ -1,6 +1,6 @@
 //! `SawyerBinPickingV3Policy`: above the cube, down, grip, up, over the target bin, down.
 
-use super::{act, add, hand, object, xy_dist, V3};
+use super::{act, add, grab_near, hand, object, xy_dist, V3};
 use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
 /// Centre of the target bin.
@@ -32,9 +32,5 @@ fn desired_pos(hand: V3, cube: V3) -> V3 {
 }
 
 fn grab_effort(hand: V3, cube: V3) -> f64 {
-    if xy_dist(hand, cube) > 0.02 || (hand[2] - cube[2]).abs() > 0.02 {
-        -1.0
-    } else {
-        0.6
-    }
+    grab_near(hand, cube, 0.02, 0.02, -1.0, 0.6)
 }

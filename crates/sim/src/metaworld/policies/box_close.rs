@@ -1,6 +1,6 @@
 //! `SawyerBoxCloseV3Policy`: above the lid's handle, down, grip, up to 0.15, over the box.
 
-use super::{act, add, hand, object, xy_dist, V3};
+use super::{act, add, grab_near, hand, object, xy_dist, V3};
 use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
 pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
@@ -28,9 +28,5 @@ fn desired_pos(hand: V3, lid: V3, box_top: V3) -> V3 {
 }
 
 fn grab_effort(hand: V3, lid: V3) -> f64 {
-    if xy_dist(hand, lid) > 0.01 || (hand[2] - lid[2]).abs() > 0.13 {
-        0.5
-    } else {
-        1.0
-    }
+    grab_near(hand, lid, 0.01, 0.13, 0.5, 1.0)
 }

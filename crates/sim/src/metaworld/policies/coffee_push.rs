@@ -2,17 +2,13 @@
 //! under the machine at a height of 0.1.
 
 use super::coffee_pull::grab_effort;
-use super::{act, add, goal, hand, object, xy_dist, V3};
+use super::{add, object_to_goal, xy_dist, V3};
 use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
 pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
-    let (hand, mug) = (hand(obs), object(obs));
-    act(
-        hand,
-        desired_pos(hand, mug, goal(obs)),
-        10.0,
-        grab_effort(hand, mug, 0.5),
-    )
+    object_to_goal(obs, 10.0, desired_pos, |hand, mug| {
+        grab_effort(hand, mug, 0.5)
+    })
 }
 
 fn desired_pos(hand: V3, mug: V3, goal: V3) -> V3 {

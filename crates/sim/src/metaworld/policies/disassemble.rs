@@ -1,6 +1,6 @@
 //! `SawyerDisassembleV3Policy`: above the nut's handle, down, grip, then straight up.
 
-use super::{act, add, hand, object, xy_dist, V3};
+use super::{act, add, grab_near, hand, object, xy_dist, V3};
 use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
 pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
@@ -25,9 +25,5 @@ fn desired_pos(hand: V3, wrench: V3) -> V3 {
 }
 
 fn grab_effort(hand: V3, wrench: V3) -> f64 {
-    if xy_dist(hand, wrench) > 0.02 || (hand[2] - wrench[2]).abs() > 0.07 {
-        0.0
-    } else {
-        0.8
-    }
+    grab_near(hand, wrench, 0.02, 0.07, 0.0, 0.8)
 }

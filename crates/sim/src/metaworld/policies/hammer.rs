@@ -1,7 +1,7 @@
 //! `SawyerHammerV3Policy`: above the handle, down, grip, to the nail's height and x, then
 //! forward onto the nail.
 
-use super::{act, add, hand, object, xy_dist, V3};
+use super::{act, add, grab_near, hand, object, xy_dist, V3};
 use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
 /// The nail head (plus an offset for the hammer's head), hard-coded as in Python.
@@ -32,9 +32,5 @@ fn desired_pos(hand: V3, handle: V3) -> V3 {
 }
 
 fn grab_effort(hand: V3, handle: V3) -> f64 {
-    if xy_dist(hand, handle) > 0.04 || (hand[2] - handle[2]).abs() > 0.1 {
-        0.0
-    } else {
-        0.8
-    }
+    grab_near(hand, handle, 0.04, 0.1, 0.0, 0.8)
 }

@@ -1,16 +1,10 @@
 //! `SawyerHandInsertV3Policy`: above the block, down onto it, grip, over the hole, then down.
 
-use super::{act, add, goal, hand, object, xy_dist, V3};
+use super::{add, grab_near, object_to_goal, xy_dist, V3};
 use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
 pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
-    let (hand, obj) = (hand(obs), object(obs));
-    act(
-        hand,
-        desired_pos(hand, obj, goal(obs)),
-        10.0,
-        grab_effort(hand, obj),
-    )
+    object_to_goal(obs, 10.0, desired_pos, grab_effort)
 }
 
 fn desired_pos(hand: V3, obj: V3, goal: V3) -> V3 {
@@ -26,9 +20,5 @@ fn desired_pos(hand: V3, obj: V3, goal: V3) -> V3 {
 }
 
 fn grab_effort(hand: V3, obj: V3) -> f64 {
-    if xy_dist(hand, obj) > 0.02 || (hand[2] - obj[2]).abs() > 0.1 {
-        0.0
-    } else {
-        0.65
-    }
+    grab_near(hand, obj, 0.02, 0.1, 0.0, 0.65)
 }

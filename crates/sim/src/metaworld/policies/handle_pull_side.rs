@@ -1,6 +1,6 @@
 //! `SawyerHandlePullSideV3Policy`: above the handle, down to it, grip lightly and pull up.
 
-use super::{act, add, hand, object, xy_dist, V3};
+use super::{act, add, grab_near, hand, object, xy_dist, V3};
 use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
 pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
@@ -24,9 +24,5 @@ fn desired_pos(hand: V3, handle: V3) -> V3 {
 }
 
 fn grab_effort(hand: V3, handle: V3) -> f64 {
-    if xy_dist(hand, handle) > 0.04 || (hand[2] - handle[2]).abs() > 0.04 {
-        0.0
-    } else {
-        0.6
-    }
+    grab_near(hand, handle, 0.04, 0.04, 0.0, 0.6)
 }

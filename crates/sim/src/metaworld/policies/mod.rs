@@ -197,6 +197,33 @@ fn dist(a: V3, b: V3) -> f64 {
     (dx * dx + dy * dy + dz * dz).sqrt()
 }
 
+/// The gripper effort of most grasping policies' `_grab_effort`: `far` while the hand is more
+/// than `xy` from `obj` in the plane or more than `z` from it in height, else `near`.
+fn grab_near(hand: V3, obj: V3, xy: f64, z: f64, far: f64, near: f64) -> f64 {
+    if xy_dist(hand, obj) > xy || (hand[2] - obj[2]).abs() > z {
+        far
+    } else {
+        near
+    }
+}
+
+/// The shape of most grasping policies' `get_action`: the hand moves with gain `p` to
+/// `desired_pos(hand, object, goal)`, the gripper at `grab_effort(hand, object)`.
+fn object_to_goal(
+    obs: &[f64; OBS_DIM],
+    p: f64,
+    desired_pos: fn(V3, V3, V3) -> V3,
+    grab_effort: fn(V3, V3) -> f64,
+) -> [f32; ACTION_DIM] {
+    let (hand, obj) = (hand(obs), object(obs));
+    act(
+        hand,
+        desired_pos(hand, obj, goal(obs)),
+        p,
+        grab_effort(hand, obj),
+    )
+}
+
 /// `move(from, to, p)` (unclipped, as in Python) plus the gripper effort, as float32.
 fn act(from: V3, to: V3, p: f64, grab: f64) -> [f32; ACTION_DIM] {
     [

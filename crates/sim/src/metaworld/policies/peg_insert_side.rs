@@ -1,16 +1,10 @@
 //! `SawyerPegInsertionSideV3Policy`: grasp the peg, line it up with the hole, push it in.
 
-use super::{act, add, goal, hand, object, xy_dist, V3};
+use super::{add, grab_near, object_to_goal, xy_dist, V3};
 use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
 pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
-    let (hand, peg) = (hand(obs), object(obs));
-    act(
-        hand,
-        desired_pos(hand, peg, goal(obs)),
-        25.0,
-        grab_effort(hand, peg),
-    )
+    object_to_goal(obs, 25.0, desired_pos, grab_effort)
 }
 
 fn desired_pos(hand: V3, peg: V3, goal: V3) -> V3 {
@@ -29,9 +23,5 @@ fn desired_pos(hand: V3, peg: V3, goal: V3) -> V3 {
 }
 
 fn grab_effort(hand: V3, peg: V3) -> f64 {
-    if xy_dist(hand, peg) > 0.04 || (hand[2] - peg[2]).abs() > 0.15 {
-        -1.0
-    } else {
-        0.6
-    }
+    grab_near(hand, peg, 0.04, 0.15, -1.0, 0.6)
 }

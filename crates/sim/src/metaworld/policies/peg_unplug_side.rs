@@ -1,6 +1,6 @@
 //! `SawyerPegUnplugSideV3Policy`: above the peg, down to z = 0.15, then pull along +x.
 
-use super::{act, add, hand, object, xy_dist, V3};
+use super::{act, add, grab_near, hand, object, xy_dist, V3};
 use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
 pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
@@ -21,9 +21,5 @@ fn desired_pos(hand: V3, peg: V3) -> V3 {
 
 fn grab_effort(hand: V3, peg: V3) -> f64 {
     let peg = add(peg, [-0.02, 0.0, 0.035]);
-    if xy_dist(hand, peg) > 0.04 || (hand[2] - peg[2]).abs() > 0.15 {
-        -1.0
-    } else {
-        0.1
-    }
+    grab_near(hand, peg, 0.04, 0.15, -1.0, 0.1)
 }

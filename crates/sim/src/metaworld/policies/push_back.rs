@@ -1,17 +1,11 @@
 //! `SawyerPushBackV3Policy`: above the puck, down onto it, close the gripper halfway and pull
 //! it to the goal at the hand's height.
 
-use super::{act, add, goal, hand, object, xy_dist, V3};
+use super::{add, grab_near, object_to_goal, xy_dist, V3};
 use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
 pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
-    let (hand, puck) = (hand(obs), object(obs));
-    act(
-        hand,
-        desired_pos(hand, puck, goal(obs)),
-        10.0,
-        grab_effort(hand, puck),
-    )
+    object_to_goal(obs, 10.0, desired_pos, grab_effort)
 }
 
 fn desired_pos(hand: V3, puck: V3, goal: V3) -> V3 {
@@ -25,9 +19,5 @@ fn desired_pos(hand: V3, puck: V3, goal: V3) -> V3 {
 }
 
 fn grab_effort(hand: V3, puck: V3) -> f64 {
-    if xy_dist(hand, puck) > 0.04 || (hand[2] - puck[2]).abs() > 0.05 {
-        0.0
-    } else {
-        0.9
-    }
+    grab_near(hand, puck, 0.04, 0.05, 0.0, 0.9)
 }

@@ -1,6 +1,6 @@
 //! `SawyerShelfPlaceV3Policy`: grasp the block, centre on the shelf's x, lift, move forward.
 
-use super::{act, add, hand, object, xy_dist, V3};
+use super::{act, add, grab_near, hand, object, xy_dist, V3};
 use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
 pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
@@ -29,9 +29,5 @@ fn desired_pos(hand: V3, block: V3, shelf_x: f64) -> V3 {
 }
 
 fn grab_effort(hand: V3, block: V3) -> f64 {
-    if xy_dist(hand, block) > 0.04 || (hand[2] - block[2]).abs() > 0.15 {
-        -1.0
-    } else {
-        0.7
-    }
+    grab_near(hand, block, 0.04, 0.15, -1.0, 0.7)
 }

@@ -1,16 +1,10 @@
 //! `SawyerSweepIntoV3Policy`: above the cube, down around it, sweep it to the goal.
 
-use super::{act, add, goal, hand, object, xy_dist, V3};
+use super::{add, grab_near, object_to_goal, xy_dist, V3};
 use crate::metaworld::{ACTION_DIM, OBS_DIM};
 
 pub fn action(obs: &[f64; OBS_DIM]) -> [f32; ACTION_DIM] {
-    let (hand, cube) = (hand(obs), object(obs));
-    act(
-        hand,
-        desired_pos(hand, cube, goal(obs)),
-        25.0,
-        grab_effort(hand, cube),
-    )
+    object_to_goal(obs, 25.0, desired_pos, grab_effort)
 }
 
 fn desired_pos(hand: V3, cube: V3, goal: V3) -> V3 {
@@ -25,9 +19,5 @@ fn desired_pos(hand: V3, cube: V3, goal: V3) -> V3 {
 }
 
 fn grab_effort(hand: V3, cube: V3) -> f64 {
-    if xy_dist(hand, cube) > 0.04 || (hand[2] - cube[2]).abs() > 0.15 {
-        -1.0
-    } else {
-        0.7
-    }
+    grab_near(hand, cube, 0.04, 0.15, -1.0, 0.7)
 }
