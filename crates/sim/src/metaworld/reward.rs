@@ -49,6 +49,15 @@ pub fn tolerance_with(
     sigmoid(d, value_at_margin, kind)
 }
 
+/// `tolerance(d, bounds=(0, radius), margin=abs(d_init - radius), sigmoid=…)`: the
+/// `in_place` and `reach` terms of the v3 rewards that measure progress from the start
+/// distance `d_init` (e.g. `compute_reward` in `metaworld/envs/sawyer_faucet_open_v3.py`,
+/// `sawyer_handle_press_v3.py`, `sawyer_window_open_v3.py`, `sawyer_dial_turn_v3.py`,
+/// `sawyer_drawer_close_v3.py`).
+pub fn radius_tolerance(d: f64, radius: f64, d_init: f64, kind: Sigmoid) -> f64 {
+    tolerance(d, (0.0, radius), (d_init - radius).abs(), kind)
+}
+
 /// [`tolerance_with`] at the default value at the margin (0.1).
 pub fn tolerance(x: f64, bounds: (f64, f64), margin: f64, kind: Sigmoid) -> f64 {
     tolerance_with(x, bounds, margin, kind, DEFAULT_VALUE_AT_MARGIN)

@@ -49,18 +49,51 @@ pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
 
 /// `_reward_quat`: 1 for a nut lying flat, falling to 0 at a quaternion error of 0.4
 /// (shared with disassemble).
-pub(super) fn quat_reward(obs: &[f64; OBS_DIM]) -> f64 {
+fn quat_reward(obs: &[f64; OBS_DIM]) -> f64 {
     reward::quat_reward(obs, IDEAL_QUAT, 0.4)
 }
 
 /// The nut's position for the caging reward: that reward treats its object as a sphere, so
 /// along the handle the hand's x counts as on the nut (shared with disassemble).
-pub(super) fn threshed(hand: [f64; 3], nut: [f64; 3]) -> [f64; 3] {
+fn threshed(hand: [f64; 3], nut: [f64; 3]) -> [f64; 3] {
     let mut threshed = nut;
     if (nut[0] - hand[0]).abs() < HANDLE_LENGTH / 2.0 {
         threshed[0] = hand[0];
     }
     threshed
+}
+
+/// The caging reward of the nut (shared with disassemble), with the nut [`threshed`] along
+/// its handle.
+pub(super) fn nut_grab(
+    scene: &Scene,
+    obs: &[f64; OBS_DIM],
+    action: &[f32; ACTION_DIM],
+    density: Density,
+) -> f64 {
+    let hand = [obs[0], obs[1], obs[2]];
+    let nut = [obs[4], obs[5], obs[6]];
+    scene.gripper_caging_reward(
+        action,
+        threshed(hand, nut),
+        0.015,
+        0.02,
+        0.01,
+        0.01,
+        1.0,
+        density,
+    )
+}
+
+/// Reward and success of both nut tasks (shared with disassemble): 10 on success, else
+/// `(2 grab + 6 in place) × quat reward`.
+pub(super) fn nut_eval(obs: &[f64; OBS_DIM], grab: f64, in_place: f64, success: bool) -> Eval {
+    let reward = if success {
+        10.0
+    } else {
+        (2.0 * grab + 6.0 * in_place) * quat_reward(obs)
+    };
+    Eval { reward, success }
 }
 
 /// `_reward_pos`: (in place, success) of the nut's centre relative to the peg's top.
@@ -116,25 +149,9 @@ impl Task for Assembly {
         obs: &[f64; OBS_DIM],
         action: &[f32; ACTION_DIM],
     ) -> Eval {
-        let hand = [obs[0], obs[1], obs[2]];
-        let nut = [obs[4], obs[5], obs[6]];
-        let grab = scene.gripper_caging_reward(
-            action,
-            threshed(hand, nut),
-            0.015,
-            0.02,
-            0.01,
-            0.01,
-            1.0,
-            Density::Medium,
-        );
+        let grab = nut_grab(scene, obs, action, Density::Medium);
         let (in_place, success) =
             reward_pos(scene.sim.site_xpos(self.nut_center), scene.target_pos);
-        let reward = if success {
-            10.0
-        } else {
-            (2.0 * grab + 6.0 * in_place) * quat_reward(obs)
-        };
-        Eval { reward, success }
+        nut_eval(obs, grab, in_place, success)
     }
 }

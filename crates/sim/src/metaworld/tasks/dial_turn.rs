@@ -2,7 +2,7 @@
 
 use super::{always_ok, TaskSpec};
 use crate::error::Result;
-use crate::metaworld::reward::{dist, hamacher_product, tolerance, Sigmoid};
+use crate::metaworld::reward::{dist, hamacher_product, radius_tolerance, Sigmoid};
 use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM};
 
 pub const SPEC: TaskSpec = TaskSpec {
@@ -119,19 +119,19 @@ impl Task for DialTurn {
 
         let target_to_obj = dist(obj, target);
         let target_to_obj_init = dist(self.push_position_init, target);
-        let in_place = tolerance(
+        let in_place = radius_tolerance(
             target_to_obj,
-            (0.0, TARGET_RADIUS),
-            (target_to_obj_init - TARGET_RADIUS).abs(),
+            TARGET_RADIUS,
+            target_to_obj_init,
             Sigmoid::LongTail,
         );
 
         let tcp_to_obj = dist(push_position, tcp);
         let tcp_to_obj_init = dist(self.push_position_init, scene.init_tcp);
-        let reach = tolerance(
+        let reach = radius_tolerance(
             tcp_to_obj,
-            (0.0, DIAL_REACH_RADIUS),
-            (tcp_to_obj_init - DIAL_REACH_RADIUS).abs(),
+            DIAL_REACH_RADIUS,
+            tcp_to_obj_init,
             Sigmoid::Gaussian,
         );
         Eval {

@@ -1,6 +1,6 @@
 //! disassemble-v3: lift a ring nut by its handle off a peg.
 
-use super::assembly::{quat_reward, threshed};
+use super::assembly::{nut_eval, nut_grab};
 use super::{obj_goal_apart, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{dist, tolerance, Sigmoid};
@@ -87,25 +87,9 @@ impl Task for Disassemble {
         obs: &[f64; OBS_DIM],
         action: &[f32; ACTION_DIM],
     ) -> Eval {
-        let hand = [obs[0], obs[1], obs[2]];
-        let nut = [obs[4], obs[5], obs[6]];
-        let grab = scene.gripper_caging_reward(
-            action,
-            threshed(hand, nut),
-            0.015,
-            0.02,
-            0.01,
-            0.01,
-            1.0,
-            Density::High,
-        );
+        let grab = nut_grab(scene, obs, action, Density::High);
         let in_place = in_place_reward(scene.sim.site_xpos(self.nut_center), scene.target_pos);
         let success = obs[6] > scene.target_pos[2];
-        let reward = if success {
-            10.0
-        } else {
-            (2.0 * grab + 6.0 * in_place) * quat_reward(obs)
-        };
-        Eval { reward, success }
+        nut_eval(obs, grab, in_place, success)
     }
 }

@@ -4,7 +4,7 @@
 
 use super::{drawer_open, TaskSpec};
 use crate::error::Result;
-use crate::metaworld::reward::{dist, hamacher_product, tolerance, Sigmoid};
+use crate::metaworld::reward::{dist, hamacher_product, radius_tolerance, Sigmoid};
 use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM, TARGET_RADIUS};
 
 pub const SPEC: TaskSpec = TaskSpec {
@@ -75,18 +75,18 @@ impl Task for DrawerClose {
         let target = scene.target_pos;
         let target_to_obj = dist(obj, target);
         let target_to_obj_init = dist(scene.obj_init_pos, target);
-        let in_place = tolerance(
+        let in_place = radius_tolerance(
             target_to_obj,
-            (0.0, TARGET_RADIUS),
-            (target_to_obj_init - TARGET_RADIUS).abs(),
+            TARGET_RADIUS,
+            target_to_obj_init,
             Sigmoid::LongTail,
         );
         let tcp_to_obj = dist(obj, scene.tcp_center());
         let tcp_to_obj_init = dist(scene.obj_init_pos, scene.init_tcp);
-        let reach = tolerance(
+        let reach = radius_tolerance(
             tcp_to_obj,
-            (0.0, HANDLE_REACH_RADIUS),
-            (tcp_to_obj_init - HANDLE_REACH_RADIUS).abs(),
+            HANDLE_REACH_RADIUS,
+            tcp_to_obj_init,
             Sigmoid::Gaussian,
         );
         let gripper_closed = f64::from(action[3].clamp(0.0, 1.0));

@@ -5,7 +5,7 @@
 
 use super::{always_ok, TaskSpec};
 use crate::error::Result;
-use crate::metaworld::reward::{add, dist, tolerance, Sigmoid};
+use crate::metaworld::reward::{add, dist, radius_tolerance, Sigmoid};
 use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM};
 
 pub const SPEC: TaskSpec = TaskSpec {
@@ -111,20 +111,15 @@ impl Task for Faucet {
         };
         let target_to_obj = dist(obj, scene.target_pos);
         let target_to_obj_init = dist(scene.obj_init_pos, scene.target_pos);
-        let in_place = tolerance(
+        let in_place = radius_tolerance(
             target_to_obj,
-            (0.0, TARGET_RADIUS),
-            (target_to_obj_init - TARGET_RADIUS).abs(),
+            TARGET_RADIUS,
+            target_to_obj_init,
             Sigmoid::LongTail,
         );
         let tcp_to_obj = dist(obj, scene.tcp_center());
         let tcp_to_obj_init = dist(scene.obj_init_pos, scene.init_tcp);
-        let reach = tolerance(
-            tcp_to_obj,
-            (0.0, REACH_RADIUS),
-            (tcp_to_obj_init - REACH_RADIUS).abs(),
-            Sigmoid::Gaussian,
-        );
+        let reach = radius_tolerance(tcp_to_obj, REACH_RADIUS, tcp_to_obj_init, Sigmoid::Gaussian);
         let success = target_to_obj <= TARGET_RADIUS;
         let reward = if success {
             10.0

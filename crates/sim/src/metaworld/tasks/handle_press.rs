@@ -2,7 +2,7 @@
 
 use super::{always_ok, TaskSpec};
 use crate::error::Result;
-use crate::metaworld::reward::{dist, hamacher_product, tolerance, Sigmoid};
+use crate::metaworld::reward::{dist, hamacher_product, radius_tolerance, Sigmoid};
 use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM};
 
 pub const SPEC: TaskSpec = TaskSpec {
@@ -83,18 +83,18 @@ impl Task for HandlePress {
         let target = scene.target_pos;
         let target_to_obj = (obj[2] - target[2]).abs();
         let target_to_obj_init = (self.handle_init_pos[2] - target[2]).abs();
-        let in_place = tolerance(
+        let in_place = radius_tolerance(
             target_to_obj,
-            (0.0, TARGET_RADIUS),
-            (target_to_obj_init - TARGET_RADIUS).abs(),
+            TARGET_RADIUS,
+            target_to_obj_init,
             Sigmoid::LongTail,
         );
         let tcp_to_obj = dist(obj, scene.tcp_center());
         let tcp_to_obj_init = dist(self.handle_init_pos, scene.init_tcp);
-        let reach = tolerance(
+        let reach = radius_tolerance(
             tcp_to_obj,
-            (0.0, HANDLE_RADIUS),
-            (tcp_to_obj_init - HANDLE_RADIUS).abs(),
+            HANDLE_RADIUS,
+            tcp_to_obj_init,
             Sigmoid::LongTail,
         );
         let success = target_to_obj <= TARGET_RADIUS;

@@ -5,7 +5,7 @@
 
 use super::{always_ok, TaskSpec};
 use crate::error::Result;
-use crate::metaworld::reward::{dist, hamacher_product, tolerance, Sigmoid};
+use crate::metaworld::reward::{dist, hamacher_product, radius_tolerance, Sigmoid};
 use crate::metaworld::{Eval, Scene, Task, ACTION_DIM, OBS_DIM, TARGET_RADIUS};
 
 pub const SPEC: TaskSpec = TaskSpec {
@@ -118,21 +118,16 @@ impl Task for Window {
 
         let target_to_obj = (obj[0] - target[0]).abs();
         let target_to_obj_init = (obj_init_x - target[0]).abs();
-        let in_place = tolerance(
+        let in_place = radius_tolerance(
             target_to_obj,
-            (0.0, TARGET_RADIUS),
-            (target_to_obj_init - TARGET_RADIUS).abs(),
+            TARGET_RADIUS,
+            target_to_obj_init,
             Sigmoid::LongTail,
         );
 
         let tcp_to_obj = dist(obj, tcp);
         let tcp_to_obj_init = dist(self.handle_pos_init, scene.init_tcp);
-        let reach = tolerance(
-            tcp_to_obj,
-            (0.0, HANDLE_RADIUS),
-            (tcp_to_obj_init - HANDLE_RADIUS).abs(),
-            reach_sigmoid,
-        );
+        let reach = radius_tolerance(tcp_to_obj, HANDLE_RADIUS, tcp_to_obj_init, reach_sigmoid);
 
         Eval {
             reward: 10.0 * hamacher_product(reach, in_place),
