@@ -224,6 +224,20 @@ fn object_to_goal(
     )
 }
 
+/// The three phases of the faucet and window policies: above `obj + offset` (by `above`)
+/// until the hand is within `xy` of it in the plane, down to it until within `z` in height,
+/// then on to `obj + offset + push`.
+fn above_down_push(hand: V3, obj: V3, offset: V3, (xy, above, z): (f64, f64, f64), push: V3) -> V3 {
+    let obj = add(obj, offset);
+    if xy_dist(hand, obj) > xy {
+        add(obj, [0.0, 0.0, above])
+    } else if (hand[2] - obj[2]).abs() > z {
+        obj
+    } else {
+        add(obj, push)
+    }
+}
+
 /// `move(from, to, p)` (unclipped, as in Python) plus the gripper effort, as float32.
 fn act(from: V3, to: V3, p: f64, grab: f64) -> [f32; ACTION_DIM] {
     [
