@@ -1,4 +1,6 @@
-//! door-open-v3: pull a hinged door open by its handle.
+//! door-open-v3 (`metaworld/envs/sawyer_door_v3.py`): pull a hinged door open by its handle.
+//!
+//! The body of both door tasks: door-close builds it with its own [`Variant`].
 
 use std::f64::consts::PI;
 
@@ -29,8 +31,28 @@ const GOAL_OFFSET: [f64; 3] = [-0.3, -0.45, 0.0];
 /// Success: the handle's x within this distance of the goal's.
 const SUCCESS_X_DIST: f64 = 0.08;
 
+const VARIANT: Variant = Variant {
+    goal_offset: GOAL_OFFSET,
+    // `_set_obj_xyz(0)`: close the door.
+    hinge_angle: 0.0,
+    evaluate,
+};
+
+/// What differs between door-open and door-close.
 #[derive(Debug)]
-struct DoorOpen {
+pub(super) struct Variant {
+    /// Goal relative to the door position.
+    pub goal_offset: [f64; 3],
+    /// Hinge angle the reset puts the door at (`_set_obj_xyz`).
+    pub hinge_angle: f64,
+    /// The task's reward and success, also given the hinge angle.
+    pub evaluate: fn(&Scene, f64, &[f64; OBS_DIM], &[f32; ACTION_DIM]) -> Eval,
+}
+
+#[derive(Debug)]
+struct Door {
+    spec: &'static TaskSpec,
+    variant: &'static Variant,
     door: usize,
     handle: usize,
     hinge_qpos: usize,
@@ -38,8 +60,19 @@ struct DoorOpen {
 }
 
 pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
+    build_with(scene, &SPEC, &VARIANT)
+}
+
+/// A door task with another layout and variant.
+pub(super) fn build_with(
+    scene: &Scene,
+    spec: &'static TaskSpec,
+    variant: &'static Variant,
+) -> Result<Box<dyn Task>> {
     let hinge = scene.sim.joint("doorjoint")?;
-    Ok(Box::new(DoorOpen {
+    Ok(Box::new(Door {
+        spec,
+        variant,
         door: scene.sim.body("door")?,
         handle: scene.sim.geom("handle")?,
         hinge_qpos: scene.sim.jnt_qposadr(hinge),
@@ -95,21 +128,33 @@ fn reward_pos(obs: &[f64; OBS_DIM], theta: f64) -> (f64, f64) {
     (ready_to_open, opened)
 }
 
-impl Task for DoorOpen {
+/// door-open's reward and success.
+fn evaluate(scene: &Scene, theta: f64, obs: &[f64; OBS_DIM], action: &[f32; ACTION_DIM]) -> Eval {
+    let grab = grab_effort(action);
+    let (ready, opened) = reward_pos(obs, theta);
+    let success = (obs[4] - scene.target_pos[0]).abs() <= SUCCESS_X_DIST;
+    let reward = if success {
+        10.0
+    } else {
+        2.0 * hamacher_product(ready, grab) + 8.0 * opened
+    };
+    Eval { reward, success }
+}
+
+impl Task for Door {
     fn spec(&self) -> &'static TaskSpec {
-        &SPEC
+        self.spec
     }
 
     fn reset_model(&mut self, scene: &mut Scene, rv: &[f64]) -> Result<()> {
         scene.reset_hand();
         scene.obj_init_pos = [rv[0], rv[1], rv[2]];
-        scene.target_pos = std::array::from_fn(|i| rv[i] + GOAL_OFFSET[i]);
+        let goal_offset = self.variant.goal_offset;
+        scene.target_pos = std::array::from_fn(|i| rv[i] + goal_offset[i]);
         scene.sim.set_body_pos(self.door, scene.obj_init_pos);
         scene.set_site_pos("goal", scene.target_pos)?;
-        // `_set_obj_xyz(0)`: close the door.
-        scene.sim.qpos_mut()[self.hinge_qpos] = 0.0;
-        scene.sim.qvel_mut()[self.hinge_dof] = 0.0;
-        scene.forward();
+        let angle = self.variant.hinge_angle;
+        scene.set_scalar_joint(self.hinge_qpos, self.hinge_dof, angle);
         Ok(())
     }
 
@@ -125,14 +170,6 @@ impl Task for DoorOpen {
         action: &[f32; ACTION_DIM],
     ) -> Eval {
         let theta = scene.sim.qpos()[self.hinge_qpos];
-        let grab = grab_effort(action);
-        let (ready, opened) = reward_pos(obs, theta);
-        let success = (obs[4] - scene.target_pos[0]).abs() <= SUCCESS_X_DIST;
-        let reward = if success {
-            10.0
-        } else {
-            2.0 * hamacher_product(ready, grab) + 8.0 * opened
-        };
-        Eval { reward, success }
+        (self.variant.evaluate)(scene, theta, obs, action)
     }
 }

@@ -3,24 +3,15 @@
 //!
 //! The body of both handle-pull tasks: handle-pull-side builds it with [`Layout::Side`].
 
-use super::{always_ok, TaskSpec};
+use super::{handle_press, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{dist, hamacher_product, tolerance, Sigmoid};
 use crate::metaworld::{Density, Eval, Scene, Task, ACTION_DIM, OBS_DIM, TARGET_RADIUS};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "handle-pull-v3",
-    xml: "sawyer_xyz/sawyer_handle_press.xml",
-    hand_low: [-0.5, 0.40, 0.05],
-    hand_high: [0.5, 1.0, 0.5],
-    mocap_low: None,
-    mocap_high: None,
-    hand_init_pos: [0.0, 0.6, 0.2],
-    rand_low: &[-0.1, 0.8, -0.001],
-    rand_high: &[0.1, 0.9, 0.001],
-    goal_low: [-0.1, 0.55, 0.04],
     goal_high: [0.1, 0.70, 0.18],
-    rand_vec_ok: always_ok,
+    ..handle_press::SPEC
 };
 
 /// The handle joint's coordinate (`qpos[9]`) and velocity (`qvel[9]`).

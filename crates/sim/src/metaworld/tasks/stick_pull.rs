@@ -1,25 +1,20 @@
-//! stick-pull-v3: grasp a stick, hook it into a container's handle and pull the container to a
-//! goal.
+//! stick-pull-v3 (`metaworld/envs/sawyer_stick_pull_v3.py`): grasp a stick, hook it into a
+//! container's handle and pull the container to a goal.
 
-use super::stick_push::{StickScene, STICK_Z};
-use super::{obj_goal_apart, TaskSpec};
+use super::stick_push::{self, StickScene, STICK_Z};
+use super::TaskSpec;
 use crate::error::Result;
 use crate::metaworld::reward::{add, dist, hamacher_product, scaled_dist, tolerance, Sigmoid};
 use crate::metaworld::{Density, Eval, Scene, Task, ACTION_DIM, OBS_DIM, TARGET_RADIUS};
 
 pub const SPEC: TaskSpec = TaskSpec {
     name: "stick-pull-v3",
-    xml: "sawyer_xyz/sawyer_stick_obj.xml",
     hand_low: [-0.5, 0.35, 0.05],
-    hand_high: [0.5, 1.0, 0.5],
-    mocap_low: None,
-    mocap_high: None,
-    hand_init_pos: [0.0, 0.6, 0.2],
     rand_low: &[-0.1, 0.55, 0.0, 0.35, 0.45, 0.0199],
     rand_high: &[0.0, 0.65, 0.001, 0.45, 0.55, 0.0201],
     goal_low: [0.35, 0.45, 0.0199],
     goal_high: [0.45, 0.55, 0.0201],
-    rand_vec_ok: obj_goal_apart::<10>,
+    ..stick_push::SPEC
 };
 
 /// The container's slide joints at reset.
