@@ -1,4 +1,7 @@
-//! assembly-v3: pick up a ring nut by its handle and put it over a peg.
+//! assembly-v3 (`metaworld/envs/sawyer_assembly_peg_v3.py`): pick up a ring nut by its handle
+//! and put it over a peg.
+//!
+//! The body of both nut tasks: disassemble builds it with its own [`Variant`].
 
 use super::{obj_goal_apart, TaskSpec};
 use crate::error::Result;
@@ -28,22 +31,57 @@ const HANDLE_LENGTH: f64 = 0.02;
 /// Quaternion (w, x, y, z) of the nut lying flat, as the reward wants it.
 const IDEAL_QUAT: [f64; 4] = [0.707, 0.0, 0.0, 0.707];
 
+const VARIANT: Variant = Variant {
+    reset: reset_assembly,
+    evaluate: evaluate_assembly,
+};
+
+/// What differs between assembly and disassemble: the reset and the reward.
 #[derive(Debug)]
-struct Assembly {
-    nut: usize,
-    nut_handle: usize,
-    nut_center: usize,
-    peg: usize,
-    peg_top: usize,
+pub(super) struct Variant {
+    /// Places the nut, the peg and the goal (after the hand reset).
+    pub reset: fn(&NutParts, &mut Scene, &[f64]) -> Result<()>,
+    /// The task's reward and success.
+    pub evaluate: fn(&NutParts, &Scene, &[f64; OBS_DIM], &[f32; ACTION_DIM]) -> Eval,
+}
+
+/// The nut, its handle and centre sites, the peg and its top site.
+#[derive(Debug)]
+pub(super) struct NutParts {
+    pub nut: usize,
+    pub nut_handle: usize,
+    pub nut_center: usize,
+    pub peg: usize,
+    pub peg_top: usize,
+}
+
+#[derive(Debug)]
+struct Nut {
+    spec: &'static TaskSpec,
+    variant: &'static Variant,
+    parts: NutParts,
 }
 
 pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
-    Ok(Box::new(Assembly {
-        nut: scene.sim.body("RoundNut")?,
-        nut_handle: scene.sim.site("RoundNut-8")?,
-        nut_center: scene.sim.site("RoundNut")?,
-        peg: scene.sim.body("peg")?,
-        peg_top: scene.sim.site("pegTop")?,
+    build_with(scene, &SPEC, &VARIANT)
+}
+
+/// A nut task with another layout and variant.
+pub(super) fn build_with(
+    scene: &Scene,
+    spec: &'static TaskSpec,
+    variant: &'static Variant,
+) -> Result<Box<dyn Task>> {
+    Ok(Box::new(Nut {
+        spec,
+        variant,
+        parts: NutParts {
+            nut: scene.sim.body("RoundNut")?,
+            nut_handle: scene.sim.site("RoundNut-8")?,
+            nut_center: scene.sim.site("RoundNut")?,
+            peg: scene.sim.body("peg")?,
+            peg_top: scene.sim.site("pegTop")?,
+        },
     }))
 }
 
@@ -118,29 +156,44 @@ fn reward_pos(nut_center: [f64; 3], target: [f64; 3]) -> (f64, bool) {
     (in_place, success)
 }
 
-impl Task for Assembly {
+fn reset_assembly(parts: &NutParts, scene: &mut Scene, rv: &[f64]) -> Result<()> {
+    scene.obj_init_pos = [rv[0], rv[1], rv[2]];
+    scene.target_pos = [rv[3], rv[4], rv[5]];
+    let t = scene.target_pos;
+    scene.set_obj_xyz(scene.obj_init_pos);
+    scene
+        .sim
+        .set_body_pos(parts.peg, [t[0], t[1], t[2] - PEG_BELOW_GOAL]);
+    // As in Python, the peg-top site's offset is overwritten with the goal's world
+    // position (it appears in no observation or reward).
+    scene.sim.set_site_pos(parts.peg_top, t);
+    Ok(())
+}
+
+fn evaluate_assembly(
+    parts: &NutParts,
+    scene: &Scene,
+    obs: &[f64; OBS_DIM],
+    action: &[f32; ACTION_DIM],
+) -> Eval {
+    let grab = nut_grab(scene, obs, action, Density::Medium);
+    let (in_place, success) = reward_pos(scene.sim.site_xpos(parts.nut_center), scene.target_pos);
+    nut_eval(obs, grab, in_place, success)
+}
+
+impl Task for Nut {
     fn spec(&self) -> &'static TaskSpec {
-        &SPEC
+        self.spec
     }
 
     fn reset_model(&mut self, scene: &mut Scene, rv: &[f64]) -> Result<()> {
         scene.reset_hand();
-        scene.obj_init_pos = [rv[0], rv[1], rv[2]];
-        scene.target_pos = [rv[3], rv[4], rv[5]];
-        let t = scene.target_pos;
-        scene.set_obj_xyz(scene.obj_init_pos);
-        scene
-            .sim
-            .set_body_pos(self.peg, [t[0], t[1], t[2] - PEG_BELOW_GOAL]);
-        // As in Python, the peg-top site's offset is overwritten with the goal's world
-        // position (it appears in no observation or reward).
-        scene.sim.set_site_pos(self.peg_top, t);
-        Ok(())
+        (self.variant.reset)(&self.parts, scene, rv)
     }
 
     fn objects(&self, scene: &Scene, out: &mut [f64; 14]) {
-        out[..3].copy_from_slice(&scene.sim.site_xpos(self.nut_handle));
-        out[3..7].copy_from_slice(&scene.sim.body_xquat(self.nut));
+        out[..3].copy_from_slice(&scene.sim.site_xpos(self.parts.nut_handle));
+        out[3..7].copy_from_slice(&scene.sim.body_xquat(self.parts.nut));
     }
 
     fn evaluate(
@@ -149,9 +202,6 @@ impl Task for Assembly {
         obs: &[f64; OBS_DIM],
         action: &[f32; ACTION_DIM],
     ) -> Eval {
-        let grab = nut_grab(scene, obs, action, Density::Medium);
-        let (in_place, success) =
-            reward_pos(scene.sim.site_xpos(self.nut_center), scene.target_pos);
-        nut_eval(obs, grab, in_place, success)
+        (self.variant.evaluate)(&self.parts, scene, obs, action)
     }
 }

@@ -1,6 +1,9 @@
-//! disassemble-v3: lift a ring nut by its handle off a peg.
+//! disassemble-v3 (`metaworld/envs/sawyer_disassemble_peg_v3.py`): lift a ring nut by its
+//! handle off a peg.
+//!
+//! assembly-v3's task ([`super::assembly`]) with its own reset and reward.
 
-use super::assembly::{nut_eval, nut_grab};
+use super::assembly::{self, nut_eval, nut_grab, NutParts, Variant};
 use super::{obj_goal_apart, TaskSpec};
 use crate::error::Result;
 use crate::metaworld::reward::{dist, tolerance, Sigmoid};
@@ -29,23 +32,10 @@ const GOAL_ABOVE_NUT: f64 = 0.15;
 const PEG_OFFSET: f64 = 0.03;
 const PEG_TOP_OFFSET: f64 = 0.08;
 
-#[derive(Debug)]
-struct Disassemble {
-    nut: usize,
-    nut_handle: usize,
-    nut_center: usize,
-    peg: usize,
-    peg_top: usize,
-}
+const VARIANT: Variant = Variant { reset, evaluate };
 
 pub fn build(scene: &Scene) -> Result<Box<dyn Task>> {
-    Ok(Box::new(Disassemble {
-        nut: scene.sim.body("RoundNut")?,
-        nut_handle: scene.sim.site("RoundNut-8")?,
-        nut_center: scene.sim.site("RoundNut")?,
-        peg: scene.sim.body("peg")?,
-        peg_top: scene.sim.site("pegTop")?,
-    }))
+    assembly::build_with(scene, &SPEC, &VARIANT)
 }
 
 /// `_reward_pos`: a little for lifting the nut, most for its centre 10 cm above the goal.
@@ -55,41 +45,29 @@ fn in_place_reward(nut_center: [f64; 3], target: [f64; 3]) -> f64 {
     0.1 * lifted + 0.9 * tolerance(dist(aim, nut_center), (0.0, 0.02), 0.2, Sigmoid::LongTail)
 }
 
-impl Task for Disassemble {
-    fn spec(&self) -> &'static TaskSpec {
-        &SPEC
-    }
+fn reset(parts: &NutParts, scene: &mut Scene, rv: &[f64]) -> Result<()> {
+    let nut = [rv[0], rv[1], rv[2]];
+    scene.obj_init_pos = nut;
+    scene.target_pos = [nut[0], nut[1], nut[2] + GOAL_ABOVE_NUT];
+    scene
+        .sim
+        .set_body_pos(parts.peg, [nut[0], nut[1], nut[2] + PEG_OFFSET]);
+    scene
+        .sim
+        .set_site_pos(parts.peg_top, [nut[0], nut[1], nut[2] + PEG_TOP_OFFSET]);
+    scene.forward();
+    scene.set_obj_xyz(nut);
+    Ok(())
+}
 
-    fn reset_model(&mut self, scene: &mut Scene, rv: &[f64]) -> Result<()> {
-        scene.reset_hand();
-        let nut = [rv[0], rv[1], rv[2]];
-        scene.obj_init_pos = nut;
-        scene.target_pos = [nut[0], nut[1], nut[2] + GOAL_ABOVE_NUT];
-        scene
-            .sim
-            .set_body_pos(self.peg, [nut[0], nut[1], nut[2] + PEG_OFFSET]);
-        scene
-            .sim
-            .set_site_pos(self.peg_top, [nut[0], nut[1], nut[2] + PEG_TOP_OFFSET]);
-        scene.forward();
-        scene.set_obj_xyz(nut);
-        Ok(())
-    }
-
-    fn objects(&self, scene: &Scene, out: &mut [f64; 14]) {
-        out[..3].copy_from_slice(&scene.sim.site_xpos(self.nut_handle));
-        out[3..7].copy_from_slice(&scene.sim.body_xquat(self.nut));
-    }
-
-    fn evaluate(
-        &mut self,
-        scene: &Scene,
-        obs: &[f64; OBS_DIM],
-        action: &[f32; ACTION_DIM],
-    ) -> Eval {
-        let grab = nut_grab(scene, obs, action, Density::High);
-        let in_place = in_place_reward(scene.sim.site_xpos(self.nut_center), scene.target_pos);
-        let success = obs[6] > scene.target_pos[2];
-        nut_eval(obs, grab, in_place, success)
-    }
+fn evaluate(
+    parts: &NutParts,
+    scene: &Scene,
+    obs: &[f64; OBS_DIM],
+    action: &[f32; ACTION_DIM],
+) -> Eval {
+    let grab = nut_grab(scene, obs, action, Density::High);
+    let in_place = in_place_reward(scene.sim.site_xpos(parts.nut_center), scene.target_pos);
+    let success = obs[6] > scene.target_pos[2];
+    nut_eval(obs, grab, in_place, success)
 }
