@@ -5,6 +5,7 @@
 //! The FMA peak line is the ceiling to compare against, not a vendor figure: a Zen 1 core (CPU
 //! family 23, model 1) splits every 256-bit FMA into two 128-bit halves, so it retires 16 `f32`
 //! FLOP per cycle (about 39 GFLOP/s at its clock), half of what a Zen 2 or later core does.
+#![allow(clippy::too_many_lines)] // the benchmark's steps in order
 
 use faer::linalg::matmul::matmul;
 use faer::traits::pulp::{self, Simd, WithSimd};

@@ -272,6 +272,7 @@ impl<T: Float> Mlp<T> {
     /// With `param_grads`, the gradients of all parameters from these rows are *written* (not
     /// accumulated) into it, in the flat parameter layout. `input_grad` selects which input
     /// gradient to compute into [`MlpCache::grad_input`].
+    #[allow(clippy::too_many_lines)] // the backward pass of every layer in order, each GEMM pair side by side
     pub fn backward(
         &self,
         cache: &mut MlpCache<T>,

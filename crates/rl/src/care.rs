@@ -129,16 +129,16 @@ impl CareConfig {
             if widths.contains(&0) {
                 return bad(format!("{name} widths must be positive"));
             }
-            if let Some(w) = widths.iter().find(|&&w| w > crate::tep::MAX_WIDTH) {
+            if let Some(w) = widths.iter().find(|&&w| w > crate::limits::MAX_WIDTH) {
                 return bad(format!(
                     "{name} width {w} is above {}",
-                    crate::tep::MAX_WIDTH
+                    crate::limits::MAX_WIDTH
                 ));
             }
-            if widths.len() > crate::config::MAX_LAYERS {
+            if widths.len() > crate::limits::MAX_LAYERS {
                 return bad(format!(
                     "{name} has more than {} layers",
-                    crate::config::MAX_LAYERS
+                    crate::limits::MAX_LAYERS
                 ));
             }
         }
@@ -146,8 +146,8 @@ impl CareConfig {
             ("feature_dim", self.feature_dim),
             ("encoding_dim", self.encoding_dim),
         ] {
-            if v > crate::tep::MAX_WIDTH {
-                return bad(format!("{name} {v} is above {}", crate::tep::MAX_WIDTH));
+            if v > crate::limits::MAX_WIDTH {
+                return bad(format!("{name} {v} is above {}", crate::limits::MAX_WIDTH));
             }
         }
         // The attention's logits are divided by the temperature in f32: far below mtrl's 1 they

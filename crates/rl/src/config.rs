@@ -84,8 +84,7 @@ pub struct SacConfig {
     pub care: Option<CareConfig>,
 }
 
-/// Most update threads [`SacConfig::threads`] accepts.
-pub const MAX_THREADS: usize = 256;
+pub use crate::limits::{MAX_LAYERS, MAX_THREADS};
 
 /// Most threads `threads = "auto"` gives an update: beyond this, the GEMMs of Meta-World-sized
 /// networks (3×400, batch 1280 at most) stop getting faster.
@@ -236,22 +235,22 @@ impl SacConfig {
         if self.policy_hidden.contains(&0) || self.critic_hidden.contains(&0) {
             return bad("hidden layer widths must be positive".into());
         }
-        if self.batch_size > crate::tep::MAX_BATCH {
+        if self.batch_size > crate::limits::MAX_BATCH {
             return bad(format!(
                 "batch_size {} is above {}",
                 self.batch_size,
-                crate::tep::MAX_BATCH
+                crate::limits::MAX_BATCH
             ));
         }
         if let Some(w) = [self.obs_dim, self.act_dim, self.num_tasks]
             .into_iter()
             .chain(self.policy_hidden.iter().copied())
             .chain(self.critic_hidden.iter().copied())
-            .find(|&w| w > crate::tep::MAX_WIDTH)
+            .find(|&w| w > crate::limits::MAX_WIDTH)
         {
             return bad(format!(
                 "a width of {w} (obs_dim, act_dim, num_tasks or a hidden layer) is above {}",
-                crate::tep::MAX_WIDTH
+                crate::limits::MAX_WIDTH
             ));
         }
         if self.policy_hidden.len() > MAX_LAYERS || self.critic_hidden.len() > MAX_LAYERS {
@@ -286,7 +285,7 @@ impl SacConfig {
         let policy = crate::PolicySpec::from_config(self).checked_num_params();
         let critic = critic_spec_params(self);
         for (name, params) in [("policy", policy), ("critic", critic)] {
-            if params.is_none_or(|p| p > crate::tep::MAX_PARAMETERS) {
+            if params.is_none_or(|p| p > crate::limits::MAX_PARAMETERS) {
                 return bad(format!(
                     "the {name} network (policy_hidden {:?}, critic_hidden {:?}{}) has more than \
                      {} parameters: with its target and Adam moments it would not fit in memory",
@@ -297,7 +296,7 @@ impl SacConfig {
                     } else {
                         ""
                     },
-                    crate::tep::MAX_PARAMETERS
+                    crate::limits::MAX_PARAMETERS
                 ));
             }
         }
@@ -312,9 +311,6 @@ impl SacConfig {
         Ok(())
     }
 }
-
-/// Most hidden layers of a policy or critic network.
-pub const MAX_LAYERS: usize = 16;
 
 /// Parameters of one critic (its CARE encoder included), `None` on overflow.
 fn critic_spec_params(cfg: &SacConfig) -> Option<usize> {
@@ -378,7 +374,7 @@ mod tests {
         c.policy_hidden = vec![100_000_000];
         assert!(check(c).unwrap_err().contains("above 16384"));
         let mut c = base();
-        c.critic_hidden = vec![crate::tep::MAX_WIDTH; 3];
+        c.critic_hidden = vec![crate::limits::MAX_WIDTH; 3];
         assert!(check(c).unwrap_err().contains("would not fit in memory"));
         let mut c = base();
         c.critic_hidden = vec![64; MAX_LAYERS + 1];

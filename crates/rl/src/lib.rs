@@ -31,6 +31,7 @@ pub mod config;
 pub mod env;
 pub mod error;
 pub mod guidance;
+pub mod limits;
 pub mod names;
 pub mod planner_eval;
 pub mod policy;

@@ -600,6 +600,7 @@ impl<T: Float> Sac<T> {
         result
     }
 
+    #[allow(clippy::too_many_lines)] // one SAC update's forward and backward passes in order (critics, policy, temperature), as in the reference implementation
     fn compute_gradients_inner(&mut self, batch: &Batch) -> Result<UpdateStats, SacError> {
         let cfg = &self.config;
         let (b, od, a, nt) = (batch.len(), cfg.obs_dim, cfg.act_dim, cfg.num_tasks);

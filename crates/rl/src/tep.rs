@@ -44,14 +44,7 @@ use terl_nn::{
     MlpCache, MlpSpec,
 };
 
-/// Widest hidden layer a planner config accepts (a 16384² layer is 1 GiB of f32 weights).
-pub const MAX_WIDTH: usize = 16_384;
-
-/// Most weights and biases F and AN may have together (about 200 MB each for weights, targets
-/// and the two Adam moments).
-pub const MAX_PARAMETERS: usize = 50_000_000;
-/// Largest planner minibatch a config accepts.
-pub const MAX_BATCH: usize = 65_536;
+pub use crate::limits::{MAX_BATCH, MAX_PARAMETERS, MAX_WIDTH};
 
 /// Hyper-parameters of the planner. Network sizes, minibatch, buffer, τ and learning rates follow
 /// the paper (3 × 512 ReLU, minibatch 1024, buffer 6M, τ = 0.005, lr 3e-4); the F target, its
@@ -258,11 +251,11 @@ impl TepConfig {
         if self.buffer_capacity == 0 || self.threads == 0 {
             return bad("tep buffer_capacity and threads must be positive".into());
         }
-        if self.threads > crate::config::MAX_THREADS {
+        if self.threads > crate::limits::MAX_THREADS {
             return bad(format!(
                 "tep threads {} must be at most {}",
                 self.threads,
-                crate::config::MAX_THREADS
+                crate::limits::MAX_THREADS
             ));
         }
         // The paper's buffer holds 6M samples; each is ~90 floats.
@@ -622,6 +615,7 @@ impl<T: Float> Tep<T> {
         self.f_target.forward(&mut self.f_target_cache, b, par);
     }
 
+    #[allow(clippy::too_many_lines)] // one planner update's forward and backward passes in order (F, then AN), as the paper's Eq. 11-14
     fn compute_gradients_inner(&mut self, batch: &TepBatch) -> Result<TepStats, SacError> {
         let (b, od, ad) = (batch.len(), self.config.obs_dim, self.config.act_dim);
         let (fw, aw) = (self.config.f_input(), self.config.an_input());

@@ -445,6 +445,7 @@ fn widths(input: usize, hidden: &[usize], output: usize) -> Vec<usize> {
 
 impl RunConfig {
     /// Reads and checks a run file.
+    #[allow(clippy::too_many_lines)] // one check per run-file section, in file order
     pub fn load(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("cannot read config {}", path.display()))?;

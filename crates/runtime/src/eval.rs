@@ -412,6 +412,7 @@ impl EvalEnvs {
 /// [`evaluate_policy`] with environments taken from and returned to `envs` (built only where
 /// `envs` has too few for a task), so repeated evaluations do not rebuild them. Same results
 /// and errors as [`evaluate_policy`].
+#[allow(clippy::too_many_lines)] // the lock-step evaluation of every task's variations in one place
 pub fn evaluate_policy_with(
     envs: &EvalEnvs,
     policy: &Policy,

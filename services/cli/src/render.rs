@@ -528,6 +528,7 @@ pub(crate) fn record_episode(
     Ok(EpisodeFrames { tiles, outcome })
 }
 
+#[allow(clippy::too_many_lines)] // one episode's frames, overlay and files in order
 pub fn run(args: RenderArgs) -> Result<ExitCode> {
     let size = parse_size(&args.size)?;
     let variation_list = parse_variations(&args.variations)?;

@@ -283,6 +283,7 @@ fn percent(rate: f64) -> String {
     format!("{:.0}%", 100.0 * rate)
 }
 
+#[allow(clippy::too_many_lines)] // one table row after another, in reading order
 fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyhow::Error>) {
     let l = learner;
     println!(

@@ -11,6 +11,7 @@
 //!
 //! The MT50 test runs `deploy/configs/mt50-smoke.toml` and checks that episodes of all 50
 //! tasks reach the learner and the selector.
+#![allow(clippy::too_many_lines)] // a scenario test reads start to end
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};

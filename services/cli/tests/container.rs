@@ -4,6 +4,7 @@
 //! env.sh's settings: a Python Meta-World trace replays through the staged library and assets
 //! within the parity tolerances. With the assets variable pointed at an empty folder the same
 //! replay fails, so it is the staged copy that was used.
+#![allow(clippy::too_many_lines)] // a scenario test reads start to end
 
 use std::path::Path;
 use std::process::Command;

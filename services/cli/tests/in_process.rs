@@ -2,6 +2,7 @@
 //! library `run` on the in-memory transport (one shared bus), with real gRPC on 127.0.0.1
 //! port 0, real MuJoCo environments and real files in a temporary run folder. The
 //! process-level tests (cluster.rs) cover the binaries over shared memory.
+#![allow(clippy::too_many_lines)] // a scenario test reads start to end
 
 use std::time::{Duration, Instant};
 

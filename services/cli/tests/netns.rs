@@ -5,6 +5,7 @@
 //! and up again is survived with what was given up counted. Needs root (`ip netns`); skips
 //! with a message where namespaces cannot be created. Everything it creates (namespaces,
 //! veths, processes) is removed by a guard, also on failure.
+#![allow(clippy::too_many_lines)] // a scenario test reads start to end
 
 use std::path::Path;
 use std::process::{Child, Command, Stdio};

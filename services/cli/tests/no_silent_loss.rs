@@ -6,6 +6,7 @@
 //!   selector's status and the learner's `metrics.mcap`, equal to what the actor logged;
 //! - a second actor started with an id that is already streaming to the run is refused with
 //!   a clear message and a non-zero exit, while the first keeps running.
+#![allow(clippy::too_many_lines)] // a scenario test reads start to end
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};

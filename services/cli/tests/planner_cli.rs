@@ -2,6 +2,7 @@
 //! transitions are checked against a second path (the same variation reset and the recorded
 //! actions replayed through `terl_sim::Env` give the recorded observations bit for bit, and
 //! success ends each episode), a planner trained on it is scored, and bad input is refused.
+#![allow(clippy::too_many_lines)] // a scenario test reads start to end
 
 use std::os::unix::fs::FileTypeExt;
 use std::path::Path;

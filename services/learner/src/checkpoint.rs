@@ -135,7 +135,7 @@ pub(crate) struct Found {
 }
 
 /// Writes the learner's checkpoints into one folder and prunes the periodic ones.
-pub(crate) struct Checkpointer {
+pub(crate) struct CheckpointWriter {
     dir: PathBuf,
     keep: usize,
     /// Periodic checkpoints in the folder, oldest first (including earlier processes' files).
@@ -149,7 +149,7 @@ fn is_periodic(name: &str) -> bool {
         .is_some_and(|d| d.len() == 10 && d.bytes().all(|b| b.is_ascii_digit()))
 }
 
-impl Checkpointer {
+impl CheckpointWriter {
     /// Opens (creates) `dir`, removes temporary files a killed writer left, and adopts the
     /// periodic checkpoints already there so `keep` counts them.
     pub(crate) fn open(dir: PathBuf, keep: usize) -> anyhow::Result<Self> {
@@ -198,7 +198,7 @@ impl Checkpointer {
 
     /// Writes `update-<updates>.safetensors` and deletes the oldest periodic checkpoints
     /// beyond `keep`.
-    pub(crate) fn periodic(
+    pub(crate) fn write_periodic(
         &mut self,
         updates: u64,
         snapshot: &Snapshot,
@@ -240,7 +240,7 @@ fn read(path: &Path) -> anyhow::Result<Found> {
 /// not a learner checkpoint) are skipped with a warning each.
 ///
 /// # Errors
-/// Checkpoints exist but none is intact (resuming would silently lose the run), or the folder
+/// CheckpointSchedule exist but none is intact (resuming would silently lose the run), or the folder
 /// cannot be read.
 pub(crate) fn newest_intact(dir: &Path) -> anyhow::Result<Option<Found>> {
     let mut candidates = Vec::new();
@@ -332,9 +332,9 @@ mod tests {
         let s = sac(1);
         let mut finished = state(50);
         finished.finished = Some("planner_ready".into());
-        Checkpointer::open(ckpt.clone(), 2)
+        CheckpointWriter::open(ckpt.clone(), 2)
             .unwrap()
-            .periodic(5, &Snapshot::new(&s, None, &finished).unwrap())
+            .write_periodic(5, &Snapshot::new(&s, None, &finished).unwrap())
             .unwrap();
         let found = newest_intact(&ckpt).unwrap().unwrap();
         assert_eq!(found.state.finished.as_deref(), Some("planner_ready"));
@@ -354,17 +354,17 @@ mod tests {
         assert!(newest_intact(&ckpt).unwrap().is_none());
         let s = sac(1);
         {
-            let mut c = Checkpointer::open(ckpt.clone(), 2).unwrap();
+            let mut c = CheckpointWriter::open(ckpt.clone(), 2).unwrap();
             for (u, steps) in [(10, 100), (20, 200)] {
-                c.periodic(u, &Snapshot::new(&s, None, &state(steps)).unwrap())
+                c.write_periodic(u, &Snapshot::new(&s, None, &state(steps)).unwrap())
                     .unwrap();
             }
         }
         std::fs::write(ckpt.join("update-0000000025.safetensors.tmp"), b"half").unwrap();
         // A second process adopts both files: one more write prunes the oldest.
-        let mut c = Checkpointer::open(ckpt.clone(), 2).unwrap();
+        let mut c = CheckpointWriter::open(ckpt.clone(), 2).unwrap();
         assert!(!ckpt.join("update-0000000025.safetensors.tmp").exists());
-        c.periodic(30, &Snapshot::new(&s, None, &state(300)).unwrap())
+        c.write_periodic(30, &Snapshot::new(&s, None, &state(300)).unwrap())
             .unwrap();
         let mut names: Vec<String> = std::fs::read_dir(&ckpt)
             .unwrap()
@@ -429,9 +429,9 @@ mod tests {
         }
         let _guard = Unmount(mount.clone());
         let ckpt = mount.join("checkpoints");
-        let mut c = Checkpointer::open(ckpt.clone(), 3).unwrap();
+        let mut c = CheckpointWriter::open(ckpt.clone(), 3).unwrap();
         let small = sac(1);
-        c.periodic(1, &Snapshot::new(&small, None, &state(10)).unwrap())
+        c.write_periodic(1, &Snapshot::new(&small, None, &state(10)).unwrap())
             .unwrap();
         // ~600k parameters with targets and Adam moments: far more than what is left.
         let big = Sac::<f32>::new(SacConfig {
@@ -445,7 +445,7 @@ mod tests {
         })
         .unwrap();
         let err = c
-            .periodic(2, &Snapshot::new(&big, None, &state(20)).unwrap())
+            .write_periodic(2, &Snapshot::new(&big, None, &state(20)).unwrap())
             .unwrap_err();
         let msg = format!("{err:#}");
         assert!(msg.contains("update-0000000002"), "{msg}");

@@ -9,10 +9,18 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use terl_runtime::{ClusterConfig, OnCheckpointError};
-use terl_wire::CheckpointSaved;
+use terl_wire::{CheckpointRequest, CheckpointSaved};
 
-use crate::checkpoint::{Checkpointer, Snapshot};
-use crate::trainer::CheckpointJob;
+use crate::checkpoint::{CheckpointWriter, Snapshot};
+
+/// A `SaveCheckpoint` request handed to the trainer thread, with where to send the answer.
+#[derive(Debug)]
+pub struct CheckpointJob {
+    /// The request (an optional label for the checkpoint's file name).
+    pub request: CheckpointRequest,
+    /// Where the trainer sends the saved checkpoint, or the error in words.
+    pub reply: tokio::sync::oneshot::Sender<Result<CheckpointSaved, String>>,
+}
 
 /// The planner's file for tools (`planner.safetensors`): tensors and metadata.
 pub(crate) type ToolFile = (
@@ -21,8 +29,8 @@ pub(crate) type ToolFile = (
 );
 
 /// The learner's checkpoint schedule and its failures.
-pub(crate) struct Checkpoints {
-    checkpointer: Checkpointer,
+pub(crate) struct CheckpointSchedule {
+    writer: CheckpointWriter,
     every: Option<Duration>,
     last: Instant,
     on_error: OnCheckpointError,
@@ -30,7 +38,7 @@ pub(crate) struct Checkpoints {
     pub(crate) failures: u64,
 }
 
-impl Checkpoints {
+impl CheckpointSchedule {
     /// Opens (creates) `dir` with the schedule of `cluster`; the first periodic checkpoint is
     /// due `checkpoint_every_secs` from now.
     ///
@@ -38,7 +46,7 @@ impl Checkpoints {
     /// `dir` cannot be created or read.
     pub(crate) fn open(dir: PathBuf, cluster: &ClusterConfig) -> anyhow::Result<Self> {
         Ok(Self {
-            checkpointer: Checkpointer::open(dir, cluster.keep_checkpoints)?,
+            writer: CheckpointWriter::open(dir, cluster.keep_checkpoints)?,
             every: (cluster.checkpoint_every_secs > 0.0)
                 .then(|| Duration::from_secs_f64(cluster.checkpoint_every_secs)),
             last: Instant::now(),
@@ -62,7 +70,7 @@ impl Checkpoints {
                 None => format!("requested-update-{updates:010}"),
             };
             let answer = snapshot()
-                .and_then(|snapshot| self.checkpointer.write(&name, &snapshot))
+                .and_then(|snapshot| self.writer.write(&name, &snapshot))
                 .map(|path| CheckpointSaved {
                     path: path.display().to_string(),
                     learner_update: updates,
@@ -90,10 +98,10 @@ impl Checkpoints {
         }
         self.last = Instant::now();
         let written = snapshot()
-            .and_then(|snapshot| self.checkpointer.periodic(updates, &snapshot))
+            .and_then(|snapshot| self.writer.write_periodic(updates, &snapshot))
             .and_then(|path| {
                 if let Some((tensors, meta)) = tool_file()? {
-                    self.checkpointer.planner(tensors, &meta)?;
+                    self.writer.planner(tensors, &meta)?;
                 }
                 Ok(path)
             });
@@ -125,9 +133,9 @@ impl Checkpoints {
         snapshot: &Snapshot,
         tool_file: Option<ToolFile>,
     ) -> anyhow::Result<PathBuf> {
-        let path = self.checkpointer.write("final", snapshot)?;
+        let path = self.writer.write("final", snapshot)?;
         if let Some((tensors, meta)) = tool_file {
-            self.checkpointer.planner(tensors, &meta)?;
+            self.writer.planner(tensors, &meta)?;
         }
         Ok(path)
     }
@@ -174,7 +182,8 @@ mod tests {
     fn the_newest_keep_checkpoints_are_kept() {
         let dir = tempfile::tempdir().unwrap();
         let ckpt = dir.path().join("checkpoints");
-        let mut c = Checkpoints::open(ckpt.clone(), &cluster(OnCheckpointError::Stop, 2)).unwrap();
+        let mut c =
+            CheckpointSchedule::open(ckpt.clone(), &cluster(OnCheckpointError::Stop, 2)).unwrap();
         for updates in [10, 20, 30, 40] {
             std::thread::sleep(Duration::from_millis(2));
             c.periodic(updates, snapshot, || Ok(None)).unwrap();
@@ -198,7 +207,7 @@ mod tests {
         for on_error in [OnCheckpointError::Stop, OnCheckpointError::Continue] {
             let dir = tempfile::tempdir().unwrap();
             let ckpt = dir.path().join("checkpoints");
-            let mut c = Checkpoints::open(ckpt.clone(), &cluster(on_error, 3)).unwrap();
+            let mut c = CheckpointSchedule::open(ckpt.clone(), &cluster(on_error, 3)).unwrap();
             std::fs::remove_dir(&ckpt).unwrap();
             std::fs::write(&ckpt, "not a folder").unwrap();
             std::thread::sleep(Duration::from_millis(2));

@@ -43,7 +43,7 @@ use terl_wire::{CheckpointRequest, CheckpointSaved, LearnerBackend, LearnerStatu
 use tonic::Status;
 use tracing::Instrument;
 
-pub use trainer::CheckpointJob;
+pub use checkpointing::CheckpointJob;
 
 /// Everything the learner needs to start.
 pub type LearnerConfig = terl_runtime::ServiceConfig;

@@ -71,6 +71,7 @@ impl MetricsLog {
     }
 
     /// Writes one sample of every metric in `status` (at learner step `status.updates`).
+    #[allow(clippy::too_many_lines)] // one metric after another, in the log's order
     pub(crate) fn write_window(&mut self, status: &LearnerStatus) -> anyhow::Result<()> {
         let now = terl_telemetry::unix_nanos();
         let step = status.updates;

@@ -5,7 +5,7 @@
 //! replay while the rate limiter allows inserts (when it does not, batches stay queued and
 //! actors meet back-pressure); finished episodes (success windows) and selected samples are
 //! drained; updates run while the limiter allows samples; the [`Publisher`] publishes weights
-//! every `publish_every_updates`; [`Checkpoints`] answers checkpoint requests and writes the
+//! every `publish_every_updates`; [`CheckpointSchedule`] answers checkpoint requests and writes the
 //! periodic checkpoint when due; the [`StatusBoard`] refreshes the status snapshot. Policy
 //! versions are the learner's update count at publication, so a transition's staleness is
 //! "updates behind" directly.
@@ -24,10 +24,10 @@ use terl_transport::{
     EpisodeSummary, Message, MessageSource, RateLimiter, SelectedBatch, TransitionBatch, Transport,
     ACTION_DIM, OBS_DIM, TRANSITIONS_PER_BATCH,
 };
-use terl_wire::{CheckpointRequest, CheckpointSaved, WeightHub};
+use terl_wire::WeightHub;
 
 use crate::checkpoint::{self, LearnerState, RngState, Snapshot};
-use crate::checkpointing::Checkpoints;
+use crate::checkpointing::{CheckpointJob, CheckpointSchedule};
 use crate::lockstep::LockstepStaging;
 use crate::metrics::MetricsLog;
 use crate::planner::PlannerTrainer;
@@ -35,15 +35,6 @@ use crate::publisher::Publisher;
 use crate::staging::Staging;
 use crate::status::{Counters, Shown, Sources, StatusBoard};
 use crate::{LearnerConfig, Shared};
-
-/// A `SaveCheckpoint` request handed to the trainer thread, with where to send the answer.
-#[derive(Debug)]
-pub struct CheckpointJob {
-    /// The request (an optional label for the checkpoint's file name).
-    pub request: CheckpointRequest,
-    /// Where the trainer sends the saved checkpoint, or the error in words.
-    pub reply: tokio::sync::oneshot::Sender<Result<CheckpointSaved, String>>,
-}
 
 /// Updates per round at most, so queued batches are drained regularly.
 const MAX_UPDATES_PER_ROUND: usize = 16;
@@ -293,7 +284,7 @@ struct Trainer<'a> {
     replay: MultiTaskReplay,
     batch: Batch,
     metrics: MetricsLog,
-    checkpoints: Checkpoints,
+    checkpoints: CheckpointSchedule,
     board: StatusBoard,
 }
 
@@ -370,7 +361,7 @@ impl<'a> Trainer<'a> {
             ),
             batch: Batch::with_capacity(sac_config.batch_size, OBS_DIM, ACTION_DIM),
             metrics: MetricsLog::create(&config.run_dir)?,
-            checkpoints: Checkpoints::open(checkpoint_dir, &run.cluster)?,
+            checkpoints: CheckpointSchedule::open(checkpoint_dir, &run.cluster)?,
             board: StatusBoard::new(start),
             m: {
                 if let Some(found) = resume_from {

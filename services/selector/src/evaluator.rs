@@ -28,6 +28,7 @@ use crate::{SelectorConfig, Shared};
 const POLL: Duration = Duration::from_millis(500);
 
 /// Runs until `shared.stop`; errors of one evaluation are logged and the next one is tried.
+#[allow(clippy::too_many_lines)] // the evaluator thread's set-up and loop in one place
 pub(crate) fn run(config: &SelectorConfig, shared: &Shared, learner_addr: &str) {
     let run = &config.run;
     let every = run.train.eval_every_env_steps;

@@ -29,8 +29,8 @@ use anyhow::Context;
 use terl_rl::SuccessWindow;
 use terl_runtime::Algorithm;
 use terl_transport::{
-    EpisodeSummary, LossTracker, Message, MessageSink, SelectedBatch, SelectedSample,
-    ServiceTransport, Transport, TransportError, SELECTED_PER_BATCH,
+    EpisodeSummary, LossTracker, Message, MessageSink, MessageSource, SelectedBatch,
+    SelectedSample, ServiceTransport, Transport, TransportError, SELECTED_PER_BATCH,
 };
 use terl_wire::{PriorityStats, SelectorBackend, SelectorStatus, TaskSuccess, WeightsKind};
 use tonic::Status;
@@ -290,89 +290,160 @@ impl Selecting {
     }
 }
 
+/// The selector's receive loop: episode summaries in, the episode log, the statistics and (with
+/// TERL) PTR selection out, until the stop flag is set.
 fn receive_loop<T: Transport>(
     config: &SelectorConfig,
     transport: &T,
     shared: &Shared,
 ) -> anyhow::Result<()> {
-    let run = &config.run;
-    let mut episodes = transport.source::<EpisodeSummary>()?;
-    let tasks: Vec<&str> = terl_runtime::resolve_tasks(&run.tasks)?;
-    let mut selecting = if run.algorithm == Algorithm::Terl {
-        let sac = run.sac_config(tasks.len());
-        let path = terl_telemetry::fresh_path(&config.run_dir, "tep-dataset");
-        let dataset = terl_telemetry::TepDatasetWriter::create(&path)
-            .with_context(|| format!("cannot create the TEP dataset {}", path.display()))?;
-        tracing::info!(path = %path.display(), "writing selected samples to the TEP dataset");
-        Some(Selecting {
-            scorer: Scorer::new(run.ptr.clone(), &sac),
-            sink: transport.sink::<SelectedBatch>()?,
-            batch: Box::new(SelectedBatch::EMPTY),
-            sequence: 0,
-            dataset,
-        })
-    } else {
-        None
-    };
-    if config.resume {
-        let mut stats = shared
-            .stats
-            .lock()
-            .map_err(|_| anyhow::anyhow!("episode statistics lock poisoned"))?;
-        resume_from_logs(
-            &config.run_dir,
-            &tasks,
-            &mut stats,
-            selecting.as_mut().map(|s| &mut s.scorer),
-        )?;
-    }
-    let episode_path = terl_telemetry::fresh_path(&config.run_dir, "episodes");
-    let mut episode_log = terl_telemetry::EpisodeLogWriter::create(&episode_path)
-        .with_context(|| format!("cannot create the episode log {}", episode_path.display()))?;
-    let mut last_flush = Instant::now();
-    let mut last_log = Instant::now();
-    // Episodes that never arrived: the actors' loss stamps and gaps in their episode indices
-    // (an actor's send gave up on this selector, or on the learner, after the block timeout).
-    let mut losses = LossTracker::new();
-    let mut missed_logged = 0;
-    let mut gaps: Vec<u64> = Vec::new();
-    let mut received: Vec<Box<EpisodeSummary>> = Vec::new();
-    let mut spare: Vec<Box<EpisodeSummary>> = Vec::new();
+    let mut receiver = EpisodeReceiver::open(config, transport, shared)?;
     while !shared.stop.load(Ordering::Relaxed) {
-        if let Some(sel) = selecting.as_mut() {
+        if receiver.round(shared)? == 0 {
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    }
+    receiver.finish()
+}
+
+/// Episode summaries received at most per round, so logs, statistics and the status stay
+/// current under a burst.
+const EPISODES_PER_ROUND: usize = 16;
+
+/// What the receive loop keeps between rounds.
+struct EpisodeReceiver<'a> {
+    tasks: Vec<&'a str>,
+    episodes: Box<dyn MessageSource<EpisodeSummary>>,
+    /// With TERL: the PTR scorer, the selected-sample sink and the TEP dataset.
+    selecting: Option<Selecting>,
+    episode_log: terl_telemetry::EpisodeLogWriter,
+    last_flush: Instant,
+    last_log: Instant,
+    /// Episodes that never arrived: the actors' loss stamps and gaps in their episode indices
+    /// (an actor's send gave up on this selector, or on the learner, after the block timeout).
+    losses: LossTracker,
+    missed_logged: u64,
+    /// Per received episode, the episodes of its actor missed just before it.
+    gaps: Vec<u64>,
+    received: Vec<Box<EpisodeSummary>>,
+    spare: Vec<Box<EpisodeSummary>>,
+}
+
+impl<'a> EpisodeReceiver<'a> {
+    /// Opens the episode source, the episode log and (with TERL) the selection's sink and TEP
+    /// dataset; with `--resume`, rebuilds statistics and gates from the run's episode logs.
+    fn open<T: Transport>(
+        config: &'a SelectorConfig,
+        transport: &T,
+        shared: &Shared,
+    ) -> anyhow::Result<Self> {
+        let run = &config.run;
+        let episodes = transport.source::<EpisodeSummary>()?;
+        let tasks: Vec<&str> = terl_runtime::resolve_tasks(&run.tasks)?;
+        let mut selecting = if run.algorithm == Algorithm::Terl {
+            let sac = run.sac_config(tasks.len());
+            let path = terl_telemetry::fresh_path(&config.run_dir, "tep-dataset");
+            let dataset = terl_telemetry::TepDatasetWriter::create(&path)
+                .with_context(|| format!("cannot create the TEP dataset {}", path.display()))?;
+            tracing::info!(path = %path.display(), "writing selected samples to the TEP dataset");
+            Some(Selecting {
+                scorer: Scorer::new(run.ptr.clone(), &sac),
+                sink: transport.sink::<SelectedBatch>()?,
+                batch: Box::new(SelectedBatch::EMPTY),
+                sequence: 0,
+                dataset,
+            })
+        } else {
+            None
+        };
+        if config.resume {
+            let mut stats = shared
+                .stats
+                .lock()
+                .map_err(|_| anyhow::anyhow!("episode statistics lock poisoned"))?;
+            resume_from_logs(
+                &config.run_dir,
+                &tasks,
+                &mut stats,
+                selecting.as_mut().map(|s| &mut s.scorer),
+            )?;
+        }
+        let episode_path = terl_telemetry::fresh_path(&config.run_dir, "episodes");
+        let episode_log = terl_telemetry::EpisodeLogWriter::create(&episode_path)
+            .with_context(|| format!("cannot create the episode log {}", episode_path.display()))?;
+        Ok(Self {
+            tasks,
+            episodes,
+            selecting,
+            episode_log,
+            last_flush: Instant::now(),
+            last_log: Instant::now(),
+            losses: LossTracker::new(),
+            missed_logged: 0,
+            gaps: Vec::new(),
+            received: Vec::new(),
+            spare: Vec::new(),
+        })
+    }
+
+    /// One round: fresh critic weights for the scorer, up to [`EPISODES_PER_ROUND`] episodes
+    /// received, counted, logged, recorded and (with TERL) scored. Returns the episodes received.
+    fn round(&mut self, shared: &Shared) -> anyhow::Result<usize> {
+        if let Some(sel) = self.selecting.as_mut() {
             sel.load_weights(shared);
         }
-        loop {
-            let mut e = spare.pop().unwrap_or_else(EpisodeSummary::empty);
-            if !episodes.try_receive_into(&mut e)? {
-                spare.push(e);
+        self.receive()?;
+        let got = self.received.len();
+        self.count_losses();
+        self.log_episodes()?;
+        self.record(shared);
+        self.select(shared)?;
+        self.spare.append(&mut self.received);
+        self.log_progress(shared);
+        Ok(got)
+    }
+
+    /// Takes what the source holds, up to [`EPISODES_PER_ROUND`], into `received`.
+    fn receive(&mut self) -> anyhow::Result<()> {
+        while self.received.len() < EPISODES_PER_ROUND {
+            let mut e = self.spare.pop().unwrap_or_else(EpisodeSummary::empty);
+            if !self.episodes.try_receive_into(&mut e)? {
+                self.spare.push(e);
                 break;
             }
-            received.push(e);
-            if received.len() >= 16 {
-                break;
-            }
+            self.received.push(e);
         }
-        let got = received.len();
-        let now_ns = terl_telemetry::unix_nanos();
-        gaps.clear();
-        gaps.extend(
-            received
+        Ok(())
+    }
+
+    /// The received episodes' loss stamps and index gaps; a warning when the total of missed
+    /// episodes grew.
+    fn count_losses(&mut self) {
+        self.gaps.clear();
+        let losses = &mut self.losses;
+        self.gaps.extend(
+            self.received
                 .iter()
                 .map(|e| losses.observe(e.actor_id, e.episode_index, e.losses())),
         );
-        let missed = losses.total().missed;
-        if missed > missed_logged {
-            missed_logged = missed;
+        let missed = self.losses.total().missed;
+        if missed > self.missed_logged {
+            self.missed_logged = missed;
             tracing::warn!(
                 episodes_missed = missed,
-                episodes_dropped = losses.total().reported.messages,
+                episodes_dropped = self.losses.total().reported.messages,
                 "episodes never arrived: an actor's send gave up on a full receiver after \
                  cluster.block_timeout_secs (totals so far)"
             );
         }
-        for (e, &missed_before) in received.iter().zip(&gaps) {
-            let Some(task) = tasks.get(usize::from(e.task)) else {
+    }
+
+    /// Appends the received episodes of the run's tasks with a finite return to the episode
+    /// log (`episodes.mcap`), flushed at most once a second.
+    fn log_episodes(&mut self) -> anyhow::Result<()> {
+        let now_ns = terl_telemetry::unix_nanos();
+        for (e, &missed_before) in self.received.iter().zip(&self.gaps) {
+            let Some(task) = self.tasks.get(usize::from(e.task)) else {
                 continue;
             };
             let record = terl_wire::EpisodeSummary {
@@ -387,16 +458,21 @@ fn receive_loop<T: Transport>(
                 missed_before,
             };
             if record.episode_return.is_finite() {
-                episode_log.write(&record, now_ns)?;
+                self.episode_log.write(&record, now_ns)?;
             }
         }
-        if last_flush.elapsed() >= Duration::from_secs(1) {
-            last_flush = Instant::now();
-            episode_log.flush()?;
+        if self.last_flush.elapsed() >= Duration::from_secs(1) {
+            self.last_flush = Instant::now();
+            self.episode_log.flush()?;
         }
+        Ok(())
+    }
+
+    /// The received episodes and the loss counts into the shared statistics (status, gates).
+    fn record(&self, shared: &Shared) {
         if let Ok(mut stats) = shared.stats.lock() {
-            stats.set_losses(&losses);
-            for e in &received {
+            stats.set_losses(&self.losses);
+            for e in &self.received {
                 stats.record(
                     usize::from(e.task),
                     e.succeeded(),
@@ -405,48 +481,60 @@ fn receive_loop<T: Transport>(
                 );
             }
         }
-        if let Some(sel) = selecting.as_mut() {
-            let mut chosen = Vec::new();
-            for e in &received {
-                if usize::from(e.task) < tasks.len() {
-                    chosen.extend(sel.scorer.on_episode(e));
-                }
-            }
-            sel.deliver(chosen, &tasks)?;
-            if let Ok(mut s) = shared.selection.lock() {
-                s.selected = sel.scorer.selected;
-                s.priority = sel.scorer.priority_stats();
-                s.critic_version = sel.scorer.critic_version();
-            }
-        }
-        spare.append(&mut received);
-        if last_log.elapsed() >= Duration::from_secs(10) {
-            last_log = Instant::now();
-            if let Ok(stats) = shared.stats.lock() {
-                match &selecting {
-                    Some(sel) => tracing::info!(
-                        episodes = stats.episodes_seen,
-                        selected = sel.scorer.selected,
-                        scored = sel.scorer.priority_stats().scored,
-                        unscored_no_weights = sel.scorer.unscored_no_weights,
-                        critic_version = sel.scorer.critic_version(),
-                        "progress"
-                    ),
-                    None => tracing::info!(episodes = stats.episodes_seen, "progress"),
-                }
+    }
+
+    /// With TERL: scores the received episodes, delivers what PTR selects (learner and TEP
+    /// dataset) and publishes the selection's counters.
+    fn select(&mut self, shared: &Shared) -> anyhow::Result<()> {
+        let Some(sel) = self.selecting.as_mut() else {
+            return Ok(());
+        };
+        let mut chosen = Vec::new();
+        for e in &self.received {
+            if usize::from(e.task) < self.tasks.len() {
+                chosen.extend(sel.scorer.on_episode(e));
             }
         }
-        if got == 0 {
-            std::thread::sleep(Duration::from_millis(2));
+        sel.deliver(chosen, &self.tasks)?;
+        if let Ok(mut s) = shared.selection.lock() {
+            s.selected = sel.scorer.selected;
+            s.priority = sel.scorer.priority_stats();
+            s.critic_version = sel.scorer.critic_version();
+        }
+        Ok(())
+    }
+
+    /// A progress line every 10 s.
+    fn log_progress(&mut self, shared: &Shared) {
+        if self.last_log.elapsed() < Duration::from_secs(10) {
+            return;
+        }
+        self.last_log = Instant::now();
+        if let Ok(stats) = shared.stats.lock() {
+            match &self.selecting {
+                Some(sel) => tracing::info!(
+                    episodes = stats.episodes_seen,
+                    selected = sel.scorer.selected,
+                    scored = sel.scorer.priority_stats().scored,
+                    unscored_no_weights = sel.scorer.unscored_no_weights,
+                    critic_version = sel.scorer.critic_version(),
+                    "progress"
+                ),
+                None => tracing::info!(episodes = stats.episodes_seen, "progress"),
+            }
         }
     }
-    let n = episode_log.finish()?;
-    tracing::info!(episodes = n, "episode log closed");
-    if let Some(sel) = selecting {
-        let n = sel.dataset.finish()?;
-        tracing::info!(samples = n, "TEP dataset closed");
+
+    /// Closes the episode log and the TEP dataset (syncing both).
+    fn finish(self) -> anyhow::Result<()> {
+        let n = self.episode_log.finish()?;
+        tracing::info!(episodes = n, "episode log closed");
+        if let Some(sel) = self.selecting {
+            let n = sel.dataset.finish()?;
+            tracing::info!(samples = n, "TEP dataset closed");
+        }
+        Ok(())
     }
-    Ok(())
 }
 
 /// `--resume`: rebuilds the success windows, episode totals and PTR gates from the episode
@@ -518,6 +606,7 @@ pub async fn run<T: ServiceTransport>(
         .await
 }
 
+#[allow(clippy::too_many_lines)] // the service's start-up in order (transport, gRPC, threads, shutdown)
 async fn run_in_span<T: ServiceTransport>(
     config: SelectorConfig,
     listener: tokio::net::TcpListener,

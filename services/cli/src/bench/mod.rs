@@ -164,6 +164,7 @@ fn memory_probe_process(
         .with_context(|| format!("memory probe of {tasks}: unreadable output"))
 }
 
+#[allow(clippy::too_many_lines)] // one arm per benchmark
 pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
     match cmd {
         BenchCommand::Env {

@@ -318,6 +318,7 @@ pub const FINAL_EVAL: &str = "eval-final.json";
 
 /// The point of a `terl eval --json` output, per task in `tasks` order (a task the file lacks
 /// is an error).
+#[allow(clippy::too_many_lines)] // one check per field of eval-final.json, in file order
 fn final_eval_point(
     path: &Path,
     tasks: &[String],
