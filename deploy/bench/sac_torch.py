@@ -17,19 +17,11 @@ import math
 import time
 
 import torch
-import torch.nn as nn
 import torch.nn.functional as F
 
+from torch_common import bwd_flops, fwd_flops, gemm_runner, mlp, square_gflops
+
 LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0
-
-
-def mlp(sizes):
-    layers = []
-    for i in range(len(sizes) - 1):
-        layers.append(nn.Linear(sizes[i], sizes[i + 1]))
-        if i < len(sizes) - 2:
-            layers.append(nn.ReLU())
-    return nn.Sequential(*layers)
 
 
 class MTSAC:
@@ -105,22 +97,12 @@ def layer_sizes(inp, hidden, out):
 
 def update_flops(pin, act_dim, hidden, b):
     """GEMM FLOPs of one update, counted as crates/rl's Sac::update_flops counts them."""
-
-    def fwd(sizes, rows):
-        return sum(2 * rows * i * o for i, o in zip(sizes, sizes[1:]))
-
-    def bwd(sizes, rows, params, input_cols):
-        f = 0
-        for l, (i, o) in enumerate(zip(sizes, sizes[1:])):
-            if params:
-                f += 2 * rows * i * o
-            f += 2 * rows * (input_cols if l == 0 else i) * o
-        return f
-
     p = layer_sizes(pin, hidden, 2 * act_dim)
     q = layer_sizes(pin + act_dim, hidden, 1)
-    policy = fwd(p, 2 * b) + bwd(p, b, True, 0)
-    critic = fwd(q, b) + fwd(q, 2 * b) + bwd(q, b, True, 0) + bwd(q, b, False, act_dim)
+    policy = fwd_flops(p, 2 * b) + bwd_flops(p, b, True, 0)
+    critic = (
+        fwd_flops(q, b) + fwd_flops(q, 2 * b) + bwd_flops(q, b, True, 0) + bwd_flops(q, b, False, act_dim)
+    )
     return policy + 2 * critic
 
 
@@ -149,41 +131,14 @@ def gemm_plan(pin, act_dim, hidden, b):
 
 
 def time_gemms(ops, seconds):
-    bufs = []
-    for kind, rows, i, o, cols in ops:
-        if kind == "fwd":
-            bufs.append((kind, torch.randn(rows, i), torch.randn(o, i), torch.empty(rows, o)))
-        elif kind == "dw":
-            bufs.append((kind, torch.randn(rows, o), torch.randn(rows, i), torch.empty(o, i)))
-        else:
-            bufs.append((kind, torch.randn(rows, o), torch.randn(o, i)[:, :cols], torch.empty(rows, cols)))
-    flops = sum(2 * rows * cols * o for _, rows, i, o, cols in ops)
-
-    def run():
-        for kind, a, w, c in bufs:
-            if kind == "fwd":
-                torch.mm(a, w.t(), out=c)
-            elif kind == "dw":
-                torch.mm(a.t(), w, out=c)
-            else:
-                torch.mm(a, w, out=c)
-
+    """GFLOP/s of the plan's bare GEMMs, run for at least `seconds` (and at least three times)."""
+    run, flops = gemm_runner(ops)
     run()
     n, t0 = 0, time.perf_counter()
     while time.perf_counter() - t0 < seconds or n < 3:
         run()
         n += 1
     return flops * n / (time.perf_counter() - t0) / 1e9
-
-
-def square_gflops(n, seconds):
-    a, b, c = torch.randn(n, n), torch.randn(n, n), torch.empty(n, n)
-    torch.mm(a, b.t(), out=c)
-    k, t0 = 0, time.perf_counter()
-    while time.perf_counter() - t0 < seconds or k < 2:
-        torch.mm(a, b.t(), out=c)
-        k += 1
-    return 2 * n**3 * k / (time.perf_counter() - t0) / 1e9
 
 
 def main():

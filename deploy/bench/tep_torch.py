@@ -24,16 +24,7 @@ import time
 import torch
 import torch.nn as nn
 
-
-def mlp(sizes, out_act=None):
-    layers = []
-    for i in range(len(sizes) - 1):
-        layers.append(nn.Linear(sizes[i], sizes[i + 1]))
-        if i < len(sizes) - 2:
-            layers.append(nn.ReLU())
-    if out_act is not None:
-        layers.append(out_act)
-    return nn.Sequential(*layers)
+from torch_common import bwd_flops, fwd_flops, gemm_runner, mlp, square_gflops
 
 
 class TEP:
@@ -86,30 +77,17 @@ class TEP:
         return f_loss.item()
 
 
-def fwd(sizes, rows):
-    return sum(2 * rows * i * o for i, o in zip(sizes, sizes[1:]))
-
-
-def bwd(sizes, rows, params, input_cols):
-    f = 0
-    for l, (i, o) in enumerate(zip(sizes, sizes[1:])):
-        if params:
-            f += 2 * rows * i * o
-        f += 2 * rows * (input_cols if l == 0 else i) * o
-    return f
-
-
 def update_flops(obs_dim, act_dim, hidden, b):
     """GEMM FLOPs of one update, counted as crates/rl's Tep::update_flops counts them."""
     fs = [2 * obs_dim + act_dim, *hidden, 1]
     ans = [2 * obs_dim, *hidden, act_dim]
     return (
-        2 * fwd(ans, b)
-        + fwd(fs, b)
-        + fwd(fs, 4 * b)
-        + bwd(fs, 3 * b, True, 0)
-        + bwd(fs, b, False, act_dim)
-        + bwd(ans, b, True, 0)
+        2 * fwd_flops(ans, b)
+        + fwd_flops(fs, b)
+        + fwd_flops(fs, 4 * b)
+        + bwd_flops(fs, 3 * b, True, 0)
+        + bwd_flops(fs, b, False, act_dim)
+        + bwd_flops(ans, b, True, 0)
     )
 
 
@@ -139,40 +117,6 @@ def gemm_plan(obs_dim, act_dim, hidden, b):
     backward(fs, b, False, act_dim)
     backward(ans, b, True, 0)
     return ops
-
-
-def gemm_runner(ops):
-    """A function running the plan's GEMMs once, and the FLOPs of one run."""
-    bufs = []
-    for kind, rows, i, o, cols in ops:
-        if kind == "fwd":
-            bufs.append((kind, torch.randn(rows, i), torch.randn(o, i), torch.empty(rows, o)))
-        elif kind == "dw":
-            bufs.append((kind, torch.randn(rows, o), torch.randn(rows, i), torch.empty(o, i)))
-        else:
-            bufs.append((kind, torch.randn(rows, o), torch.randn(o, i)[:, :cols], torch.empty(rows, cols)))
-    flops = sum(2 * rows * cols * o for _, rows, i, o, cols in ops)
-
-    def run():
-        for kind, a, w, c in bufs:
-            if kind == "fwd":
-                torch.mm(a, w.t(), out=c)
-            elif kind == "dw":
-                torch.mm(a.t(), w, out=c)
-            else:
-                torch.mm(a, w, out=c)
-
-    return run, flops
-
-
-def square_gflops(n, seconds):
-    a, b, c = torch.randn(n, n), torch.randn(n, n), torch.empty(n, n)
-    torch.mm(a, b.t(), out=c)
-    k, t0 = 0, time.perf_counter()
-    while time.perf_counter() - t0 < seconds or k < 2:
-        torch.mm(a, b.t(), out=c)
-        k += 1
-    return 2 * n**3 * k / (time.perf_counter() - t0) / 1e9
 
 
 def main():
