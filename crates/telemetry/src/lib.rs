@@ -155,7 +155,8 @@ pub enum TelemetryError {
         reason: String,
     },
     /// The file is MCAP but holds no channel on the topic the reader expects.
-    #[error("{path} has no channel on topic {topic} (not a {what}){}",
+    #[error("{path} has no channel on topic {topic} (not {} {what}){}",
+        if what.starts_with(['a', 'e', 'i', 'o', 'u']) { "an" } else { "a" },
         if *truncated { "; the file is also truncated" } else { "" })]
     NoChannel {
         /// The file.

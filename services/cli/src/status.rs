@@ -501,6 +501,29 @@ fn last_started_run() -> Result<Option<std::path::PathBuf>> {
     }
 }
 
+/// A service's address from `<run>/<name>.addr` (a regular text file of at most 1 MiB).
+fn read_addr(dir: &std::path::Path, name: &str) -> Result<String> {
+    let path = dir.join(format!("{name}.addr"));
+    match std::fs::metadata(&path) {
+        Err(_) => anyhow::bail!(
+            "{} not found: is {} the folder of a running cluster?",
+            path.display(),
+            dir.display()
+        ),
+        // A FIFO or device in its place would block or flood the status.
+        Ok(m) if !m.is_file() || m.len() > 1 << 20 => anyhow::bail!(
+            "{} is not an address file (not a regular file of at most 1 MiB)",
+            path.display()
+        ),
+        Ok(_) => {}
+    }
+    let text = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
+    match String::from_utf8(text) {
+        Ok(t) => Ok(t.trim().to_string()),
+        Err(_) => anyhow::bail!("{} is not an address file (not text)", path.display()),
+    }
+}
+
 pub fn run(args: StatusArgs) -> Result<ExitCode> {
     // `--run` of a folder without launcher.pid: a run not started by the launcher, or one
     // whose launcher stopped (its address files stay); a failed connection then says so.
@@ -515,19 +538,7 @@ pub fn run(args: StatusArgs) -> Result<ExitCode> {
         (None, None) => last_started_run()?,
         (None, Some(_)) => None,
     };
-    let read = |dir: &std::path::Path, name: &str| -> Result<String> {
-        let path = dir.join(format!("{name}.addr"));
-        Ok(std::fs::read_to_string(&path)
-            .with_context(|| {
-                format!(
-                    "{} not found: is {} the folder of a running cluster?",
-                    path.display(),
-                    dir.display()
-                )
-            })?
-            .trim()
-            .to_string())
-    };
+    let read = read_addr;
     let (addr, selector_addr, launcher) = match &run_dir {
         Some(dir) => (
             args.addr.clone().map_or_else(|| read(dir, "learner"), Ok)?,
@@ -581,6 +592,25 @@ pub fn run(args: StatusArgs) -> Result<ExitCode> {
                 format!("learner at {addr}")
             }
         })?;
+        // A stopped run's address files stay behind; another run may serve there now.
+        if let Some(dir) = &run_dir {
+            let folder = dir.file_name().map(|n| n.to_string_lossy().into_owned());
+            // A launcher's run folder is named by its run id (services started by hand may
+            // use any --run-dir).
+            if args.addr.is_none()
+                && dir.join("cluster.txt").is_file()
+                && folder.as_deref().is_some_and(|f| f != learner.run_id)
+                && !learner.run_id.is_empty()
+            {
+                anyhow::bail!(
+                    "the learner at {addr} serves run {}, not {}: {} is a stopped run whose \
+                     address another run uses now (give that run's folder, or --addr)",
+                    learner.run_id,
+                    folder.unwrap_or_default(),
+                    dir.display()
+                );
+            }
+        }
         let selector = tokio::time::timeout(timeout, selector_status(&selector_addr, options))
             .await
             .unwrap_or_else(|_| Err(anyhow::anyhow!("timed out")))

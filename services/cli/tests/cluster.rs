@@ -1196,6 +1196,40 @@ fn launcher_refuses_bad_or_locked_run_ids_and_reports_a_start_up_failure_with_it
         );
         assert!(!runs.join("it-bad-option").exists(), "nothing was started");
     }
+    // --resume of a folder that is not a launcher's run folder (no cluster.txt), and of one
+    // with logs but no checkpoint (it would start again from update 0 beside the old logs).
+    let config_only = dir.path().join("config-only");
+    std::fs::create_dir_all(&config_only).unwrap();
+    std::fs::copy(
+        root.join("deploy/configs/cluster-smoke.toml"),
+        config_only.join("config.toml"),
+    )
+    .unwrap();
+    let resume = |folder: &Path| {
+        let out = Command::new(root.join("deploy/local-cluster.sh"))
+            .current_dir(&root)
+            .env("TMPDIR", &locks)
+            .args(["--no-build", "--resume"])
+            .arg(folder)
+            .output()
+            .unwrap();
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stderr).to_string(),
+        )
+    };
+    let (code, err) = resume(&config_only);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("cluster.txt not found"), "{err}");
+    assert!(
+        !config_only.join("cluster.txt").exists(),
+        "nothing was written"
+    );
+    std::fs::write(config_only.join("cluster.txt"), "run_id=config-only\n").unwrap();
+    std::fs::write(config_only.join("episodes.mcap"), b"").unwrap();
+    let (code, err) = resume(&config_only);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("holds logs but no checkpoint"), "{err}");
     // More actors than the machine can hold: refused before anything starts.
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     for too_many in [(4 * cores + 1).to_string(), "100000".to_string()] {

@@ -223,3 +223,49 @@ fn a_run_left_out_of_a_multi_run_report_is_named_and_fails_the_command() {
         "{tables}"
     );
 }
+
+#[test]
+fn a_run_folder_whose_name_is_not_utf8_is_reported_and_a_mistyped_one_is_not_created() {
+    use std::os::unix::ffi::OsStrExt;
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir
+        .path()
+        .join(std::ffi::OsStr::from_bytes(b"x-mtsac-s1-\xff"));
+    std::fs::create_dir_all(&run).unwrap();
+    std::fs::write(
+        run.join("config.toml"),
+        "experiment = \"x\"\ntasks = \"reach-v3\"\nnum_envs = 1\n[train]\ntotal_env_steps = 1000\nseed = 1\n",
+    )
+    .unwrap();
+    let eval = serde_json::json!({
+        "mean_success_rate": 0.5, "mean_return": 1.0, "episodes_per_task": 50,
+        "tasks": [{"task": "reach-v3", "episodes": 50, "successes": 25,
+                   "success_rate": 0.5, "mean_return": 1.0}]
+    });
+    std::fs::write(run.join("eval-final.json"), eval.to_string()).unwrap();
+    let out_dir = dir.path().join("out");
+    let out = Command::new("timeout")
+        .arg("120")
+        .arg(env!("CARGO_BIN_EXE_terl"))
+        .arg("report")
+        .arg(&run)
+        .arg("--out")
+        .arg(&out_dir)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "{err}");
+    let json = std::fs::read_to_string(out_dir.join("results.json")).unwrap();
+    assert!(json.contains("x-mtsac-s1-\u{fffd}"), "{json}");
+
+    let typo = dir.path().join("runs/mt10-mtsac-s9/nested");
+    let out = Command::new(env!("CARGO_BIN_EXE_terl"))
+        .arg("report")
+        .arg(&typo)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(err.contains("is not a folder"), "{err}");
+    assert!(!dir.path().join("runs").exists(), "nothing was created");
+}

@@ -115,3 +115,32 @@ fn a_learner_with_a_token_asked_without_one_is_refused_by_name() {
     assert!(err.contains("refused this client's token"), "{err}");
     assert!(!err.contains("nothing answers"), "{err}");
 }
+
+#[test]
+fn an_address_file_that_is_a_fifo_or_not_text_is_an_error_not_a_hang() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("runs/r1");
+    std::fs::create_dir_all(&run).unwrap();
+    assert!(Command::new("mkfifo")
+        .arg(run.join("learner.addr"))
+        .status()
+        .unwrap()
+        .success());
+    let out = Command::new("timeout")
+        .arg("60")
+        .arg(env!("CARGO_BIN_EXE_terl"))
+        .args(["status", "--run"])
+        .arg(&run)
+        .env_remove("TERL_TOKEN")
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("not an address file"), "{err}");
+    std::fs::remove_file(run.join("learner.addr")).unwrap();
+    std::fs::write(run.join("learner.addr"), b"\xff\xfe\x00").unwrap();
+    let out = status(&["--run", run.to_str().unwrap()], dir.path());
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("not text"), "{err}");
+}

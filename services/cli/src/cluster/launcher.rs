@@ -259,6 +259,36 @@ struct Plan {
     backoff: u64,
 }
 
+/// Whether `resume` is a launcher's run folder the run can continue from; the reason if not.
+fn resumable(resume: &Path) -> std::result::Result<(), String> {
+    for file in [resume.join("config.toml"), resume.join("cluster.txt")] {
+        if !file.is_file() {
+            return Err(format!(
+                "--resume: {} not found (not a launcher's run folder)",
+                file.display()
+            ));
+        }
+    }
+    // Without a checkpoint the learner starts again from update 0; beside the logs of the
+    // earlier start that would make one folder hold two runs (reports would join them).
+    let has_checkpoint = std::fs::read_dir(resume.join("checkpoints")).is_ok_and(|d| {
+        d.filter_map(|e| e.ok())
+            .any(|e| e.path().extension().is_some_and(|x| x == "safetensors"))
+    });
+    let has_logs = ["episodes.mcap", "metrics.mcap", "eval.mcap"]
+        .iter()
+        .any(|f| resume.join(f).exists());
+    if !has_checkpoint && has_logs {
+        return Err(format!(
+            "--resume: {} holds logs but no checkpoint, so the run cannot continue where it \
+             stopped (starting it again would put two runs in one folder): remove the folder to \
+             start over, or start a new --run-id",
+            resume.display()
+        ));
+    }
+    Ok(())
+}
+
 /// The options checked and resolved as the launcher script did (same messages); `Err(code)`
 /// after printing a usage error.
 fn plan(args: UpArgs) -> std::result::Result<Plan, Result<ExitCode>> {
@@ -287,11 +317,8 @@ fn plan(args: UpArgs) -> std::result::Result<Plan, Result<ExitCode>> {
             ));
         }
         config = resume.join("config.toml");
-        if !config.is_file() {
-            return Err(usage(format!(
-                "--resume: {} not found (not a run folder)",
-                config.display()
-            )));
+        if let Err(why) = resumable(&resume) {
+            return Err(usage(why));
         }
         run_id = Some(
             resume

@@ -101,11 +101,7 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
         last_evals: args.last_evals,
         bootstrap: terl_stats::Bootstrap::with_reps(args.bootstrap_reps),
     };
-    let out = match (&args.out, args.run_dirs.as_slice()) {
-        (Some(o), _) => o.clone(),
-        (None, [one]) => one.clone(),
-        (None, _) => PathBuf::from("report"),
-    };
+    let out = out_dir(&args)?;
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
     let mut evaluated = Vec::new();
     let mut anything = false;
@@ -207,4 +203,22 @@ fn left_out_section(left_out: &[(PathBuf, String)]) -> String {
         let _ = writeln!(md, "- `{}`: {}", dir.display(), why.replace('\n', " "));
     }
     md
+}
+
+/// `--out`, else the run folder for one run (which must exist: a mistyped one is not created),
+/// else `./report`.
+fn out_dir(args: &ReportArgs) -> Result<PathBuf> {
+    Ok(match (&args.out, args.run_dirs.as_slice()) {
+        (Some(o), _) => o.clone(),
+        (None, [one]) => {
+            // The run folder itself: a mistyped one must not be created.
+            anyhow::ensure!(
+                one.is_dir(),
+                "{} is not a folder (give run folders, runs/<id>)",
+                one.display()
+            );
+            one.clone()
+        }
+        (None, _) => PathBuf::from("report"),
+    })
 }

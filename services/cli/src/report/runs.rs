@@ -29,9 +29,16 @@ pub struct EvalPoint {
     pub episodes_per_task: usize,
 }
 
+/// A path as JSON text, lossily where it is not UTF-8 (serde refuses such a path).
+fn lossy_path<S: serde::Serializer>(path: &Path, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_str(&path.to_string_lossy())
+}
+
 /// The evaluations of one run folder.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct RunEval {
+    /// The run folder (in results.json as text; a name that is not UTF-8 is written lossily).
+    #[serde(serialize_with = "lossy_path")]
     pub dir: PathBuf,
     /// Experiment name (grouping key): the run file's `experiment`, else its `tasks`.
     pub experiment: String,
