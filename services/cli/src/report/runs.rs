@@ -34,6 +34,14 @@ fn lossy_path<S: serde::Serializer>(path: &Path, s: S) -> Result<S::Ok, S::Error
     s.serialize_str(&path.to_string_lossy())
 }
 
+/// Paths as JSON text, each as [`lossy_path`].
+pub(super) fn lossy_paths<S: serde::Serializer>(
+    paths: &[PathBuf],
+    s: S,
+) -> Result<S::Ok, S::Error> {
+    s.collect_seq(paths.iter().map(|p| p.to_string_lossy()))
+}
+
 /// The evaluations of one run folder.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct RunEval {

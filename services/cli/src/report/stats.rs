@@ -146,6 +146,7 @@ pub struct GroupSummary {
     pub experiment: String,
     pub algorithm: String,
     pub seeds: Vec<u64>,
+    #[serde(serialize_with = "super::runs::lossy_paths")]
     pub runs: Vec<PathBuf>,
     pub tasks: Vec<String>,
     /// Final mean success over tasks (%), mean and std over seeds.
@@ -164,6 +165,7 @@ pub struct GroupSummary {
     /// The runs' networks (distinct labels, joined by ` / `).
     pub networks: String,
     /// Runs of the group without `eval-final.json` (their last in-run evaluation is final).
+    #[serde(serialize_with = "super::runs::lossy_paths")]
     pub without_final_eval: Vec<PathBuf>,
     /// The statistics with final = the run's last evaluation (`eval-final.json`).
     pub final_eval: Option<FinalStats>,
