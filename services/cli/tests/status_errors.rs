@@ -144,3 +144,63 @@ fn an_address_file_that_is_a_fifo_or_not_text_is_an_error_not_a_hang() {
     assert_eq!(out.status.code(), Some(1), "{err}");
     assert!(err.contains("not text"), "{err}");
 }
+
+/// A stopped launcher run's address files stay behind; when another run's learner now serves at
+/// that address, `terl status --run` of the stopped run says so instead of showing the other.
+#[test]
+fn a_stopped_runs_address_served_by_another_run_is_named_not_shown() {
+    let bin = service_binaries();
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("run.toml");
+    std::fs::write(
+        &config,
+        "tasks = \"reach-v3\"\nnum_envs = 1\n\
+         [sac]\npolicy_hidden = [16]\ncritic_hidden = [16]\nbatch_size = 16\nthreads = 1\n\
+         [cluster]\nlearner_calibrate_secs = 0\n",
+    )
+    .unwrap();
+    let live_dir = dir.path().join("runs/now-running");
+    let mut learner = Command::new(bin.join("terl-learner"))
+        .args([
+            "--config",
+            config.to_str().unwrap(),
+            "--run-id",
+            "now-running",
+        ])
+        .args([
+            "--addr",
+            "127.0.0.1:0",
+            "--run-dir",
+            live_dir.to_str().unwrap(),
+        ])
+        .env_remove("TERL_TOKEN")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let addr = common::wait_for_addr(
+        &live_dir.join("learner.addr"),
+        Some(&mut learner),
+        Duration::from_secs(60),
+    );
+    // The stopped run: a launcher's folder whose learner.addr now points at the live learner.
+    let stopped = dir.path().join("runs/stopped-run");
+    std::fs::create_dir_all(&stopped).unwrap();
+    std::fs::write(stopped.join("cluster.txt"), "run_id=stopped-run\n").unwrap();
+    std::fs::write(stopped.join("learner.addr"), &addr).unwrap();
+    std::fs::write(stopped.join("selector.addr"), &addr).unwrap();
+    let out = status(
+        &["--run", stopped.to_str().unwrap(), "--timeout", "5"],
+        dir.path(),
+    );
+    let _ = Command::new("kill")
+        .args(["-TERM", &learner.id().to_string()])
+        .status();
+    let _ = learner.wait();
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("serves run now-running, not stopped-run"),
+        "{err}"
+    );
+}
