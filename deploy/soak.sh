@@ -62,10 +62,12 @@ fi
     --learner-addr 127.0.0.1:0 --selector-addr 127.0.0.1:0 --restarts 100 --restart-backoff 1 \
     > /dev/null 2> "$run_id.launcher.log" &
 launcher=$!
-mkdir -p "$out"
-mv "$run_id.launcher.log" "$out/launcher.log" 2>/dev/null || true
+# The launcher makes the run folder itself (it refuses one that already holds files): its log
+# moves in once the folder is there (the open file follows the move).
 for _ in $(seq 300); do [ -s "$out/learner.addr" ] && [ -s "$out/pids" ] && break; sleep 0.2; done
-[ -s "$out/learner.addr" ] || { say "the cluster did not start; see $out/"; kill -TERM "$launcher"; exit 1; }
+log="$run_id.launcher.log"
+if [ -d "$out" ] && mv "$log" "$out/launcher.log" 2>/dev/null; then log="$out/launcher.log"; fi
+[ -s "$out/learner.addr" ] || { say "the cluster did not start; see $log"; kill -TERM "$launcher" 2>/dev/null; exit 1; }
 
 status_json() {
     "$bin/terl" status --json --addr "$(cat "$out/learner.addr")" \
