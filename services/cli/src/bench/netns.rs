@@ -191,7 +191,11 @@ impl Namespace {
         // This very executable through its /proc link: it still runs when the file on disk was
         // replaced meanwhile (a rebuild), where the path would name a deleted file.
         let exe = PathBuf::from(format!("/proc/{}/exe", std::process::id()));
-        anyhow::ensure!(exe.exists(), "cannot find the terl executable ({})", exe.display());
+        anyhow::ensure!(
+            exe.exists(),
+            "cannot find the terl executable ({})",
+            exe.display()
+        );
         let mut cmd = Command::new("ip");
         cmd.args(["netns", "exec", &self.name]).arg(exe).args(args);
         Ok(cmd)
