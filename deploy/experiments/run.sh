@@ -61,6 +61,11 @@
 #                                    about 10 % more wall time on MT10 workstation) or
 #                                    asynchronous; TERL runs are asynchronous
 #                                    (docs/cluster.md#reproducible-runs)
+#   --variant NAME                   mt1-ind, mt10, mt20: the run file's variant of every run
+#                                    (lower-case letters, digits and -), also in the run ids, so
+#                                    `terl report` groups these runs apart from the same
+#                                    algorithm without it, e.g. --mode asynchronous --variant
+#                                    asynchronous beside the default reproducible runs
 # A run whose eval-final.json exists is skipped, so an interrupted experiment resumes where it
 # stopped (a run stopped mid-way starts again from scratch). A run whose id is held by running
 # processes is not touched. A failed run does not stop the others; the script then exits 1.
@@ -95,6 +100,7 @@ planner_from=""
 planner_from_set=0
 mode=reproducible
 learner_threads=""
+variant=""
 while [ $# -gt 0 ]; do
     case "$1" in
         --no-build|-h|--help) ;;
@@ -115,6 +121,7 @@ while [ $# -gt 0 ]; do
         --last-stage) last_stage=$2; shift 2 ;;
         --stage1-steps) stage1_steps=$2; shift 2 ;;
         --mode) mode=$2; shift 2 ;;
+        --variant) variant=$2; shift 2 ;;
         --learner-threads) learner_threads=$2; shift 2 ;;
         --planner-from-seed) planner_from=$2; planner_from_set=1; shift 2 ;;
         -h|--help) usage; exit 0 ;;
@@ -123,6 +130,10 @@ while [ $# -gt 0 ]; do
 done
 case "$scale" in workstation|paper|smoke) ;; *) echo "--scale must be workstation, paper or smoke" >&2; exit 2 ;; esac
 case "$mode" in reproducible|asynchronous) ;; *) echo "--mode must be reproducible or asynchronous" >&2; exit 2 ;; esac
+case "$variant" in
+    "") ;;
+    *[!a-z0-9-]*|-*) echo "--variant must be lower-case letters, digits and - (got \"$variant\")" >&2; exit 2 ;;
+esac
 for a in $algorithms; do
     case "$a" in mtsac|terl|care) ;; *) echo "unknown algorithm $a (mtsac, terl or care)" >&2; exit 2 ;; esac
 done
@@ -299,9 +310,9 @@ case "$experiment" in
         tasks=${tasks_override:-$mt1_tasks}
         [ "$scale" = smoke ] && tasks=${tasks_override:-reach-v3}
         for seed in $seeds; do for alg in $algorithms; do for task in $tasks; do
-            run_config "$base" mt1-ind "$task" "$alg" "" "$seed" \
-                | train_run "mt1-ind-$alg-${task%-v3}-s$seed$tag" "$base" \
-                || failed+=("mt1-ind-$alg-${task%-v3}-s$seed$tag")
+            id="mt1-ind-$alg${variant:+-$variant}-${task%-v3}-s$seed$tag"
+            run_config "$base" mt1-ind "$task" "$alg" "$variant" "$seed" \
+                | train_run "$id" "$base" || failed+=("$id")
         done; done; done
         ;;
     mt10|mt20)
@@ -309,8 +320,9 @@ case "$experiment" in
         set_tasks=$experiment
         [ "$scale" = smoke ] && set_tasks="reach-v3,push-v3"
         for seed in $seeds; do for alg in $algorithms; do
-            run_config "$base" "$experiment" "$set_tasks" "$alg" "" "$seed" \
-                | train_run "$experiment-$alg-s$seed$tag" "$base" || failed+=("$experiment-$alg-s$seed$tag")
+            run_config "$base" "$experiment" "$set_tasks" "$alg" "$variant" "$seed" \
+                | train_run "$experiment-$alg${variant:+-$variant}-s$seed$tag" "$base" \
+                || failed+=("$experiment-$alg${variant:+-$variant}-s$seed$tag")
             if [ "$alg" = terl ] && [ "$experiment" = mt10 ]; then
                 datasets=()
                 for f in "$runs"/mt1-ind-terl-*-s"$seed$tag"/tep-dataset.mcap; do

@@ -108,6 +108,31 @@ pub fn existing_paths(run_dir: &Path, stem: &str) -> Vec<PathBuf> {
         .collect()
 }
 
+/// The segments of a log numbered past a gap: `<stem>.<k>.mcap` with k > `read + 1` when
+/// [`existing_paths`] found `read` segments (it stops at the first missing one), sorted by k.
+/// Unreadable folders give none (the segments already found are read as usual).
+pub(crate) fn segments_after_gap(run_dir: &Path, stem: &str, read: u64) -> Vec<PathBuf> {
+    let Ok(entries) = std::fs::read_dir(run_dir) else {
+        return Vec::new();
+    };
+    let prefix = format!("{stem}.");
+    let mut found: Vec<(u64, PathBuf)> = entries
+        .filter_map(|e| e.ok())
+        .filter_map(|e| {
+            let name = e.file_name();
+            let k = name
+                .to_str()?
+                .strip_prefix(&prefix)?
+                .strip_suffix(".mcap")?
+                .parse::<u64>()
+                .ok()?;
+            (k > read + 1).then(|| (k, e.path()))
+        })
+        .collect();
+    found.sort();
+    found.into_iter().map(|(_, p)| p).collect()
+}
+
 /// Now as nanoseconds since the Unix epoch: the log time of every record we write (0 if the
 /// clock is before 1970).
 pub fn unix_nanos() -> u64 {

@@ -166,15 +166,19 @@ pub fn read_log<R: LogRecord>(path: impl AsRef<Path>) -> Result<Logged<R>> {
 }
 
 /// Every record of a run's `<kind>.mcap` log and its restarted segments (`<kind>.2.mcap`, …,
-/// [`crate::existing_paths`]), in order, with the segments read only in part.
+/// [`crate::existing_paths`]), in order, with the segments read only in part and those past a
+/// missing segment (not read, [`RunLog::unread`]).
 ///
 /// Errors: as [`read_log`], for the first segment that cannot be read at all.
 pub fn read_run_log<R: LogRecord>(run_dir: &Path, kind: &str) -> Result<RunLog<R>> {
     let mut log = RunLog {
         records: Vec::new(),
         cut: Vec::new(),
+        unread: Vec::new(),
     };
-    for path in crate::existing_paths(run_dir, kind) {
+    let paths = crate::existing_paths(run_dir, kind);
+    log.unread = crate::segments_after_gap(run_dir, kind, paths.len() as u64);
+    for path in paths {
         let segment = read_log::<R>(&path)?;
         if let Some(reason) = segment.truncation {
             log.cut.push(CutSegment {
@@ -195,6 +199,25 @@ pub struct RunLog<R> {
     pub records: Vec<R>,
     /// The segments read only in part (a stopped writer, a cut or damage).
     pub cut: Vec<CutSegment>,
+    /// Segments past a missing one (`<kind>.3.mcap` without `<kind>.2.mcap`), in segment order:
+    /// not read, since their place in the run is unknown; a report names them.
+    pub unread: Vec<std::path::PathBuf>,
+}
+
+impl<R> RunLog<R> {
+    /// One note per segment of the run that was not read in full or at all: the
+    /// [`CutSegment`]s, then the [`RunLog::unread`] segments past a gap.
+    pub fn notes(&self) -> Vec<String> {
+        let mut notes: Vec<String> = self.cut.iter().map(ToString::to_string).collect();
+        notes.extend(self.unread.iter().map(|p| {
+            format!(
+                "note: {} is not read: an earlier segment of the same log is missing, so its \
+                 place in the run is unknown",
+                p.display()
+            )
+        }));
+        notes
+    }
 }
 
 /// A log segment read only in part.
@@ -312,6 +335,52 @@ mod tests {
             read_log::<EvalResult>(eval_path(&dir)).unwrap().records,
             vec![ev]
         );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    fn metric(step: u64) -> Metric {
+        Metric {
+            name: "loss/critic".into(),
+            value: step as f64,
+            step,
+            unix_time_nanos: step,
+        }
+    }
+
+    fn write_segment(path: std::path::PathBuf, steps: std::ops::Range<u64>) {
+        let mut w = MetricsWriter::create(path).unwrap();
+        for s in steps {
+            w.write(&metric(s), s).unwrap();
+        }
+        w.finish().unwrap();
+    }
+
+    #[test]
+    fn a_segment_past_a_missing_one_is_named_not_read() {
+        let dir = std::env::temp_dir().join(format!("terl-segments-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        write_segment(dir.join("metrics.mcap"), 0..3);
+        write_segment(dir.join("metrics.4.mcap"), 10..12);
+        write_segment(dir.join("metrics.3.mcap"), 7..9);
+        // Names that only look like segments are not segments.
+        std::fs::write(dir.join("metrics.x.mcap"), b"").unwrap();
+        std::fs::write(dir.join("metrics.2.mcap.part"), b"").unwrap();
+        let log = read_run_log::<Metric>(&dir, "metrics").unwrap();
+        assert_eq!(log.records, (0..3).map(metric).collect::<Vec<_>>());
+        assert_eq!(
+            log.unread,
+            vec![dir.join("metrics.3.mcap"), dir.join("metrics.4.mcap")]
+        );
+        let notes = log.notes();
+        assert_eq!(notes.len(), 2);
+        assert!(notes[0].contains("metrics.3.mcap is not read"), "{notes:?}");
+        // With the gap filled every segment is read, in order.
+        write_segment(dir.join("metrics.2.mcap"), 3..7);
+        let log = read_run_log::<Metric>(&dir, "metrics").unwrap();
+        assert!(log.unread.is_empty() && log.notes().is_empty());
+        let steps: Vec<u64> = log.records.iter().map(|m| m.step).collect();
+        assert_eq!(steps, vec![0, 1, 2, 3, 4, 5, 6, 7, 8, 10, 11]);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -1294,7 +1294,7 @@ fn launcher_refuses_bad_or_locked_run_ids_and_reports_a_start_up_failure_with_it
     let (code, err) = run(&["--run-id", "it-taken"]);
     assert_eq!(code, Some(2), "{err}");
     assert!(
-        err.contains("already holds a run") && err.contains("--resume"),
+        err.contains("already holds files") && err.contains("--resume"),
         "{err}"
     );
     assert_eq!(
@@ -1302,6 +1302,45 @@ fn launcher_refuses_bad_or_locked_run_ids_and_reports_a_start_up_failure_with_it
         1,
         "nothing was written"
     );
+    // A dangling link under the run's name is named as what it is, and left alone.
+    let link = runs.join("it-link");
+    std::os::unix::fs::symlink("nowhere", &link).unwrap();
+    let (code, err) = run(&["--run-id", "it-link"]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("is a link, not a folder"), "{err}");
+    assert!(std::fs::symlink_metadata(&link)
+        .unwrap()
+        .file_type()
+        .is_symlink());
+
+    // Resuming on a smaller machine a run that recorded more actors than it can run: the
+    // message names the run's cluster.txt as the source of the count, not --actors.
+    let big = runs.join("it-resume-big");
+    std::fs::create_dir_all(&big).unwrap();
+    std::fs::copy(
+        root.join("deploy/configs/cluster-smoke.toml"),
+        big.join("config.toml"),
+    )
+    .unwrap();
+    std::fs::write(
+        big.join("cluster.txt"),
+        "run_id=it-resume-big\nactors=100000\n",
+    )
+    .unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_terl"))
+        .current_dir(&root)
+        .env("TMPDIR", &locks)
+        .args(["cluster", "up", "--resume"])
+        .arg(&big)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("cluster.txt says actors=100000") && err.contains("give --actors"),
+        "{err}"
+    );
+    assert!(!err.contains("--actors 100000"), "{err}");
 
     // Another launcher of this run id holds its lock.
     let id = format!("it-lock-{}", std::process::id());

@@ -69,6 +69,17 @@ fn experiment_scripts_train_evaluate_and_report() {
         assert_eq!(out.status.code(), Some(2), "--learner-threads {bad}");
         assert!(String::from_utf8_lossy(&out.stderr).contains("--learner-threads"));
     }
+    // A variant names run folders and report groups: only a plain label is taken.
+    for bad in ["Async", "a b", "-x", "a/b"] {
+        let out = Command::new(root.join("deploy/experiments/run.sh"))
+            .current_dir(&root)
+            .args(["mt1-ind", "--variant", bad, "--no-build"])
+            .args(["--runs-root", runs.to_str().unwrap()])
+            .output()
+            .unwrap();
+        assert_eq!(out.status.code(), Some(2), "--variant {bad:?}");
+        assert!(String::from_utf8_lossy(&out.stderr).contains("--variant"));
+    }
     run_experiment(&root, runs, "mt1-ind");
     for id in ["mt1-ind-mtsac-reach-s1", "mt1-ind-terl-reach-s1"] {
         let run = runs.join(format!("{id}{}", tag()));

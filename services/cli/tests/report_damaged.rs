@@ -179,6 +179,11 @@ fn a_run_left_out_of_a_multi_run_report_is_named_and_fails_the_command() {
         runs.push(run);
     }
     runs.push(dir.path().join("x-mtsac-s1/"));
+    // Evaluations whose run file is gone: nothing says what they measured.
+    let orphan = dir.path().join("x-orphan");
+    std::fs::create_dir_all(&orphan).unwrap();
+    std::fs::write(orphan.join("eval-final.json"), &eval).unwrap();
+    runs.push(orphan);
     let not_a_run = dir.path().join("notes");
     std::fs::create_dir_all(&not_a_run).unwrap();
     runs.push(not_a_run);
@@ -194,7 +199,7 @@ fn a_run_left_out_of_a_multi_run_report_is_named_and_fails_the_command() {
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{err}");
-    assert!(err.contains("6 run folder(s) left out"), "{err}");
+    assert!(err.contains("7 run folder(s) left out"), "{err}");
     assert!(err.contains("notes is not a run folder"), "{err}");
     assert!(err.contains("given twice"), "{err}");
     let md = std::fs::read_to_string(out_dir.join("results.md")).unwrap();
@@ -213,6 +218,14 @@ fn a_run_left_out_of_a_multi_run_report_is_named_and_fails_the_command() {
             .unwrap_or_else(|| panic!("seed {seed} not listed: {left}"));
         assert!(line.contains(why), "seed {seed}: {line}");
     }
+    let orphan_line = left
+        .lines()
+        .find(|l| l.contains("x-orphan`"))
+        .unwrap_or_else(|| panic!("the orphan evaluation is not listed: {left}"));
+    assert!(
+        orphan_line.contains("eval-final.json") && orphan_line.contains("but no config.toml"),
+        "{orphan_line}"
+    );
     for seed in [1, 3, 7] {
         assert!(!left.contains(&format!("x-mtsac-s{seed}`")), "{left}");
     }
@@ -268,4 +281,60 @@ fn a_run_folder_whose_name_is_not_utf8_is_reported_and_a_mistyped_one_is_not_cre
     assert!(!out.status.success(), "{err}");
     assert!(err.contains("is not a folder"), "{err}");
     assert!(!dir.path().join("runs").exists(), "nothing was created");
+}
+
+/// A report into a folder that holds an earlier report of other runs names the earlier files
+/// it did not rewrite (a chart of an experiment no longer reported), and leaves them in place.
+#[test]
+fn files_of_an_earlier_report_into_the_same_folder_are_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let eval = serde_json::json!({
+        "mean_success_rate": 0.5, "mean_return": 1.0, "episodes_per_task": 50,
+        "tasks": [{"task": "reach-v3", "episodes": 50, "successes": 25,
+                   "success_rate": 0.5, "mean_return": 1.0}]
+    })
+    .to_string();
+    let mut runs = Vec::new();
+    for (experiment, seed) in [("a", 1), ("a", 2), ("b", 1)] {
+        let run = dir.path().join(format!("{experiment}-mtsac-s{seed}"));
+        std::fs::create_dir_all(&run).unwrap();
+        std::fs::write(
+            run.join("config.toml"),
+            format!(
+                "experiment = \"{experiment}\"\ntasks = \"reach-v3\"\nnum_envs = 1\n[train]\ntotal_env_steps = 1000\nseed = {seed}\n"
+            ),
+        )
+        .unwrap();
+        std::fs::write(run.join("eval-final.json"), &eval).unwrap();
+        runs.push(run);
+    }
+    let out_dir = dir.path().join("out");
+    let report = |runs: &[std::path::PathBuf]| {
+        let out = Command::new(env!("CARGO_BIN_EXE_terl"))
+            .arg("report")
+            .args(runs)
+            .arg("--out")
+            .arg(&out_dir)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert!(out.status.success(), "{err}");
+        err
+    };
+    let first = report(&runs);
+    assert!(!first.contains("from an earlier report"), "{first}");
+    let stale = out_dir.join("b-eval-success.svg");
+    assert!(stale.is_file(), "{first}");
+    let second = report(&runs[..2]);
+    for chart in ["b-eval-success.svg", "b-eval-return.png"] {
+        assert!(
+            second.contains(&format!("{chart} is from an earlier report")),
+            "{chart}: {second}"
+        );
+    }
+    assert!(
+        !second.contains("a-eval-success.svg is from"),
+        "a rewritten chart is not stale: {second}"
+    );
+    assert!(stale.is_file(), "an earlier report's file is never removed");
 }

@@ -289,6 +289,31 @@ fn resumable(resume: &Path) -> std::result::Result<(), String> {
     Ok(())
 }
 
+/// Refuses more local actors than this machine can run; `from_run` is the run's cluster.txt when
+/// `--resume` took the count from it (the message then names that file, not `--actors`).
+fn local_actor_count_fits(
+    actors: usize,
+    from_run: Option<&Path>,
+) -> std::result::Result<(), String> {
+    let most = max_local_actors();
+    if actors <= most {
+        return Ok(());
+    }
+    let asked = match from_run {
+        // Resuming on a smaller machine: the count came from the run, not from the user.
+        Some(info) => format!(
+            "{} says actors={actors} (give --actors to resume with fewer), which",
+            info.display()
+        ),
+        None => format!("--actors {actors}"),
+    };
+    Err(format!(
+        "{asked} is more than this machine can run: at most {most} local actors \
+         ({MAX_ACTORS_PER_CORE} per core, at most {MAX_LOCAL_ACTORS}; each holds its \
+         environments, ~50-150 MB); actors on other hosts join over Zenoh (docs/cluster.md)"
+    ))
+}
+
 /// The options checked and resolved as the launcher script did (same messages); `Err(code)`
 /// after printing a usage error.
 fn plan(args: UpArgs) -> std::result::Result<Plan, Result<ExitCode>> {
@@ -301,6 +326,8 @@ fn plan(args: UpArgs) -> std::result::Result<Plan, Result<ExitCode>> {
     let mut runs_root = args.runs_root.clone().unwrap_or_else(|| "runs".into());
     let mut tep_datasets = args.tep_dataset.clone();
     let mut actors = args.actors;
+    // Where the actor count came from when --resume read it from the run's cluster.txt.
+    let mut actors_from_run: Option<PathBuf> = None;
     let mut learner_addr = args.learner_addr.clone();
     let mut selector_addr = args.selector_addr.clone();
     if let Some(resume) = &args.resume {
@@ -338,7 +365,10 @@ fn plan(args: UpArgs) -> std::result::Result<Plan, Result<ExitCode>> {
             } else if let Some(n) = line.strip_prefix("actors=") {
                 if actors.is_none() {
                     match actor_count(n) {
-                        Ok(n) => actors = Some(n),
+                        Ok(n) => {
+                            actors = Some(n);
+                            actors_from_run = Some(resume.join("cluster.txt"));
+                        }
                         Err(_) => {
                             return Err(usage(format!(
                                 "--resume: {} says actors={n}, not a positive integer: give \
@@ -372,13 +402,8 @@ fn plan(args: UpArgs) -> std::result::Result<Plan, Result<ExitCode>> {
     if let Some(d) = tep_datasets.iter().find(|d| !d.is_file()) {
         return Err(usage(format!("TEP dataset not found: {}", d.display())));
     }
-    let most = max_local_actors();
-    if actors > most {
-        return Err(usage(format!(
-            "--actors {actors} is more than this machine can run: at most {most} local actors \
-             ({MAX_ACTORS_PER_CORE} per core, at most {MAX_LOCAL_ACTORS}; each holds its \
-             environments, ~50-150 MB); actors on other hosts join over Zenoh (docs/cluster.md)"
-        )));
+    if let Err(why) = local_actor_count_fits(actors, actors_from_run.as_deref()) {
+        return Err(usage(why));
     }
     let run_id = run_id.unwrap_or_else(|| {
         let name = config
@@ -444,9 +469,15 @@ pub fn up(args: UpArgs) -> Result<ExitCode> {
     // --resume could continue from either run's checkpoint.
     let out = plan.runs_root.join(&plan.run_id);
     if !plan.resume && holds_files(&out) {
+        let what = match std::fs::symlink_metadata(&out) {
+            Ok(m) if m.is_dir() => "already holds files (a run's, or others)",
+            Ok(m) if m.file_type().is_symlink() => "is a link, not a folder",
+            Ok(_) => "is a file, not a folder",
+            Err(_) => "cannot be read",
+        };
         return usage(format!(
-            "{} already holds a run: continue it with --resume {}, remove it, or choose \
-             another --run-id",
+            "{} {what}: a fresh run needs a new or empty folder; continue a stopped run there \
+             with --resume {}, remove it, or choose another --run-id",
             out.display(),
             out.display()
         ));

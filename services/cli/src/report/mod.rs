@@ -107,6 +107,7 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
     let mut anything = false;
     let mut used_names: Vec<String> = Vec::new();
     let mut left_out: Vec<(PathBuf, String)> = Vec::new();
+    let mut written: Vec<PathBuf> = Vec::new();
     for dir in runs::distinct_dirs(&args.run_dirs, "", "read once") {
         if !dir.is_dir() {
             eprintln!("note: {} is not a run folder; skipped", dir.display());
@@ -131,7 +132,10 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
                 out.join("runs").join(name)
             };
             match training::training_report(dir, &run_out, args.window, args.run_dirs.len() == 1) {
-                Ok(()) => anything = true,
+                Ok(()) => {
+                    anything = true;
+                    written.extend(training::FILES.iter().map(|f| run_out.join(f)));
+                }
                 Err(e) => eprintln!("note: no training report for {}: {e:#}", dir.display()),
             }
         }
@@ -167,10 +171,14 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
             files.extend(pngs);
         }
         print!("{md}");
-        for f in files {
+        for f in &files {
             eprintln!("wrote {}", f.display());
         }
+        written.extend(files);
         anything = true;
+    }
+    if args.run_dirs.len() > 1 {
+        note_stale_outputs(&out, &written);
     }
     if !left_out.is_empty() {
         // The report covers the rest, but a run lost from a comparison must not pass unseen.
@@ -203,6 +211,65 @@ fn left_out_section(left_out: &[(PathBuf, String)]) -> String {
         let _ = writeln!(md, "- `{}`: {}", dir.display(), why.replace('\n', " "));
     }
     md
+}
+
+/// Names on stderr the files of an earlier report into `out` that this one did not rewrite
+/// ([`stale_outputs`]).
+fn note_stale_outputs(out: &std::path::Path, written: &[PathBuf]) {
+    for stale in stale_outputs(out, written) {
+        eprintln!(
+            "note: {} is from an earlier report into {} (this one did not write it); use a \
+             fresh --out to keep only this report's files",
+            stale.display(),
+            out.display()
+        );
+    }
+}
+
+/// Files under a multi-run `--out` named as this command names its outputs (`results.*`, the
+/// `*-eval-success`/`*-eval-return` charts, `runs/*/report.md` and `learning-curves.svg`,
+/// `frames/*.png`) that are not in `written`: left by an earlier report of other runs. Only
+/// named, never removed (they may be all that is left of that report).
+fn stale_outputs(out: &std::path::Path, written: &[PathBuf]) -> Vec<PathBuf> {
+    let files_in = |dir: PathBuf| -> Vec<PathBuf> {
+        std::fs::read_dir(dir).map_or_else(
+            |_| Vec::new(),
+            |rd| rd.filter_map(|e| e.ok().map(|e| e.path())).collect(),
+        )
+    };
+    let name_of = |p: &PathBuf| {
+        p.file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    };
+    let mut ours: Vec<PathBuf> = files_in(out.to_path_buf())
+        .into_iter()
+        .filter(|p| {
+            let n = name_of(p);
+            n == "results.md"
+                || n == "results.json"
+                || [".svg", ".png"].iter().any(|ext| {
+                    n.strip_suffix(ext).is_some_and(|s| {
+                        s.ends_with("-eval-success") || s.ends_with("-eval-return")
+                    })
+                })
+        })
+        .collect();
+    for run in files_in(out.join("runs")) {
+        ours.extend(
+            files_in(run)
+                .into_iter()
+                .filter(|p| training::FILES.contains(&name_of(p).as_str())),
+        );
+    }
+    ours.extend(
+        files_in(out.join("frames"))
+            .into_iter()
+            .filter(|p| name_of(p).ends_with(".png")),
+    );
+    ours.retain(|p| p.is_file() && !written.contains(p));
+    ours.sort();
+    ours
 }
 
 /// `--out`, else the run folder for one run (which must exist: a mistyped one is not created),

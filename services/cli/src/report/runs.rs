@@ -165,6 +165,19 @@ fn read_eval_file(path: &Path) -> Result<String> {
 pub fn load_run(dir: &Path) -> Result<RunEval> {
     let cfg_path = dir.join("config.toml");
     if !present_file(&cfg_path).with_context(|| format!("{}: its run file", dir.display()))? {
+        // Evaluations without the run file that says what they measured are a damaged run,
+        // left out loudly, not a folder that merely is not a run.
+        let orphans: Vec<&str> = [FINAL_EVAL, "eval.mcap", "progress.jsonl"]
+            .into_iter()
+            .filter(|f| std::fs::symlink_metadata(dir.join(f)).is_ok())
+            .collect();
+        anyhow::ensure!(
+            orphans.is_empty(),
+            "{} has evaluations ({}) but no config.toml, the run file that names their tasks \
+             and algorithm",
+            dir.display(),
+            orphans.join(", ")
+        );
         return Err(NoEvaluations(format!(
             "{} is not a run folder (no config.toml)",
             dir.display()
@@ -185,13 +198,11 @@ pub fn load_run(dir: &Path) -> Result<RunEval> {
             cfg.eval_envs_per_task * cfg.train.eval_episodes_per_env,
         )?);
     }
-    let terl_telemetry::RunLog {
-        records: evals,
-        cut,
-    } = terl_telemetry::read_run_log::<terl_wire::EvalResult>(dir, "eval")?;
-    for c in cut {
-        eprintln!("{c}");
+    let eval_log = terl_telemetry::read_run_log::<terl_wire::EvalResult>(dir, "eval")?;
+    for note in eval_log.notes() {
+        eprintln!("{note}");
     }
+    let evals = eval_log.records;
     points.extend(evals.iter().map(|e| {
         let by_name: BTreeMap<&str, f64> = e
             .tasks

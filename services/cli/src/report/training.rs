@@ -247,6 +247,9 @@ fn eval_markdown(evals: &[terl_wire::EvalResult]) -> String {
     s
 }
 
+/// The files [`training_report`] writes into its folder.
+pub(super) const FILES: [&str; 2] = ["report.md", "learning-curves.svg"];
+
 /// `report.md` and `learning-curves.svg` of one cluster run's training episodes.
 pub(super) fn training_report(
     run_dir: &Path,
@@ -260,14 +263,14 @@ pub(super) fn training_report(
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     // A cut eval.mcap is noted by runs::load_run, which reads it for every run folder.
     let evals = read_run_log::<terl_wire::EvalResult>(run_dir, "eval")?.records;
-    for c in episodes.cut.iter().chain(&metrics.cut) {
-        eprintln!("{c}");
+    for note in episodes.notes().into_iter().chain(metrics.notes()) {
+        eprintln!("{note}");
     }
     let mut md = markdown(run_dir, &rows, window, &metrics.records);
     md.push_str(&eval_markdown(&evals));
-    let md_path = out.join("report.md");
+    let md_path = out.join(FILES[0]);
     std::fs::write(&md_path, &md).with_context(|| format!("writing {}", md_path.display()))?;
-    let svg_path = out.join("learning-curves.svg");
+    let svg_path = out.join(FILES[1]);
     std::fs::write(&svg_path, svg(&rows, window))
         .with_context(|| format!("writing {}", svg_path.display()))?;
     if print {
