@@ -298,7 +298,9 @@ pub(crate) fn read_channel<T>(
             });
         }
         let reason = stop.reason(size);
-        warn!(
+        // The caller gets the reason in `stopped` and tells its user in its own words (every
+        // caller does); a warning here as well doubled each of those messages.
+        debug!(
             path = %path.display(),
             messages = state.out.items.len(),
             "{} is read only in part: {reason}; keeping the messages before that point",
@@ -332,7 +334,7 @@ pub(crate) fn read_channel<T>(
                  found: the others were lost to a damaged record",
                 channel.topic
             );
-            warn!(path = %path.display(), "{} is read only in part: {reason}", channel.what);
+            debug!(path = %path.display(), "{} is read only in part: {reason}", channel.what);
             state.out.stopped = Some(reason);
         } else if got != expected {
             warn!(

@@ -62,6 +62,11 @@ fn report_keeps_the_episodes_before_a_damaged_record_length() {
             && stderr.contains("using the 30 records"),
         "{stderr}"
     );
+    assert_eq!(
+        stderr.matches("read only in part").count(),
+        1,
+        "one damage, one message: {stderr}"
+    );
     let md = std::fs::read_to_string(run.join("report.md")).unwrap();
     // Episodes 0..30 of reach-v3: every other one a success, returns 0..29 (mean 14.5).
     assert!(
