@@ -61,11 +61,13 @@
 #                                    about 10 % more wall time on MT10 workstation) or
 #                                    asynchronous; TERL runs are asynchronous
 #                                    (docs/cluster.md#reproducible-runs)
-#   --variant NAME                   mt1-ind, mt10, mt20: the run file's variant of every run
-#                                    (lower-case letters, digits and -), also in the run ids, so
-#                                    `terl report` groups these runs apart from the same
-#                                    algorithm without it, e.g. --mode asynchronous --variant
-#                                    asynchronous beside the default reproducible runs
+#   --variant NAME                   mt1-ind, mt10, mt20: the run file's variant of the runs
+#                                    that have none of their own (1 to 24 lower-case letters and
+#                                    digits), also in their run ids, so `terl report` groups them
+#                                    apart from the same algorithm without it, e.g.
+#                                    --mode asynchronous --variant asynchronous beside the default
+#                                    reproducible runs; MT10 TERL from MT1-Ind uses the MT1-Ind
+#                                    TERL datasets of the same variant
 # A run whose eval-final.json exists is skipped, so an interrupted experiment resumes where it
 # stopped (a run stopped mid-way starts again from scratch). A run whose id is held by running
 # processes is not touched. A failed run does not stop the others; the script then exits 1.
@@ -130,10 +132,15 @@ while [ $# -gt 0 ]; do
 done
 case "$scale" in workstation|paper|smoke) ;; *) echo "--scale must be workstation, paper or smoke" >&2; exit 2 ;; esac
 case "$mode" in reproducible|asynchronous) ;; *) echo "--mode must be reproducible or asynchronous" >&2; exit 2 ;; esac
-case "$variant" in
-    "") ;;
-    *[!a-z0-9-]*|-*) echo "--variant must be lower-case letters, digits and - (got \"$variant\")" >&2; exit 2 ;;
-esac
+if [ -n "$variant" ]; then
+    case "$variant" in
+        *[!a-z0-9]*) echo "--variant must be 1 to 24 lower-case letters and digits (got \"$variant\")" >&2; exit 2 ;;
+    esac
+    [ ${#variant} -le 24 ] || { echo "--variant must be 1 to 24 lower-case letters and digits (got ${#variant} characters)" >&2; exit 2; }
+    case "$experiment" in
+        mt-test|terl-pipeline) echo "--variant applies to mt1-ind, mt10 and mt20 runs, not to $experiment" >&2; exit 2 ;;
+    esac
+fi
 for a in $algorithms; do
     case "$a" in mtsac|terl|care) ;; *) echo "unknown algorithm $a (mtsac, terl or care)" >&2; exit 2 ;; esac
 done
@@ -239,8 +246,21 @@ train_run() {
     local id=$1 config=$2
     shift 2
     local dir="$runs/$id"
+    if [ ${#id} -gt 64 ]; then
+        cat > /dev/null
+        say "$id: a run id has at most 64 characters (shorten --tag or --variant)"
+        return 1
+    fi
     if [ -f "$dir/eval-final.json" ]; then
-        cat > /dev/null # the run file on stdin (the writer would fail on a closed pipe)
+        # The run file on stdin (read whole: the writer would fail on a closed pipe) must be the
+        # finished run's, so that a run of other settings under the same id is never skipped.
+        local want have
+        want=$(grep -E '^(experiment|tasks|algorithm|variant) *=' | sort)
+        have=$(grep -E '^(experiment|tasks|algorithm|variant) *=' "$dir/config.toml" 2>/dev/null | sort)
+        if [ "$want" != "$have" ]; then
+            say "$id: $dir holds a finished run of other settings ($(echo $have)); not touched"
+            return 1
+        fi
         say "$id: done already ($dir/eval-final.json)"
         return 0
     fi
@@ -326,7 +346,10 @@ case "$experiment" in
             if [ "$alg" = terl ] && [ "$experiment" = mt10 ]; then
                 datasets=()
                 for f in "$runs"/mt1-ind-terl-*-s"$seed$tag"/tep-dataset.mcap; do
-                    [ -f "$f" ] && datasets+=(--tep-dataset "$f")
+                    # Only the MT1-Ind runs of this variant (or of none, without --variant).
+                    [ -f "$f" ] || continue
+                    v=$(sed -n 's/^variant *= *"\(.*\)".*/\1/p' "$(dirname "$f")/config.toml")
+                    [ "$v" = "$variant" ] && datasets+=(--tep-dataset "$f")
                 done
                 if [ ${#datasets[@]} -eq 0 ]; then
                     say "no MT1-Ind TERL datasets of seed $seed (run mt1-ind first): skipping TERL from MT1-Ind"

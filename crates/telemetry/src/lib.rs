@@ -108,6 +108,22 @@ pub fn existing_paths(run_dir: &Path, stem: &str) -> Vec<PathBuf> {
         .collect()
 }
 
+/// The segments of a run's `<stem>` log that [`read_run_log`] does not read because an earlier
+/// segment is missing (`<stem>.3.mcap` without `<stem>.2.mcap`, or any `<stem>.<k>.mcap`
+/// without `<stem>.mcap`), sorted by k.
+pub fn unread_segments(run_dir: &Path, stem: &str) -> Vec<PathBuf> {
+    segments_after_gap(run_dir, stem, existing_paths(run_dir, stem).len() as u64)
+}
+
+/// The note a report gives for a segment [`unread_segments`] names.
+pub fn unread_segment_note(path: &Path) -> String {
+    format!(
+        "note: {} is not read: an earlier segment of the same log is missing, so its place in \
+         the run is unknown",
+        path.display()
+    )
+}
+
 /// The segments of a log numbered past a gap: `<stem>.<k>.mcap` with k > `read + 1` when
 /// [`existing_paths`] found `read` segments (it stops at the first missing one), sorted by k.
 /// Unreadable folders give none (the segments already found are read as usual).
@@ -120,12 +136,18 @@ pub(crate) fn segments_after_gap(run_dir: &Path, stem: &str, read: u64) -> Vec<P
         .filter_map(|e| e.ok())
         .filter_map(|e| {
             let name = e.file_name();
-            let k = name
+            let digits = name
                 .to_str()?
                 .strip_prefix(&prefix)?
-                .strip_suffix(".mcap")?
-                .parse::<u64>()
-                .ok()?;
+                .strip_suffix(".mcap")?;
+            // Only the names fresh_path hands out: plain decimal, no sign, no leading zero.
+            if digits.is_empty()
+                || digits.starts_with('0')
+                || !digits.bytes().all(|b| b.is_ascii_digit())
+            {
+                return None;
+            }
+            let k = digits.parse::<u64>().ok()?;
             (k > read + 1).then(|| (k, e.path()))
         })
         .collect();

@@ -209,13 +209,7 @@ impl<R> RunLog<R> {
     /// [`CutSegment`]s, then the [`RunLog::unread`] segments past a gap.
     pub fn notes(&self) -> Vec<String> {
         let mut notes: Vec<String> = self.cut.iter().map(ToString::to_string).collect();
-        notes.extend(self.unread.iter().map(|p| {
-            format!(
-                "note: {} is not read: an earlier segment of the same log is missing, so its \
-                 place in the run is unknown",
-                p.display()
-            )
-        }));
+        notes.extend(self.unread.iter().map(|p| crate::unread_segment_note(p)));
         notes
     }
 }
@@ -364,8 +358,15 @@ mod tests {
         write_segment(dir.join("metrics.4.mcap"), 10..12);
         write_segment(dir.join("metrics.3.mcap"), 7..9);
         // Names that only look like segments are not segments.
-        std::fs::write(dir.join("metrics.x.mcap"), b"").unwrap();
-        std::fs::write(dir.join("metrics.2.mcap.part"), b"").unwrap();
+        for name in [
+            "metrics.x.mcap",
+            "metrics.2.mcap.part",
+            "metrics.05.mcap",
+            "metrics.+6.mcap",
+            "metrics.99999999999999999999.mcap",
+        ] {
+            std::fs::write(dir.join(name), b"").unwrap();
+        }
         let log = read_run_log::<Metric>(&dir, "metrics").unwrap();
         assert_eq!(log.records, (0..3).map(metric).collect::<Vec<_>>());
         assert_eq!(
@@ -375,6 +376,15 @@ mod tests {
         let notes = log.notes();
         assert_eq!(notes.len(), 2);
         assert!(notes[0].contains("metrics.3.mcap is not read"), "{notes:?}");
+        assert_eq!(
+            crate::unread_segments(&dir, "metrics"),
+            log.unread,
+            "the same segments without reading the log"
+        );
+        // Without the first segment nothing is read and every numbered one is named.
+        std::fs::rename(dir.join("metrics.mcap"), dir.join("first.mcap")).unwrap();
+        assert_eq!(crate::unread_segments(&dir, "metrics").len(), 2);
+        std::fs::rename(dir.join("first.mcap"), dir.join("metrics.mcap")).unwrap();
         // With the gap filled every segment is read, in order.
         write_segment(dir.join("metrics.2.mcap"), 3..7);
         let log = read_run_log::<Metric>(&dir, "metrics").unwrap();

@@ -9,6 +9,7 @@ mod certs;
 mod cluster;
 mod env;
 mod eval;
+mod folder_lock;
 mod font;
 mod planner;
 mod render;

@@ -323,46 +323,6 @@ pub(crate) fn remove_stale_parts(dir: &Path) -> usize {
     removed
 }
 
-/// An exclusive lock on `<dir>/.render.lock` (released when the file is dropped or the
-/// process ends, however it ends): a second render into the same folder is refused instead of
-/// mixing its files and `render.json` with the first's.
-fn lock_folder(dir: &Path) -> Result<std::fs::File> {
-    use std::os::unix::fs::OpenOptionsExt;
-    let path = dir.join(".render.lock");
-    let not_a_file = || {
-        anyhow::anyhow!(
-            "{} is not a regular file (a pipe, device or link?): remove it, or choose another \
-             --out",
-            path.display()
-        )
-    };
-    if std::fs::symlink_metadata(&path).is_ok_and(|m| !m.is_file()) {
-        return Err(not_a_file());
-    }
-    // Non-blocking and not through a link: what appears under the name after the check above
-    // fails to open or is refused below instead of blocking the open.
-    let file = std::fs::OpenOptions::new()
-        .create(true)
-        .truncate(false)
-        .write(true)
-        .custom_flags(nix::libc::O_NONBLOCK | nix::libc::O_NOFOLLOW)
-        .open(&path)
-        .with_context(|| format!("opening {}", path.display()))?;
-    if !file.metadata().is_ok_and(|m| m.is_file()) {
-        return Err(not_a_file());
-    }
-    match file.try_lock() {
-        Ok(()) => Ok(file),
-        Err(std::fs::TryLockError::WouldBlock) => bail!(
-            "another terl render is writing into {}; wait for it or choose another --out",
-            dir.display()
-        ),
-        Err(std::fs::TryLockError::Error(e)) => {
-            Err(e).with_context(|| format!("locking {}", path.display()))
-        }
-    }
-}
-
 /// Writes `path` through [`part_path`] and a rename (`write` gets the temporary path).
 fn write_atomically(path: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
     let part = part_path(path);
@@ -591,7 +551,11 @@ pub fn run(args: RenderArgs) -> Result<ExitCode> {
             // names only this render's finished episodes.
             std::fs::create_dir_all(&args.out)
                 .with_context(|| format!("creating {}", args.out.display()))?;
-            lock = Some(lock_folder(&args.out)?);
+            lock = Some(crate::folder_lock::lock_folder(
+                &args.out,
+                ".render.lock",
+                "terl render",
+            )?);
             let stale = remove_stale_parts(&args.out);
             if stale > 0 {
                 eprintln!(

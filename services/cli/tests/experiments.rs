@@ -69,11 +69,22 @@ fn experiment_scripts_train_evaluate_and_report() {
         assert_eq!(out.status.code(), Some(2), "--learner-threads {bad}");
         assert!(String::from_utf8_lossy(&out.stderr).contains("--learner-threads"));
     }
-    // A variant names run folders and report groups: only a plain label is taken.
-    for bad in ["Async", "a b", "-x", "a/b"] {
+    // A variant names run folders and report groups: only a plain short label is taken, and
+    // only where it has an effect.
+    for (experiment, bad) in [
+        ("mt1-ind", "Async"),
+        ("mt1-ind", "a b"),
+        ("mt1-ind", "-x"),
+        ("mt1-ind", "a/b"),
+        // A dash would let "coffee" + "push" name the same run as coffee-push.
+        ("mt1-ind", "coffee-"),
+        ("mt10", "abcdefghijklmnopqrstuvwxy"),
+        ("mt-test", "x"),
+        ("terl-pipeline", "x"),
+    ] {
         let out = Command::new(root.join("deploy/experiments/run.sh"))
             .current_dir(&root)
-            .args(["mt1-ind", "--variant", bad, "--no-build"])
+            .args([experiment, "--variant", bad, "--no-build"])
             .args(["--runs-root", runs.to_str().unwrap()])
             .output()
             .unwrap();
@@ -94,6 +105,34 @@ fn experiment_scripts_train_evaluate_and_report() {
     // A finished run is not trained again.
     let again = run_experiment(&root, runs, "mt1-ind");
     assert!(again.contains("done already"), "{again}");
+    // A finished run of other settings under the same id is neither skipped nor touched.
+    let mtsac_config = runs.join(format!("mt1-ind-mtsac-reach-s1{}/config.toml", tag()));
+    let original = std::fs::read_to_string(&mtsac_config).unwrap();
+    std::fs::write(
+        &mtsac_config,
+        original.replace("tasks = \"reach-v3\"", "tasks = \"push-v3\""),
+    )
+    .unwrap();
+    let out = Command::new(root.join("deploy/experiments/run.sh"))
+        .current_dir(&root)
+        .args([
+            "mt1-ind", "--scale", "smoke", "--seeds", "1", "--actors", "1",
+        ])
+        .args(["--algorithms", "mtsac", "--no-build"])
+        .args(["--runs-root", runs.to_str().unwrap()])
+        .args(["--tag", &format!("it{}", std::process::id())])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("holds a finished run of other settings"),
+        "{err}"
+    );
+    assert!(runs
+        .join(format!("mt1-ind-mtsac-reach-s1{}/eval-final.json", tag()))
+        .is_file());
+    std::fs::write(&mtsac_config, original).unwrap();
 
     let log = run_experiment(&root, runs, "mt10");
     assert!(log.contains("mt10-terl-from-mt1-ind-s1"), "{log}");

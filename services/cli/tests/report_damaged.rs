@@ -189,6 +189,11 @@ fn a_run_left_out_of_a_multi_run_report_is_named_and_fails_the_command() {
     std::fs::create_dir_all(&orphan).unwrap();
     std::fs::write(orphan.join("eval-final.json"), &eval).unwrap();
     runs.push(orphan);
+    // The same with only a later segment of the in-run evaluations.
+    let orphan_segment = dir.path().join("x-orphan-segment");
+    std::fs::create_dir_all(&orphan_segment).unwrap();
+    std::fs::write(orphan_segment.join("eval.2.mcap"), b"").unwrap();
+    runs.push(orphan_segment);
     let not_a_run = dir.path().join("notes");
     std::fs::create_dir_all(&not_a_run).unwrap();
     runs.push(not_a_run);
@@ -204,7 +209,7 @@ fn a_run_left_out_of_a_multi_run_report_is_named_and_fails_the_command() {
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{err}");
-    assert!(err.contains("7 run folder(s) left out"), "{err}");
+    assert!(err.contains("8 run folder(s) left out"), "{err}");
     assert!(err.contains("notes is not a run folder"), "{err}");
     assert!(err.contains("given twice"), "{err}");
     let md = std::fs::read_to_string(out_dir.join("results.md")).unwrap();
@@ -230,6 +235,11 @@ fn a_run_left_out_of_a_multi_run_report_is_named_and_fails_the_command() {
     assert!(
         orphan_line.contains("eval-final.json") && orphan_line.contains("but no config.toml"),
         "{orphan_line}"
+    );
+    assert!(
+        left.lines()
+            .any(|l| l.contains("x-orphan-segment`") && l.contains("eval.2.mcap")),
+        "{left}"
     );
     for seed in [1, 3, 7] {
         assert!(!left.contains(&format!("x-mtsac-s{seed}`")), "{left}");
@@ -326,8 +336,11 @@ fn files_of_an_earlier_report_into_the_same_folder_are_named() {
         assert!(out.status.success(), "{err}");
         err
     };
+    // A training log whose first segment is missing is named, not silently passed over.
+    std::fs::write(runs[2].join("episodes.2.mcap"), b"").unwrap();
     let first = report(&runs);
     assert!(!first.contains("from an earlier report"), "{first}");
+    assert!(first.contains("episodes.2.mcap is not read"), "{first}");
     let stale = out_dir.join("b-eval-success.svg");
     assert!(stale.is_file(), "{first}");
     let second = report(&runs[..2]);
@@ -342,4 +355,29 @@ fn files_of_an_earlier_report_into_the_same_folder_are_named() {
         "a rewritten chart is not stale: {second}"
     );
     assert!(stale.is_file(), "an earlier report's file is never removed");
+    // A report already writing into the folder (here: its lock held) refuses a second one.
+    let mut holder = Command::new("flock")
+        .arg(&out_dir)
+        .args(["sleep", "30"])
+        .spawn()
+        .unwrap();
+    let mut refused = None;
+    for _ in 0..100 {
+        let out = Command::new(env!("CARGO_BIN_EXE_terl"))
+            .arg("report")
+            .args(&runs)
+            .arg("--out")
+            .arg(&out_dir)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr).into_owned();
+        if err.contains("another terl report is writing into") {
+            refused = Some(out.status.code());
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    holder.kill().unwrap();
+    holder.wait().unwrap();
+    assert_eq!(refused, Some(Some(1)), "the second report was not refused");
 }

@@ -469,16 +469,31 @@ pub fn up(args: UpArgs) -> Result<ExitCode> {
     // --resume could continue from either run's checkpoint.
     let out = plan.runs_root.join(&plan.run_id);
     if !plan.resume && holds_files(&out) {
-        let what = match std::fs::symlink_metadata(&out) {
-            Ok(m) if m.is_dir() => "already holds files (a run's, or others)",
-            Ok(m) if m.file_type().is_symlink() => "is a link, not a folder",
-            Ok(_) => "is a file, not a folder",
-            Err(_) => "cannot be read",
+        let (what, resume) = match std::fs::symlink_metadata(&out) {
+            Ok(m) if m.is_dir() && std::fs::read_dir(&out).is_err() => {
+                ("is a folder this user cannot read", false)
+            }
+            Ok(m) if m.is_dir() => ("already holds files (a run's, or others)", true),
+            Ok(m) if m.file_type().is_symlink() => ("is a link, not a folder", false),
+            Ok(_) => ("is a file, not a folder", false),
+            Err(e) => {
+                return usage(format!(
+                    "{} cannot be used as the run folder: {e} (is --runs-root a folder?)",
+                    out.display()
+                ))
+            }
+        };
+        let resume = if resume {
+            format!(
+                "continue a stopped run there with --resume {}, ",
+                out.display()
+            )
+        } else {
+            String::new()
         };
         return usage(format!(
-            "{} {what}: a fresh run needs a new or empty folder; continue a stopped run there \
-             with --resume {}, remove it, or choose another --run-id",
-            out.display(),
+            "{} {what}: a fresh run needs a new or empty folder; {resume}remove it, or choose \
+             another --run-id",
             out.display()
         ));
     }

@@ -75,7 +75,8 @@ pub const MAX_BOOTSTRAP_REPS: usize = 1_000_000;
 /// Longest rolling window `--window` and `--last-evals` accept.
 pub const MAX_WINDOW: usize = 1_000_000;
 
-pub fn run(args: ReportArgs) -> Result<ExitCode> {
+/// Refuses option values outside their bounds before anything is read or written.
+fn check_bounds(args: &ReportArgs) -> Result<()> {
     anyhow::ensure!(
         (1..=MAX_WINDOW).contains(&args.window),
         "--window must be in 1..={MAX_WINDOW}"
@@ -88,6 +89,11 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
         (1..=MAX_BOOTSTRAP_REPS).contains(&args.bootstrap_reps),
         "--bootstrap-reps must be in 1..={MAX_BOOTSTRAP_REPS}"
     );
+    Ok(())
+}
+
+pub fn run(args: ReportArgs) -> Result<ExitCode> {
+    check_bounds(&args)?;
     // The qualitative figure's runs are checked before anything is written.
     let frames = if args.frames_from.is_empty() {
         None
@@ -103,17 +109,31 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
     };
     let out = out_dir(&args)?;
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
+    // Two reports into one folder would overwrite each other's tables and charts.
+    let _lock = if args.run_dirs.len() > 1 {
+        Some(crate::folder_lock::lock_dir(&out, "terl report")?)
+    } else {
+        None
+    };
     let mut evaluated = Vec::new();
     let mut anything = false;
     let mut used_names: Vec<String> = Vec::new();
     let mut left_out: Vec<(PathBuf, String)> = Vec::new();
+    // Every file this report wrote or tried to write (a failed write leaves nothing stale).
     let mut written: Vec<PathBuf> = Vec::new();
     for dir in runs::distinct_dirs(&args.run_dirs, "", "read once") {
         if !dir.is_dir() {
             eprintln!("note: {} is not a run folder; skipped", dir.display());
             continue;
         }
-        if !terl_telemetry::existing_paths(dir, "episodes").is_empty() {
+        if terl_telemetry::existing_paths(dir, "episodes").is_empty() {
+            // Without a first segment no training log is read: the later ones are named.
+            for stem in ["episodes", "metrics"] {
+                for p in terl_telemetry::unread_segments(dir, stem) {
+                    eprintln!("{}", terl_telemetry::unread_segment_note(&p));
+                }
+            }
+        } else {
             // One run: its training report goes to --out (default: the run folder). Several:
             // each goes to a folder of its own under --out, never into the run folders.
             let run_out = if args.run_dirs.len() == 1 {
@@ -131,11 +151,9 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
                 used_names.push(name.clone());
                 out.join("runs").join(name)
             };
+            written.extend(training::FILES.iter().map(|f| run_out.join(f)));
             match training::training_report(dir, &run_out, args.window, args.run_dirs.len() == 1) {
-                Ok(()) => {
-                    anything = true;
-                    written.extend(training::FILES.iter().map(|f| run_out.join(f)));
-                }
+                Ok(()) => anything = true,
                 Err(e) => eprintln!("note: no training report for {}: {e:#}", dir.display()),
             }
         }
@@ -216,11 +234,20 @@ fn left_out_section(left_out: &[(PathBuf, String)]) -> String {
 /// Names on stderr the files of an earlier report into `out` that this one did not rewrite
 /// ([`stale_outputs`]).
 fn note_stale_outputs(out: &std::path::Path, written: &[PathBuf]) {
-    for stale in stale_outputs(out, written) {
+    const LISTED: usize = 20;
+    let stale = stale_outputs(out, written);
+    for path in stale.iter().take(LISTED) {
         eprintln!(
             "note: {} is from an earlier report into {} (this one did not write it); use a \
              fresh --out to keep only this report's files",
-            stale.display(),
+            path.display(),
+            out.display()
+        );
+    }
+    if stale.len() > LISTED {
+        eprintln!(
+            "note: and {} more files of earlier reports in {}",
+            stale.len() - LISTED,
             out.display()
         );
     }
@@ -256,6 +283,13 @@ fn stale_outputs(out: &std::path::Path, written: &[PathBuf]) -> Vec<PathBuf> {
         })
         .collect();
     for run in files_in(out.join("runs")) {
+        // A run folder itself (`--out .` beside `runs/`): its report.md is that run's own.
+        if ["config.toml", "cluster.txt", "episodes.mcap"]
+            .iter()
+            .any(|f| std::fs::symlink_metadata(run.join(f)).is_ok())
+        {
+            continue;
+        }
         ours.extend(
             files_in(run)
                 .into_iter()

@@ -167,10 +167,17 @@ pub fn load_run(dir: &Path) -> Result<RunEval> {
     if !present_file(&cfg_path).with_context(|| format!("{}: its run file", dir.display()))? {
         // Evaluations without the run file that says what they measured are a damaged run,
         // left out loudly, not a folder that merely is not a run.
-        let orphans: Vec<&str> = [FINAL_EVAL, "eval.mcap", "progress.jsonl"]
+        let mut orphans: Vec<String> = [FINAL_EVAL, "progress.jsonl"]
             .into_iter()
             .filter(|f| std::fs::symlink_metadata(dir.join(f)).is_ok())
+            .map(String::from)
             .collect();
+        let eval_segments = terl_telemetry::existing_paths(dir, "eval")
+            .into_iter()
+            .chain(terl_telemetry::unread_segments(dir, "eval"));
+        orphans.extend(
+            eval_segments.filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned())),
+        );
         anyhow::ensure!(
             orphans.is_empty(),
             "{} has evaluations ({}) but no config.toml, the run file that names their tasks \
