@@ -182,12 +182,21 @@ pub fn markdown(summary: &Summary) -> String {
             .collect();
         let _ = writeln!(s, "| task | {} |", header.join(" | "));
         let _ = writeln!(s, "|---|{}", "---|".repeat(groups.len()));
-        for (k, task) in groups[0].tasks.iter().enumerate() {
+        // Every task of any group, in the order the groups name them; a group's cell is found
+        // by the task's name (groups of one experiment may cover different tasks).
+        let mut tasks: Vec<&String> = Vec::new();
+        for t in groups.iter().flat_map(|g| &g.tasks) {
+            if !tasks.contains(&t) {
+                tasks.push(t);
+            }
+        }
+        for task in tasks {
             let cells: Vec<String> = groups
                 .iter()
                 .map(|g| {
                     g.per_task
-                        .get(k)
+                        .iter()
+                        .find(|(t, _, _)| t == task)
                         .map_or("—".into(), |(_, m, sd)| format!("{m:.1} ± {sd:.1}"))
                 })
                 .collect();

@@ -281,6 +281,28 @@ fn tasks_trained_alone_are_averaged_per_seed_then_over_seeds() {
     // The same task twice for one seed is refused.
     let twice = vec![one("door-open-v3", 1, 1.0), one("door-open-v3", 1, 0.0)];
     assert!(summarize(&twice, &opts()).is_err());
+
+    // A second group of the experiment on other tasks (a variant run on a subset): each
+    // per-task cell is that task's, found by name, and a task a group lacks is a dash.
+    let mut with_variant = runs.clone();
+    for (task, seed, s) in [("window-open-v3", 1, 0.2), ("sweep-into-v3", 1, 0.9)] {
+        let mut r = one(task, seed, s);
+        r.algorithm = "mtsac (asynchronous)".into();
+        with_variant.push(r);
+    }
+    let md = markdown(&summary(&with_variant, &opts()).unwrap());
+    let row = |task: &str| {
+        md.lines()
+            .find(|l| l.starts_with(&format!("| {task} |")))
+            .unwrap_or_else(|| panic!("no row for {task}: {md}"))
+            .to_string()
+    };
+    assert_eq!(row("door-open-v3"), "| door-open-v3 | 75.0 ± 35.4 | — |");
+    assert_eq!(
+        row("window-open-v3"),
+        "| window-open-v3 | 25.0 ± 35.4 | 20.0 ± 0.0 |"
+    );
+    assert_eq!(row("sweep-into-v3"), "| sweep-into-v3 | — | 90.0 ± 0.0 |");
 }
 
 #[test]
