@@ -47,12 +47,27 @@ async fn status(addr: &str) -> Option<terl_wire::LearnerStatus> {
     client.status().await.ok()
 }
 
-/// Waits for the trainer to create the checkpoint folder, then replaces it with a file.
+/// Waits for the trainer to write its first periodic checkpoint, then replaces the folder with a
+/// file.
 fn break_checkpoint_folder(dir: &Path) {
     let start = Instant::now();
+    // After the first periodic checkpoint the learner has opened the folder and is training:
+    // breaking it earlier fails the learner's start-up instead (a race on a loaded machine).
+    let holds_a_checkpoint = || {
+        std::fs::read_dir(dir).is_ok_and(|d| {
+            d.filter_map(Result::ok).any(|e| {
+                let name = e.file_name().to_string_lossy().into_owned();
+                name.starts_with("update-") && name.ends_with(".safetensors")
+            })
+        })
+    };
     loop {
-        assert!(start.elapsed() < LIMIT, "{} never appeared", dir.display());
-        if dir.is_dir() && std::fs::remove_dir_all(dir).is_ok() {
+        assert!(
+            start.elapsed() < LIMIT,
+            "{} never held a checkpoint",
+            dir.display()
+        );
+        if holds_a_checkpoint() && std::fs::remove_dir_all(dir).is_ok() {
             std::fs::write(dir, "a file where the checkpoint folder was").unwrap();
             return;
         }

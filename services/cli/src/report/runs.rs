@@ -165,9 +165,10 @@ fn read_eval_file(path: &Path) -> Result<String> {
 pub fn load_run(dir: &Path) -> Result<RunEval> {
     let cfg_path = dir.join("config.toml");
     if !present_file(&cfg_path).with_context(|| format!("{}: its run file", dir.display()))? {
-        // Evaluations without the run file that says what they measured are a damaged run,
-        // left out loudly, not a folder that merely is not a run.
-        let mut orphans: Vec<String> = [FINAL_EVAL, "progress.jsonl"]
+        // Evaluations without the run file that says what they measured (a run whose
+        // services were started one by one, not by the launcher, has none) cannot enter a
+        // table; they are named so that nobody takes them for an empty folder.
+        let mut found: Vec<String> = [FINAL_EVAL, "progress.jsonl"]
             .into_iter()
             .filter(|f| std::fs::symlink_metadata(dir.join(f)).is_ok())
             .map(String::from)
@@ -175,21 +176,21 @@ pub fn load_run(dir: &Path) -> Result<RunEval> {
         let eval_segments = terl_telemetry::existing_paths(dir, "eval")
             .into_iter()
             .chain(terl_telemetry::unread_segments(dir, "eval"));
-        orphans.extend(
+        found.extend(
             eval_segments.filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned())),
         );
-        anyhow::ensure!(
-            orphans.is_empty(),
-            "{} has evaluations ({}) but no config.toml, the run file that names their tasks \
-             and algorithm",
-            dir.display(),
-            orphans.join(", ")
-        );
-        return Err(NoEvaluations(format!(
-            "{} is not a run folder (no config.toml)",
-            dir.display()
-        ))
-        .into());
+        let why = if found.is_empty() {
+            format!("{} is not a run folder (no config.toml)", dir.display())
+        } else {
+            format!(
+                "{} has evaluations ({}) but no config.toml, the run file that names their \
+                 tasks and algorithm (the launcher writes it; give the run's file there to \
+                 report them)",
+                dir.display(),
+                found.join(", ")
+            )
+        };
+        return Err(NoEvaluations(why).into());
     }
     let cfg = RunConfig::load(&cfg_path)
         .with_context(|| format!("{}: its run file cannot be read", dir.display()))?;
