@@ -34,6 +34,20 @@ pub(crate) fn lock_folder(dir: &Path, name: &str, command: &str) -> Result<std::
     if !file.metadata().is_ok_and(|m| m.is_file()) {
         return Err(not_a_file());
     }
+    exclusive(file, &path, dir, command)
+}
+
+/// An exclusive lock on the folder `dir` itself (`flock` of the folder, no file made in it;
+/// released when the handle is dropped or the process ends): a second `command` into the same
+/// folder is refused. Errors: the lock is held, or the folder cannot be opened.
+pub(crate) fn lock_dir(dir: &Path, command: &str) -> Result<std::fs::File> {
+    let handle = std::fs::File::open(dir).with_context(|| format!("opening {}", dir.display()))?;
+    exclusive(handle, dir, dir, command)
+}
+
+/// Takes the exclusive lock of `file` (opened from `path`) without waiting: held elsewhere, it
+/// refuses a second `command` into `dir`.
+fn exclusive(file: std::fs::File, path: &Path, dir: &Path, command: &str) -> Result<std::fs::File> {
     match file.try_lock() {
         Ok(()) => Ok(file),
         Err(std::fs::TryLockError::WouldBlock) => bail!(
@@ -42,23 +56,6 @@ pub(crate) fn lock_folder(dir: &Path, name: &str, command: &str) -> Result<std::
         ),
         Err(std::fs::TryLockError::Error(e)) => {
             Err(e).with_context(|| format!("locking {}", path.display()))
-        }
-    }
-}
-
-/// An exclusive lock on the folder `dir` itself (`flock` of the folder, no file made in it;
-/// released when the handle is dropped or the process ends): a second `command` into the same
-/// folder is refused. Errors: the lock is held, or the folder cannot be opened.
-pub(crate) fn lock_dir(dir: &Path, command: &str) -> Result<std::fs::File> {
-    let handle = std::fs::File::open(dir).with_context(|| format!("opening {}", dir.display()))?;
-    match handle.try_lock() {
-        Ok(()) => Ok(handle),
-        Err(std::fs::TryLockError::WouldBlock) => bail!(
-            "another {command} is writing into {}; wait for it or choose another --out",
-            dir.display()
-        ),
-        Err(std::fs::TryLockError::Error(e)) => {
-            Err(e).with_context(|| format!("locking {}", dir.display()))
         }
     }
 }
