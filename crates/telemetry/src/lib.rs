@@ -193,6 +193,16 @@ pub enum TelemetryError {
         #[source]
         source: mcap::McapError,
     },
+    /// A write after an earlier one on the same file failed: the MCAP writer takes nothing
+    /// more, and `first` is why (the earlier error with its causes, e.g. "No space left on
+    /// device"), which the `mcap` crate's own error for this case does not carry.
+    #[error("{path}: not written, an earlier write of this file failed: {first}")]
+    AfterFailedWrite {
+        /// The file being written.
+        path: PathBuf,
+        /// The first failure on this file, in words with its causes.
+        first: String,
+    },
     /// Reading stopped before the file's MCAP header: not an MCAP file, or an empty or cut one.
     #[error("{path} is not an MCAP file ({reason})")]
     NotMcap {

@@ -47,6 +47,8 @@ pub(crate) struct ProtoWriter {
     channel_id: u16,
     messages: u64,
     buf: Vec<u8>,
+    /// The first write, flush or finish that failed, with its causes: later calls report it.
+    failed: Option<String>,
 }
 
 impl ProtoWriter {
@@ -104,6 +106,7 @@ impl ProtoWriter {
             channel_id,
             messages: 0,
             buf: Vec::with_capacity(1024),
+            failed: None,
         })
     }
 
@@ -119,11 +122,34 @@ impl ProtoWriter {
         self.writer.is_none()
     }
 
-    fn mcap_err(&self, source: McapError) -> TelemetryError {
-        TelemetryError::Mcap {
+    /// The error of a failed call: the first failure is reported as it is and remembered;
+    /// every later one names that first failure (the `mcap` writer only says "attempted
+    /// another write after a write method failed").
+    fn mcap_err(&mut self, source: McapError) -> TelemetryError {
+        self.failure(TelemetryError::Mcap {
             path: self.path.clone(),
             source,
+        })
+    }
+
+    fn failure(&mut self, err: TelemetryError) -> TelemetryError {
+        if let Some(first) = &self.failed {
+            return TelemetryError::AfterFailedWrite {
+                path: self.path.clone(),
+                first: first.clone(),
+            };
         }
+        let mut text = err.to_string();
+        let mut cause = std::error::Error::source(&err);
+        while let Some(c) = cause {
+            let c_text = c.to_string();
+            if !text.contains(&c_text) {
+                text = format!("{text}: {c_text}");
+            }
+            cause = c.source();
+        }
+        self.failed = Some(text);
+        err
     }
 
     /// Appends one message; `log_time_ns` becomes its log and publish time.
@@ -145,7 +171,9 @@ impl ProtoWriter {
             return Err(self.mcap_err(McapError::AttemptedWriteAfterFailure));
         };
         let result = writer.write_to_known_channel(&header, &self.buf);
-        result.map_err(|e| self.mcap_err(e))?;
+        if let Err(e) = result {
+            return Err(self.mcap_err(e));
+        }
         self.messages += 1;
         Ok(())
     }
@@ -164,16 +192,21 @@ impl ProtoWriter {
         let Some(mut writer) = self.writer.take() else {
             return Ok(self.messages);
         };
-        writer.finish().map_err(|e| self.mcap_err(e))?;
+        if let Err(e) = writer.finish() {
+            return Err(self.mcap_err(e));
+        }
         let file = writer
             .into_inner()
             .into_inner()
             .map_err(|e| e.into_error())
             .and_then(|file| file.sync_all());
-        file.map_err(|source| TelemetryError::Io {
-            path: self.path.clone(),
-            source,
-        })?;
+        if let Err(source) = file {
+            let err = TelemetryError::Io {
+                path: self.path.clone(),
+                source,
+            };
+            return Err(self.failure(err));
+        }
         debug!(path = %self.path.display(), messages = self.messages, "{} finished", self.channel.what);
         Ok(self.messages)
     }

@@ -1582,3 +1582,145 @@ fn killed_terl_cluster_up_leaves_no_service_and_clean_removes_its_files() {
     }
     assert!(run_dir.join("cluster.txt").exists());
 }
+
+/// A tmpfs mounted for one test; unmounted (lazily, so a process still holding a file cannot
+/// keep it) on drop.
+struct Tmpfs(PathBuf);
+
+impl Tmpfs {
+    fn mount(at: &Path, size: &str) -> Tmpfs {
+        std::fs::create_dir_all(at).unwrap();
+        let out = Command::new("mount")
+            .args(["-t", "tmpfs", "-o", &format!("size={size}"), "tmpfs"])
+            .arg(at)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "cannot mount a tmpfs at {} (needs root, as ./deploy/test.sh and CI run): {}",
+            at.display(),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        Tmpfs(at.to_path_buf())
+    }
+}
+
+impl Drop for Tmpfs {
+    fn drop(&mut self) {
+        let _ = Command::new("umount").arg("-l").arg(&self.0).status();
+    }
+}
+
+/// Writes zeros into `path` until the filesystem refuses more; returns the bytes written.
+fn fill(path: &Path) -> u64 {
+    use std::io::Write;
+    let mut f = std::fs::File::create(path).unwrap();
+    let chunk = vec![0u8; 64 * 1024];
+    let mut written = 0u64;
+    loop {
+        match f.write(&chunk) {
+            Ok(0) => break,
+            Ok(n) => written += n as u64,
+            Err(e) => {
+                assert_eq!(e.raw_os_error(), Some(28), "filling: {e}"); // ENOSPC
+                break;
+            }
+        }
+    }
+    let _ = f.sync_all();
+    written
+}
+
+/// The run folder's disk fills up while every service writes into it (the learner its
+/// checkpoints, metrics and log, the selector its episode log and log, the actor its log):
+/// no process panics or has to be killed, the launcher stops the cluster once, says that the
+/// filesystem is full and how to go on, and leaves no process behind.
+#[test]
+fn a_full_disk_stops_the_cluster_with_the_reason_and_no_panic() {
+    service_binaries();
+    let root = workspace();
+    require_release_build();
+    let dir = tempfile::tempdir().unwrap();
+    let runs = dir.path().join("runs");
+    let _tmpfs = Tmpfs::mount(&runs, "64m");
+    let run_id = format!("it-full-{}", std::process::id());
+    let run_dir = runs.join(&run_id);
+    let log = dir.path().join("up.log");
+    let mut up = cluster_up(&root, &runs, &run_id, &log);
+    let services: Vec<u32> = read_pids(&run_dir).into_iter().map(|(_, p)| p).collect();
+    assert_eq!(services.len(), 3, "learner, selector, one actor");
+    // Running for real: a checkpoint and episodes on disk.
+    let start = Instant::now();
+    while !(run_dir
+        .join("checkpoints")
+        .read_dir()
+        .is_ok_and(|mut d| d.next().is_some())
+        && run_dir
+            .join("episodes.mcap")
+            .metadata()
+            .is_ok_and(|m| m.len() > 0))
+    {
+        assert!(
+            start.elapsed() < Duration::from_secs(120),
+            "no checkpoint and episodes within 120 s:\n{}",
+            std::fs::read_to_string(&log).unwrap_or_default()
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    eprintln!(
+        "after {:.1} s: running, with a checkpoint",
+        start.elapsed().as_secs_f64()
+    );
+    let filled = fill(&runs.join("filler"));
+    assert!(filled > 0);
+    eprintln!("disk filled ({filled} bytes)");
+
+    let start = Instant::now();
+    let status = loop {
+        if let Some(s) = up.try_wait().unwrap() {
+            break s;
+        }
+        if start.elapsed() > Duration::from_secs(120) {
+            let _ = up.kill();
+            panic!(
+                "the launcher did not stop within 120 s of a full disk:\n{}",
+                std::fs::read_to_string(&log).unwrap_or_default()
+            );
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    let err = std::fs::read_to_string(&log).unwrap();
+    eprintln!(
+        "after {:.1} s: the launcher stopped",
+        start.elapsed().as_secs_f64()
+    );
+    assert_eq!(status.code(), Some(1), "{err}");
+    assert!(err.contains("filesystem is full"), "{err}");
+    assert!(err.contains("--resume"), "says how to go on: {err}");
+    // Every process ended by itself or on SIGTERM, with an error code at worst: not a panic
+    // (101), not a signal, not the launcher's SIGKILL after the grace period (137).
+    let worst = err
+        .split("worst exit code ")
+        .nth(1)
+        .and_then(|s| s.split(|c: char| !c.is_ascii_digit()).next())
+        .and_then(|s| s.parse::<i32>().ok())
+        .unwrap_or_else(|| panic!("no worst exit code in: {err}"));
+    assert!(worst <= 1, "a process ended with code {worst}:\n{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    // What reached the logs (a full disk may cut them): no panic, and a service that ended
+    // with an error names the cause, not only the file it could not write.
+    for name in ["learner.log", "selector.log", "actor-0.log"] {
+        let text = std::fs::read_to_string(run_dir.join(name)).unwrap_or_default();
+        assert!(!text.contains("panicked"), "{name}:\n{text}");
+        if let Some(at) = text.find("Error: ") {
+            assert!(
+                text[at..].contains("No space left on device"),
+                "{name} ends with an error that does not say why:\n{}",
+                &text[at..]
+            );
+        }
+    }
+    for pid in services {
+        assert!(!alive(pid), "pid {pid} is still running");
+    }
+}
