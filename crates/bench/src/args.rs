@@ -42,6 +42,26 @@ fn threads(threads: usize) -> Result<(), ArgsError> {
     )
 }
 
+/// Widest layer (input, output or hidden) and most tasks the benchmarks build.
+pub const MAX_WIDTH: u64 = 16_384;
+/// Deepest network (hidden layers) the benchmarks build.
+pub const MAX_LAYERS: u64 = 64;
+/// Largest minibatch (rows), as a run file's `batch_size`.
+pub const MAX_BATCH: u64 = 65_536;
+
+/// A count flag in `1..=max` (clap refuses the rest with the flag named, exit code 2).
+fn count(max: u64) -> clap::builder::RangedU64ValueParser<usize> {
+    clap::builder::RangedU64ValueParser::<usize>::new().range(1..=max)
+}
+
+fn parse_seconds(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(v) if v > 0.0 && v <= MAX_SECONDS => Ok(v),
+        Ok(_) => Err(format!("{text} s is not in (0, 1e7] s")),
+        Err(_) => Err(format!("{text:?} is not a number of seconds")),
+    }
+}
+
 fn layers(layers: usize, hidden: usize) -> Result<(), ArgsError> {
     ensure(layers > 0, "--layers must be at least 1")?;
     ensure(hidden > 0, "--hidden must be at least 1")
@@ -51,28 +71,28 @@ fn layers(layers: usize, hidden: usize) -> Result<(), ArgsError> {
 #[derive(Debug, Clone, PartialEq, Args)]
 pub struct SacArgs {
     /// Policy input width: observation plus one-hot task id (39 + 10 for MT10).
-    #[arg(long, default_value_t = 49)]
+    #[arg(long, value_parser = count(MAX_WIDTH), default_value_t = 49)]
     pub obs_dim: usize,
     /// Action width (4 in Meta-World).
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, value_parser = count(MAX_WIDTH), default_value_t = 4)]
     pub act_dim: usize,
     /// Width of every hidden layer.
-    #[arg(long, default_value_t = 400)]
+    #[arg(long, value_parser = count(MAX_WIDTH), default_value_t = 400)]
     pub hidden: usize,
     /// Number of hidden layers.
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, value_parser = count(MAX_LAYERS), default_value_t = 3)]
     pub layers: usize,
     /// Minibatch rows per update.
-    #[arg(long, default_value_t = 1280)]
+    #[arg(long, value_parser = count(MAX_BATCH), default_value_t = 1280)]
     pub batch: usize,
     /// Threads of the update's GEMMs (1 to 256).
-    #[arg(long, default_value_t = 2)]
+    #[arg(long, value_parser = count(MAX_THREADS as u64), default_value_t = 2)]
     pub threads: usize,
     /// Seconds of timed updates (the GEMM and inference measurements add about half of that).
-    #[arg(long, default_value_t = 5.0)]
+    #[arg(long, value_parser = parse_seconds, default_value_t = 5.0)]
     pub seconds: f64,
     /// Tasks in the one-hot part of obs-dim.
-    #[arg(long, default_value_t = 10)]
+    #[arg(long, value_parser = count(MAX_WIDTH), default_value_t = 10)]
     pub num_tasks: usize,
     /// Print the report as JSON (the only format: the report is JSON either way).
     #[arg(long)]
@@ -113,19 +133,19 @@ impl SacArgs {
 #[derive(Debug, Clone, PartialEq, Args)]
 pub struct TepUpdateArgs {
     /// Minibatch rows per TEP update (at least 1).
-    #[arg(long, default_value_t = 1024)]
+    #[arg(long, value_parser = count(MAX_BATCH), default_value_t = 1024)]
     pub batch: usize,
     /// Threads of the update's GEMMs (1 to 256).
-    #[arg(long, default_value_t = 2)]
+    #[arg(long, value_parser = count(MAX_THREADS as u64), default_value_t = 2)]
     pub threads: usize,
     /// Seconds of timed updates, and of each guidance variant.
-    #[arg(long, default_value_t = 5.0)]
+    #[arg(long, value_parser = parse_seconds, default_value_t = 5.0)]
     pub seconds: f64,
     /// Width of every hidden layer of F and AN.
-    #[arg(long, default_value_t = 512)]
+    #[arg(long, value_parser = count(MAX_WIDTH), default_value_t = 512)]
     pub hidden: usize,
     /// Number of hidden layers of F and AN.
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, value_parser = count(MAX_LAYERS), default_value_t = 3)]
     pub layers: usize,
 }
 
@@ -226,8 +246,12 @@ mod tests {
     #[test]
     fn nonsense_is_refused_with_the_flag_named() {
         let sac = |extra: &[&str]| {
+            // Refused by clap while parsing (a range) or by `config` (a relation).
             let argv = ["sac"].iter().chain(extra).copied();
-            Sac::parse_from(argv).args.config().unwrap_err().0
+            match Sac::try_parse_from(argv) {
+                Err(e) => e.to_string(),
+                Ok(s) => s.args.config().unwrap_err().0,
+            }
         };
         assert!(sac(&["--seconds", "0"]).contains("--seconds"));
         assert!(sac(&["--seconds", "inf"]).contains("--seconds"));
@@ -236,9 +260,14 @@ mod tests {
         assert!(sac(&["--layers", "0"]).contains("--layers"));
         assert!(sac(&["--hidden", "0"]).contains("--hidden"));
         assert!(sac(&["--num-tasks", "49"]).contains("--num-tasks"));
+        assert!(sac(&["--hidden", "18446744073709551615"]).contains("--hidden"));
+        assert!(sac(&["--batch", "1e9"]).contains("--batch"));
         let tep = |extra: &[&str]| {
             let argv = ["tep"].iter().chain(extra).copied();
-            Tep::parse_from(argv).args.config(39, 4).unwrap_err().0
+            match Tep::try_parse_from(argv) {
+                Err(e) => e.to_string(),
+                Ok(t) => t.args.config(39, 4).unwrap_err().0,
+            }
         };
         assert!(tep(&["--seconds=-1"]).contains("--seconds"));
         assert!(tep(&["--threads", "0"]).contains("--threads"));

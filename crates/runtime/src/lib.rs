@@ -11,6 +11,7 @@
 
 mod config;
 pub mod eval;
+pub mod flags;
 pub mod lockstep;
 mod metaworld_vec;
 pub mod process;

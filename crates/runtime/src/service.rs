@@ -25,7 +25,7 @@ pub struct ServiceArgs {
     #[arg(long)]
     pub run_id: String,
     /// Number of actor processes of the run (sizes the shared-memory services).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, value_parser = crate::flags::count::<usize>(crate::flags::MAX_ACTORS), default_value_t = 1)]
     pub num_actors: usize,
     /// Stop (as on SIGTERM) when the process with this pid, the launcher, exits or is killed:
     /// no orphans (deploy/local-cluster.sh passes its own pid).

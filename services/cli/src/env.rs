@@ -29,10 +29,10 @@ pub enum EnvCommand {
         a: PathBuf,
         b: PathBuf,
         /// Max absolute observation error.
-        #[arg(long, default_value_t = 1e-4)]
+        #[arg(long, value_parser = terl_runtime::flags::parse_scale, default_value_t = 1e-4)]
         obs_tol: f64,
         /// Max absolute reward error.
-        #[arg(long, default_value_t = 1e-3)]
+        #[arg(long, value_parser = terl_runtime::flags::parse_scale, default_value_t = 1e-3)]
         reward_tol: f64,
         #[arg(long)]
         json: bool,

@@ -8,6 +8,7 @@
 use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::process::ExitCode;
+use terl_runtime::flags;
 
 use anyhow::{Context, Result};
 use clap::Args;
@@ -30,7 +31,7 @@ pub struct EvalArgs {
     pub tasks: Option<String>,
     /// Episodes per task; episode k starts from goal variation k mod 50 (default: each of the
     /// 50 variations once, the Meta-World benchmarks' protocol).
-    #[arg(long, default_value_t = terl_sim::metaworld::NUM_VARIATIONS)]
+    #[arg(long, value_parser = flags::count::<usize>(flags::MAX_EPISODES), default_value_t = terl_sim::metaworld::NUM_VARIATIONS)]
     pub episodes_per_task: usize,
     /// Seed of the goal variations (default: the run's variation_seed, else 0).
     #[arg(long)]
@@ -46,7 +47,7 @@ pub struct EvalArgs {
     #[arg(long)]
     pub trained_tasks: Option<String>,
     /// Worker threads (default: available parallelism).
-    #[arg(long)]
+    #[arg(long, value_parser = flags::count::<usize>(flags::MAX_THREADS))]
     pub threads: Option<usize>,
     /// Print one JSON object instead of the table.
     #[arg(long)]

@@ -17,6 +17,7 @@
 use std::io::{IsTerminal, Write as _};
 use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdin, Command, ExitCode, Stdio};
+use terl_runtime::flags;
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
@@ -51,11 +52,11 @@ pub struct RenderArgs {
     #[arg(long, default_value = "480x480")]
     pub size: String,
     /// One video frame every N env steps (the frame skip): 500 / N frames per episode.
-    #[arg(long, default_value_t = 2)]
+    #[arg(long, value_parser = flags::count::<u32>(u64::from(MAX_PATH_LENGTH)), default_value_t = 2)]
     pub every: u32,
     /// Frames per second of the video (Meta-World's control rate is 80 steps/s: `--every 2
     /// --fps 40` plays in real time).
-    #[arg(long, default_value_t = 40)]
+    #[arg(long, value_parser = flags::count::<u32>(240), default_value_t = 40)]
     pub fps: u32,
     /// Seed of the goal variations (default: the run's variation_seed, else 0).
     #[arg(long)]

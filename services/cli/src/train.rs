@@ -20,7 +20,7 @@ pub struct TrainArgs {
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Override the total number of environment steps.
-    #[arg(long)]
+    #[arg(long, value_parser = terl_runtime::flags::count::<u64>(terl_runtime::flags::MAX_STEPS))]
     pub steps: Option<u64>,
     /// Override the seed.
     #[arg(long)]

@@ -75,9 +75,9 @@ fn report_keeps_the_episodes_before_a_damaged_record_length() {
     );
 }
 
-/// Values that pass the parser but not the report's bounds are refused before anything is
-/// allocated or written: huge resample counts and windows, and a final evaluation whose counts
-/// contradict each other.
+/// Out-of-range options are refused while the flags are parsed (exit 2), before anything is
+/// allocated or written: huge resample counts and windows; and a final evaluation whose counts
+/// contradict each other is refused.
 #[test]
 fn report_refuses_unbounded_options_and_impossible_final_evaluations() {
     let dir = tempfile::tempdir().unwrap();
@@ -98,7 +98,8 @@ fn report_refuses_unbounded_options_and_impossible_final_evaluations() {
         ("--last-evals", "18446744073709551615"),
     ] {
         let out = terl(&["report", r, "--out", o, flag, value]);
-        assert_eq!(out.status.code(), Some(1), "{flag} {value}");
+        // Refused while the flags are parsed (clap's usage error).
+        assert_eq!(out.status.code(), Some(2), "{flag} {value}");
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(err.contains(flag) && !err.contains("panicked"), "{err}");
     }

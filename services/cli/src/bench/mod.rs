@@ -9,6 +9,7 @@ use std::process::ExitCode;
 use anyhow::Result;
 use clap::Subcommand;
 use terl_bench::args::{SacArgs, TepUpdateArgs};
+use terl_runtime::flags;
 
 #[derive(Debug, Subcommand)]
 pub enum BenchCommand {
@@ -26,11 +27,11 @@ pub enum BenchCommand {
         #[arg(long)]
         memory: bool,
         /// With `--memory`: environments of each task in the N measurement (at least 2).
-        #[arg(long, default_value_t = 8)]
+        #[arg(long, value_parser = flags::count::<usize>(flags::MAX_ENVS), default_value_t = 8)]
         envs: usize,
         /// With `--memory`: full episodes per task (random and scripted, alternating) over
         /// which the peak arena use is taken.
-        #[arg(long, default_value_t = 20)]
+        #[arg(long, value_parser = flags::count::<usize>(flags::MAX_EPISODES), default_value_t = 20)]
         episodes: usize,
         /// Print JSON (the default output is JSON too; the flag is accepted for scripts).
         #[arg(long)]
@@ -41,16 +42,16 @@ pub enum BenchCommand {
     EnvMemoryProbe {
         #[arg(long)]
         tasks: String,
-        #[arg(long)]
+        #[arg(long, value_parser = flags::count::<usize>(flags::MAX_ENVS))]
         envs: usize,
-        #[arg(long)]
+        #[arg(long, value_parser = flags::count::<usize>(flags::MAX_EPISODES))]
         episodes: usize,
     },
     /// Transitions/s through iceoryx2 shared memory (1 and N publishers into one subscriber)
     /// and, in the same run, over a tonic stream on loopback.
     Transport {
         /// Publishers of the N-publisher measurement.
-        #[arg(long, default_value_t = 3)]
+        #[arg(long, value_parser = flags::count::<usize>(flags::MAX_BENCH_PEERS), default_value_t = 3)]
         publishers: usize,
         /// Seconds per measurement.
         #[arg(long, value_parser = terl_runtime::parse_seconds, default_value_t = 3.0)]
@@ -64,10 +65,10 @@ pub enum BenchCommand {
         #[arg(long, requires = "transport")]
         netns: bool,
         /// Weight versions published in the `--netns` broadcast measurement.
-        #[arg(long, default_value_t = 30)]
+        #[arg(long, value_parser = flags::count::<u64>(flags::MAX_VERSIONS), default_value_t = 30)]
         versions: u64,
         /// gRPC subscribers of the `--netns` broadcast measurement.
-        #[arg(long, default_value_t = 8)]
+        #[arg(long, value_parser = flags::count::<usize>(flags::MAX_BENCH_PEERS), default_value_t = 8)]
         subscribers: usize,
         #[arg(long)]
         json: bool,
@@ -79,7 +80,7 @@ pub enum BenchCommand {
         connect: String,
         #[arg(long)]
         run_id: String,
-        #[arg(long)]
+        #[arg(long, value_parser = flags::count::<usize>(flags::MAX_BENCH_PEERS))]
         publishers: usize,
         #[arg(long, value_parser = terl_runtime::parse_seconds)]
         seconds: f64,
@@ -89,16 +90,16 @@ pub enum BenchCommand {
     BroadcastSubscribe {
         #[arg(long)]
         addr: String,
-        #[arg(long)]
+        #[arg(long, value_parser = flags::count::<usize>(flags::MAX_BENCH_PEERS))]
         subscribers: usize,
     },
     /// Latency from publishing a new 3×400 policy version to its receipt by every one of N
     /// subscribed gRPC clients (p50/p95/max).
     Broadcast {
-        #[arg(long, default_value_t = 8)]
+        #[arg(long, value_parser = flags::count::<usize>(flags::MAX_BENCH_PEERS), default_value_t = 8)]
         subscribers: usize,
         /// Versions to publish.
-        #[arg(long, default_value_t = 30)]
+        #[arg(long, value_parser = flags::count::<u64>(flags::MAX_VERSIONS), default_value_t = 30)]
         versions: u64,
         #[arg(long)]
         json: bool,
@@ -113,13 +114,13 @@ pub enum BenchCommand {
         #[command(flatten)]
         update: TepUpdateArgs,
         /// Environments of the guided actor.
-        #[arg(long, default_value_t = 8)]
+        #[arg(long, value_parser = flags::count::<usize>(flags::MAX_ENVS), default_value_t = 8)]
         envs: usize,
         /// Task set or comma-separated task names of the actor (the one-hot spans all of them).
         #[arg(long, default_value = "mt10")]
         tasks: String,
         /// Width of every hidden layer of the actor's policy (3 layers).
-        #[arg(long, default_value_t = 400)]
+        #[arg(long, value_parser = flags::count::<usize>(flags::MAX_WIDTH), default_value_t = 400)]
         policy_hidden: usize,
         /// Skip the guidance measurement (no MuJoCo needed).
         #[arg(long)]

@@ -130,7 +130,13 @@ fn actor_count(s: &str) -> std::result::Result<usize, String> {
     if !all_digits(s, true) {
         return Err("must be a positive integer".into());
     }
-    s.parse().map_err(|_| "must be a positive integer".into())
+    match s.parse::<usize>() {
+        Ok(n) if n <= MAX_LOCAL_ACTORS => Ok(n),
+        _ => Err(format!(
+            "must be at most {MAX_LOCAL_ACTORS} (the launcher's limit on any machine; \
+             {MAX_ACTORS_PER_CORE} per core here)"
+        )),
+    }
 }
 
 /// `--run-id`: see [`valid_run_id`].

@@ -13,6 +13,7 @@
 
 use std::path::PathBuf;
 use std::process::ExitCode;
+use terl_runtime::flags;
 
 use anyhow::{Context, Result};
 use clap::Args;
@@ -30,13 +31,13 @@ pub struct DatasetArgs {
     #[arg(long)]
     pub tasks: String,
     /// Episodes per task.
-    #[arg(long, default_value_t = 200)]
+    #[arg(long, value_parser = flags::count::<usize>(MAX_EPISODES_PER_TASK as u64), default_value_t = 200)]
     pub episodes_per_task: usize,
     /// Where the actions come from: `scripted` (Meta-World's scripted policies).
     #[arg(long, default_value = "scripted")]
     pub policy: String,
     /// Standard deviation of the Gaussian noise added to each action component.
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, value_parser = flags::parse_scale, default_value_t = 0.1)]
     pub noise: f64,
     /// Goal variations to start from: a range `A..B` (B excluded) or a comma-separated list of
     /// indices in 0..50.
@@ -46,7 +47,7 @@ pub struct DatasetArgs {
     #[arg(long, default_value_t = 0)]
     pub variation_seed: u64,
     /// Steps kept after the first success.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, value_parser = flags::count_or_zero::<u32>(u64::from(terl_sim::metaworld::MAX_PATH_LENGTH)), default_value_t = 0)]
     pub after_success: u32,
     /// Keep episodes that never succeed.
     #[arg(long)]

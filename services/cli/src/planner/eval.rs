@@ -21,6 +21,7 @@
 
 use std::path::PathBuf;
 use std::process::ExitCode;
+use terl_runtime::flags;
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
@@ -46,10 +47,10 @@ pub struct EvalArgs {
     pub datasets: Vec<PathBuf>,
     /// Score only the first K trajectories of each task of `--dataset` (the ones `terl planner
     /// train --hold-out-trajectories K` left out); 0: every trajectory.
-    #[arg(long, default_value_t = 0, value_name = "K")]
+    #[arg(long, value_parser = flags::count_or_zero::<usize>(flags::MAX_HOLD_OUT), default_value_t = 0, value_name = "K")]
     pub hold_out_trajectories: usize,
     /// AN episodes per task in the real environment (0: only the F check).
-    #[arg(long, default_value_t = 10)]
+    #[arg(long, value_parser = flags::count_or_zero::<usize>(flags::MAX_EPISODES), default_value_t = 10)]
     pub rollouts: usize,
     /// Goal sources of the AN episodes.
     #[arg(long, value_enum, default_value = "both")]
@@ -62,7 +63,7 @@ pub struct EvalArgs {
     #[arg(long, default_value_t = 0)]
     pub variation_seed: u64,
     /// Pairs per held-out trajectory for the F check (a uniform sample when it has more).
-    #[arg(long, default_value_t = 200)]
+    #[arg(long, value_parser = flags::count::<usize>(flags::MAX_PAIRS), default_value_t = 200)]
     pub pairs_per_trajectory: usize,
     /// Seed of the pair sample and the random actions.
     #[arg(long, default_value_t = 0)]

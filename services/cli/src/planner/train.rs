@@ -11,6 +11,7 @@ use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
+use terl_runtime::flags;
 
 use anyhow::{Context, Result};
 use clap::Args;
@@ -29,7 +30,7 @@ pub struct TrainArgs {
     #[arg(long = "dataset", required = true)]
     pub datasets: Vec<PathBuf>,
     /// Planner updates.
-    #[arg(long, default_value_t = 5000)]
+    #[arg(long, value_parser = flags::count::<u64>(flags::MAX_STEPS), default_value_t = 5000)]
     pub updates: u64,
     /// A run file (its `[tep]` table) or a TOML file of planner settings.
     #[arg(long)]
@@ -45,16 +46,16 @@ pub struct TrainArgs {
     /// eval --hold-out-trajectories K` scores), so one dataset of a run serves training and
     /// evaluation; they are used as the held-out check of the log lines when no
     /// `--eval-dataset` is given.
-    #[arg(long, default_value_t = 0, value_name = "K")]
+    #[arg(long, value_parser = flags::count_or_zero::<usize>(flags::MAX_HOLD_OUT), default_value_t = 0, value_name = "K")]
     pub hold_out_trajectories: usize,
     /// Updates between log lines (and held-out checks).
-    #[arg(long, default_value_t = 500)]
+    #[arg(long, value_parser = flags::count::<u64>(flags::MAX_STEPS), default_value_t = 500)]
     pub eval_every: u64,
     /// Seed of initialisation and sampling.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Threads of the update (default: the config's `threads`).
-    #[arg(long)]
+    #[arg(long, value_parser = flags::count::<usize>(flags::MAX_THREADS))]
     pub threads: Option<usize>,
     /// Use a damaged or incomplete dataset up to its damage (default: refuse it).
     #[arg(long)]

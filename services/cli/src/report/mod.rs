@@ -47,16 +47,16 @@ pub struct ReportArgs {
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Episodes per task in the rolling success window.
-    #[arg(long, default_value_t = 50)]
+    #[arg(long, value_parser = terl_runtime::flags::count::<usize>(MAX_WINDOW as u64), default_value_t = 50)]
     pub window: usize,
     /// The second definition of a run's final success: the mean of its last this many in-run
     /// evaluations (beside its final evaluation, `eval-final.json`).
-    #[arg(long, default_value_t = stats::DEFAULT_LAST_EVALS)]
+    #[arg(long, value_parser = terl_runtime::flags::count::<usize>(MAX_WINDOW as u64), default_value_t = stats::DEFAULT_LAST_EVALS)]
     pub last_evals: usize,
     /// Resamples of every stratified bootstrap interval (IQM, mean, probability of
     /// improvement, curves). The resampling stream has a fixed seed, so a report is the same
     /// on every run.
-    #[arg(long, default_value_t = terl_stats::DEFAULT_REPS)]
+    #[arg(long, value_parser = terl_runtime::flags::count::<usize>(MAX_BOOTSTRAP_REPS as u64), default_value_t = terl_stats::DEFAULT_REPS)]
     pub bootstrap_reps: usize,
     /// Run folders with checkpoints (e.g. one seed per algorithm) whose final policies are
     /// drawn into the qualitative figure at the end of `results.md`: per task, the frames of
