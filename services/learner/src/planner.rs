@@ -79,6 +79,12 @@ pub(crate) struct PlannerTrainer {
     pub(crate) selected: u64,
     /// Selected transitions refused (unknown task, non-finite values, action outside [−1, 1]).
     pub(crate) rejected: u64,
+    /// Selected transitions after their trajectory's first success, left out of the buffer (in
+    /// this process; not checkpointed): a Meta-World episode runs on after success with the
+    /// arm at the goal, so those states all sit at the goal while their step gaps run to
+    /// hundreds, which F cannot fit (held-out ρ stayed at 0.14–0.59 with them, MT1-Ind 500k).
+    /// The offline datasets end at the first success for the same reason.
+    pub(crate) after_success: u64,
     window: LossWindow,
     /// Mean losses of the last completed window (what status shows).
     pub(crate) shown_f_loss: f64,
@@ -146,6 +152,7 @@ impl PlannerTrainer {
             sac_offset: None,
             selected: 0,
             rejected: 0,
+            after_success: 0,
             window: LossWindow::default(),
             shown_f_loss: 0.0,
             shown_an_loss: 0.0,
@@ -311,6 +318,15 @@ impl PlannerTrainer {
         order.dedup_by_key(|s| (s.trajectory_id, s.step_index));
         let mut accepted = 0;
         for seg in order.chunk_by(|a, b| a.trajectory_id == b.trajectory_id) {
+            // Up to and including the first success-flagged transition (its next state is the
+            // success state); the rest of the trajectory stays out.
+            let end = seg
+                .iter()
+                .position(|s| s.succeeded())
+                .map_or(seg.len(), |i| i + 1);
+            self.after_success += (seg.len() - end) as u64;
+            let selected_len = seg.len();
+            let seg = &seg[..end];
             let steps: Vec<u32> = seg.iter().map(|s| u32::from(s.step_index)).collect();
             let obs: Vec<f32> = seg.iter().flat_map(|s| s.obs).collect();
             let next_obs: Vec<f32> = seg.iter().flat_map(|s| s.next_obs).collect();
@@ -319,7 +335,7 @@ impl PlannerTrainer {
             let id = seg[0].trajectory_id;
             // The goal library holds real success states: the state after a selected
             // trajectory's first success-flagged sample. A trajectory without one adds nothing.
-            if seg.len() >= MIN_VALIDATION_STEPS {
+            if selected_len >= MIN_VALIDATION_STEPS {
                 if let Some(s) = seg.iter().find(|s| s.succeeded()) {
                     let g = &mut self.goals[task];
                     if g.len() == GOALS_PER_TASK {
@@ -330,7 +346,7 @@ impl PlannerTrainer {
             }
             let hold = self.held_out_ids.contains(&id)
                 || (self.held_out[task].len() < self.guidance.validation_trajectories
-                    && seg.len() >= MIN_VALIDATION_STEPS);
+                    && selected_len >= MIN_VALIDATION_STEPS);
             if hold {
                 self.held_out_ids.insert(id);
                 self.held_out[task].push(HeldOut {
@@ -625,6 +641,36 @@ mod tests {
         assert_eq!(metas, vec![(0, 3, 0), (0, 3, 2), (1, 7, 1), (1, 7, 4)]);
     }
 
+    /// A selected trajectory enters the buffer up to and including its first success-flagged
+    /// transition; the hovering after it is counted and left out, and the success state is
+    /// still the goal library's.
+    #[test]
+    fn transitions_after_the_first_success_stay_out_of_the_buffer() {
+        let guidance = terl_rl::guidance::GuidanceConfig {
+            validation_trajectories: 0,
+            ..Default::default()
+        };
+        let mut p = PlannerTrainer::new(small(), guidance, 1, 1).unwrap();
+        // Success from step 3 on (the selector flags every step from the first success).
+        let traj: Vec<SelectedSample> = (0..40)
+            .map(|k| {
+                let mut s = sample(5, k, 0);
+                s.success = u8::from(k >= 3);
+                s
+            })
+            .collect();
+        assert_eq!(p.ingest(&traj), 4);
+        assert_eq!(p.after_success, 36);
+        assert_eq!(p.buffer_len(), 4);
+        let steps: Vec<_> = (0..4).map(|i| p.buffer.meta(i).2).collect();
+        assert_eq!(steps, vec![0, 1, 2, 3]);
+        assert_eq!(p.goals[0].back().map(|g| g[0]), Some(4.0), "the state after step 3");
+        // A trajectory that never succeeds goes in whole.
+        let failed: Vec<SelectedSample> = (0..40).map(|k| sample(6, k, 0)).collect();
+        assert_eq!(p.ingest(&failed), 40);
+        assert_eq!(p.after_success, 36);
+    }
+
     #[test]
     fn trains_once_a_minibatch_is_there_and_publishes_new_versions_only() {
         let mut p = PlannerTrainer::new(small(), Default::default(), 1, 1).unwrap();
@@ -677,8 +723,8 @@ mod tests {
             p.ingest(&traj(2, 0));
             assert_eq!(
                 p.held_out_transitions(),
-                12,
-                "one trajectory of task 0 held out"
+                6,
+                "one trajectory of task 0 held out, up to its first success (steps 0..=5)"
             );
             assert_eq!(p.buffer_len(), 12);
             p.check(true);

@@ -374,7 +374,9 @@ impl StatusBoard {
         );
         c.inbound.fill(&mut status);
         status.algorithm = src.algorithm.as_str().to_string();
+        let mut tep_after_success = 0;
         if let Some(p) = planner {
+            tep_after_success = p.after_success;
             if window_closed {
                 p.roll_window();
             }
@@ -399,6 +401,7 @@ impl StatusBoard {
                 staleness_mean = format!("{:.0}", status.staleness_mean),
                 tep_updates = status.tep_updates,
                 tep_buffer = status.tep_buffer_size,
+                tep_after_success,
                 tep_f_loss = format!("{:.3}", status.tep_f_loss),
                 tep_target_mean = format!("{:.2}", status.tep_target_mean),
                 tep_goal_distance_mean = format!("{:.2}", status.tep_goal_distance_mean),

@@ -142,13 +142,26 @@ pub fn held_out_pairs(
     pairs
 }
 
-/// Fills a TEP buffer with the trajectories (one segment each).
+/// Fills a TEP buffer with the trajectories (one segment each), each up to and including its
+/// first success ([`Trajectory::until_success`]): after it a Meta-World episode hovers at the
+/// goal, states whose step gaps F cannot tell apart (the learner leaves them out too).
 pub fn fill_buffer(trajectories: &[Trajectory], tasks: &[String]) -> Result<TepBuffer> {
-    let total: usize = trajectories.iter().map(Trajectory::len).sum();
+    let total: usize = trajectories.iter().map(Trajectory::until_success).sum();
     let mut buffer = TepBuffer::new(total.max(1), OBS_DIM, ACTION_DIM);
     for t in trajectories {
+        let n = t.until_success();
+        if n == 0 {
+            continue;
+        }
         let task = tasks.iter().position(|x| *x == t.task).unwrap_or(0) as u32;
-        buffer.push_segment(task, t.id, &t.steps, &t.obs, &t.actions, &t.next_obs)?;
+        buffer.push_segment(
+            task,
+            t.id,
+            &t.steps[..n],
+            &t.obs[..n * OBS_DIM],
+            &t.actions[..n * ACTION_DIM],
+            &t.next_obs[..n * OBS_DIM],
+        )?;
     }
     Ok(buffer)
 }
@@ -387,5 +400,43 @@ impl Window {
         }
         self.n = 0;
         m
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn trajectory(id: u64, len: u32, first_success: Option<u32>) -> Trajectory {
+        let n = len as usize;
+        Trajectory {
+            task: "reach-v3".into(),
+            id,
+            variation: Some(0),
+            steps: (0..len).collect(),
+            obs: vec![0.0; n * OBS_DIM],
+            actions: vec![0.0; n * ACTION_DIM],
+            next_obs: vec![0.0; n * OBS_DIM],
+            success: (0..len).map(|k| first_success.is_some_and(|f| k >= f)).collect(),
+        }
+    }
+
+    /// The offline buffer holds each trajectory up to and including its first success, and a
+    /// trajectory that never succeeds whole (as the learner's buffer).
+    #[test]
+    fn the_buffer_ends_each_trajectory_at_its_first_success() {
+        let tasks = vec!["reach-v3".to_string()];
+        let b = fill_buffer(
+            &[trajectory(1, 500, Some(60)), trajectory(2, 500, None)],
+            &tasks,
+        )
+        .unwrap();
+        assert_eq!(b.len(), 61 + 500);
+        let last_of_first = (0..b.len())
+            .map(|i| b.meta(i))
+            .filter(|m| m.1 == 1)
+            .map(|m| m.2)
+            .max();
+        assert_eq!(last_of_first, Some(60));
     }
 }
