@@ -10,6 +10,8 @@ use clap::builder::RangedU64ValueParser;
 /// publisher slot of every stream. `terl cluster up --actors` is bounded further by the
 /// machine's cores.
 pub const MAX_ACTORS: u64 = 1024;
+/// Largest process id Linux hands out (`PID_MAX_LIMIT`, 2^22).
+pub const MAX_PID: u64 = 1 << 22;
 /// Most worker threads a flag asks for (evaluation, planner training, benchmarks).
 pub const MAX_THREADS: u64 = 256;
 /// Most environments one benchmark or probe steps at once (as `num_envs` in a run file).

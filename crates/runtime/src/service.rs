@@ -29,7 +29,7 @@ pub struct ServiceArgs {
     pub num_actors: usize,
     /// Stop (as on SIGTERM) when the process with this pid, the launcher, exits or is killed:
     /// no orphans (deploy/local-cluster.sh passes its own pid).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::flags::count::<u32>(crate::flags::MAX_PID))]
     pub parent_pid: Option<u32>,
     /// With `[cluster] transport = "zenoh"`: a Zenoh endpoint to listen on, e.g.
     /// `tcp/0.0.0.0:7447` (repeatable; replaces the run file's `[cluster.zenoh] listen`).

@@ -37,7 +37,14 @@ fn parse_actor_id(s: &str) -> Result<ActorIdArg, String> {
     if s == "auto" {
         return Ok(ActorIdArg::Auto);
     }
-    s.parse()
-        .map(ActorIdArg::Id)
-        .map_err(|_| format!("{s:?} is neither an actor id (0, 1, ...) nor `auto`"))
+    match s.parse::<usize>() {
+        Ok(id) if (id as u64) < terl_runtime::flags::MAX_ACTORS => Ok(ActorIdArg::Id(id)),
+        Ok(_) => Err(format!(
+            "an actor id must be below {} (the most actors a run takes), or `auto`",
+            terl_runtime::flags::MAX_ACTORS
+        )),
+        Err(_) => Err(format!(
+            "{s:?} is neither an actor id (0, 1, ...) nor `auto`"
+        )),
+    }
 }

@@ -22,12 +22,11 @@ struct Flag {
 }
 
 impl Flag {
-    /// Seeds and process ids take any value of their type; `terl cluster up --restarts` and
+    /// Seeds take any value of their type; `terl cluster up --restarts` and
     /// `--restart-backoff` saturate (a count beyond the type means "always restart", a
     /// backoff beyond it the longest backoff, 60 s), so no value of them is unbounded.
     fn full_range(&self) -> bool {
-        self.long.contains("seed")
-            || ["parent-pid", "restarts", "restart-backoff"].contains(&self.long.as_str())
+        self.long.contains("seed") || ["restarts", "restart-backoff"].contains(&self.long.as_str())
     }
 }
 

@@ -1723,4 +1723,23 @@ fn a_full_disk_stops_the_cluster_with_the_reason_and_no_panic() {
     for pid in services {
         assert!(!alive(pid), "pid {pid} is still running");
     }
+
+    // A new run on the still-full disk is refused before anything is written or started.
+    let again = format!("{run_id}-again");
+    let out = Command::new(env!("CARGO_BIN_EXE_terl"))
+        .current_dir(&root)
+        .args([
+            "cluster",
+            "up",
+            "--config",
+            "deploy/configs/cluster-smoke.toml",
+        ])
+        .args(["--actors", "1", "--run-id", &again, "--no-build"])
+        .args(["--runs-root", runs.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("filesystem is full"), "{err}");
+    assert!(!runs.join(&again).exists(), "a run folder was left: {err}");
 }

@@ -197,3 +197,25 @@ fn extreme_seconds_are_refused_before_anything_runs() {
         }
     }
 }
+
+/// `terl bench env --memory` runs its probes as child processes of `terl` itself (the hidden
+/// `bench env-memory-probe`, once with no episodes): the flags it passes them must parse, and
+/// the report comes out.
+#[test]
+fn the_memory_bench_runs_its_probes() {
+    let o = terl(&[
+        "bench",
+        "env",
+        "--memory",
+        "--tasks",
+        "reach-v3",
+        "--envs",
+        "2",
+        "--episodes",
+        "1",
+    ]);
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(report.get("floors_met").is_some(), "{report}");
+}

@@ -11,6 +11,9 @@ use clap::Subcommand;
 use terl_bench::args::{SacArgs, TepUpdateArgs};
 use terl_runtime::flags;
 
+/// Most environments per task the memory measurement (`bench env --memory`) builds.
+const MAX_MEMORY_ENVS: u64 = 256;
+
 #[derive(Debug, Subcommand)]
 pub enum BenchCommand {
     /// Env steps/s per task against the bare physics rate of the same model; with `--memory`,
@@ -26,8 +29,8 @@ pub enum BenchCommand {
         /// Measure memory (RSS from /proc) instead of speed.
         #[arg(long)]
         memory: bool,
-        /// With `--memory`: environments of each task in the N measurement (at least 2).
-        #[arg(long, value_parser = flags::count::<usize>(flags::MAX_ENVS), default_value_t = 8)]
+        /// With `--memory`: environments of each task in the N measurement (2 to 256).
+        #[arg(long, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(2..=MAX_MEMORY_ENVS), default_value_t = 8)]
         envs: usize,
         /// With `--memory`: full episodes per task (random and scripted, alternating) over
         /// which the peak arena use is taken.
@@ -44,7 +47,8 @@ pub enum BenchCommand {
         tasks: String,
         #[arg(long, value_parser = flags::count::<usize>(flags::MAX_ENVS))]
         envs: usize,
-        #[arg(long, value_parser = flags::count::<usize>(flags::MAX_EPISODES))]
+        /// 0: only the environments' memory, no episodes.
+        #[arg(long, value_parser = flags::count_or_zero::<usize>(flags::MAX_EPISODES))]
         episodes: usize,
     },
     /// Transitions/s through iceoryx2 shared memory (1 and N publishers into one subscriber)
@@ -176,7 +180,10 @@ pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
             ..
         } => {
             anyhow::ensure!(envs >= 2, "--envs must be at least 2 (1 vs N environments)");
-            anyhow::ensure!(envs <= 256, "--envs must be at most 256");
+            anyhow::ensure!(
+                envs as u64 <= MAX_MEMORY_ENVS,
+                "--envs must be at most {MAX_MEMORY_ENVS}"
+            );
             let tasks = terl_runtime::resolve_tasks(&tasks)?;
             let mut per_task = Vec::with_capacity(tasks.len());
             for task in &tasks {

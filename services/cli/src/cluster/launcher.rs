@@ -622,8 +622,21 @@ impl Launcher {
     /// Writes the run folder's files (config copy, cluster.txt, pid files).
     fn prepare(plan: Plan, bin: PathBuf, signals: Signals) -> Result<Self> {
         let out = plan.runs_root.join(&plan.run_id);
+        let created = !out.exists();
         std::fs::create_dir_all(&out)
             .with_context(|| format!("cannot create {}", out.display()))?;
+        // A full filesystem: nothing would start, and every file written now would be cut.
+        if let Some(free) = free_bytes(&out).filter(|&b| b < FULL_DISK_BYTES) {
+            if created {
+                let _ = std::fs::remove_dir(&out);
+            }
+            anyhow::bail!(
+                "the run folder's filesystem is full ({free} bytes free in {}): free space, then \
+                 start again{}",
+                out.display(),
+                if plan.resume { " with --resume" } else { "" }
+            );
+        }
         let info = out.join("cluster.txt");
         if !plan.resume {
             std::fs::copy(&plan.config, out.join("config.toml")).with_context(|| {
@@ -1078,6 +1091,7 @@ impl Launcher {
             signal(proc, nix::sys::signal::Signal::SIGTERM);
         }
         let deadline = Instant::now() + STOP_GRACE;
+        let mut failed = Vec::new();
         for (role, mut proc) in std::mem::take(&mut self.procs) {
             let status = loop {
                 match proc.child.try_wait() {
@@ -1097,7 +1111,29 @@ impl Launcher {
                 }
             };
             if let Some(status) = status {
-                self.worst = self.worst.max(shell_code(status));
+                let code = shell_code(status);
+                self.worst = self.worst.max(code);
+                if code != 0 {
+                    failed.push(format!("{role} ({code})"));
+                }
+            }
+        }
+        // A process that failed while stopping on a full disk (the learner's final checkpoint
+        // did not fit): say so, as for a failure during the run.
+        if let Some(free) = free_bytes(&self.out).filter(|&b| b < FULL_DISK_BYTES) {
+            if !failed.is_empty() {
+                eprintln!(
+                    "[cluster] {} exited with an error while stopping, and the run folder's \
+                     filesystem is full ({free} bytes free in {}): the final checkpoint may not \
+                     have been written (the newest periodic one is kept); free space, then \
+                     continue with --resume {}",
+                    failed.join(", "),
+                    self.out.display(),
+                    self.out.display()
+                );
+                if failed.iter().any(|f| f.starts_with("learner")) {
+                    self.last_error("learner");
+                }
             }
         }
         for f in ["launcher.pid", "pids", DOWN_MARKER] {
