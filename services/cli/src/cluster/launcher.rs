@@ -133,8 +133,8 @@ fn actor_count(s: &str) -> std::result::Result<usize, String> {
     match s.parse::<usize>() {
         Ok(n) if n <= MAX_LOCAL_ACTORS => Ok(n),
         _ => Err(format!(
-            "must be at most {MAX_LOCAL_ACTORS} (the launcher's limit on any machine; \
-             {MAX_ACTORS_PER_CORE} per core here)"
+            "must be at most {MAX_LOCAL_ACTORS} local actors (the launcher's limit on any \
+             machine; at most {MAX_ACTORS_PER_CORE} per core)"
         )),
     }
 }
