@@ -664,7 +664,11 @@ mod tests {
         assert_eq!(p.buffer_len(), 4);
         let steps: Vec<_> = (0..4).map(|i| p.buffer.meta(i).2).collect();
         assert_eq!(steps, vec![0, 1, 2, 3]);
-        assert_eq!(p.goals[0].back().map(|g| g[0]), Some(4.0), "the state after step 3");
+        assert_eq!(
+            p.goals[0].back().map(|g| g[0]),
+            Some(4.0),
+            "the state after step 3"
+        );
         // A trajectory that never succeeds goes in whole.
         let failed: Vec<SelectedSample> = (0..40).map(|k| sample(6, k, 0)).collect();
         assert_eq!(p.ingest(&failed), 40);

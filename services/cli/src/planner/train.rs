@@ -417,7 +417,9 @@ mod tests {
             obs: vec![0.0; n * OBS_DIM],
             actions: vec![0.0; n * ACTION_DIM],
             next_obs: vec![0.0; n * OBS_DIM],
-            success: (0..len).map(|k| first_success.is_some_and(|f| k >= f)).collect(),
+            success: (0..len)
+                .map(|k| first_success.is_some_and(|f| k >= f))
+                .collect(),
         }
     }
 
