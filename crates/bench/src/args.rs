@@ -54,12 +54,13 @@ fn count(max: u64) -> clap::builder::RangedU64ValueParser<usize> {
     clap::builder::RangedU64ValueParser::<usize>::new().range(1..=max)
 }
 
+/// `--seconds` as clap parses it: a number that [`positive_seconds`] accepts.
 fn parse_seconds(text: &str) -> Result<f64, String> {
-    match text.trim().parse::<f64>() {
-        Ok(v) if v > 0.0 && v <= MAX_SECONDS => Ok(v),
-        Ok(_) => Err(format!("{text} s is not in (0, 1e7] s")),
-        Err(_) => Err(format!("{text:?} is not a number of seconds")),
-    }
+    let v: f64 = text
+        .trim()
+        .parse()
+        .map_err(|_| format!("{text:?} is not a number of seconds"))?;
+    positive_seconds(v).map(|()| v).map_err(|e| e.0)
 }
 
 fn layers(layers: usize, hidden: usize) -> Result<(), ArgsError> {

@@ -18,14 +18,6 @@ pub const MAX_THREADS: u64 = 256;
 pub const MAX_ENVS: u64 = crate::config::MAX_NUM_ENVS as u64;
 /// Most episodes per task a command runs or writes (as the run file's episode counts).
 pub const MAX_EPISODES: u64 = crate::config::MAX_EPISODE_COUNT as u64;
-/// Widest network input, output or hidden layer a benchmark builds.
-pub const MAX_WIDTH: u64 = 16_384;
-/// Deepest network (hidden layers) a benchmark builds.
-pub const MAX_LAYERS: u64 = 64;
-/// Largest minibatch (rows), as the run file's `batch_size`.
-pub const MAX_BATCH: u64 = crate::config::MAX_BATCH_SIZE as u64;
-/// Most tasks a benchmark's one-hot spans.
-pub const MAX_TASKS: u64 = 1024;
 /// Most publishers or subscribers a transport benchmark opens.
 pub const MAX_BENCH_PEERS: u64 = 256;
 /// Most weight versions a broadcast benchmark publishes.

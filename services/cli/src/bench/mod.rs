@@ -124,7 +124,7 @@ pub enum BenchCommand {
         #[arg(long, default_value = "mt10")]
         tasks: String,
         /// Width of every hidden layer of the actor's policy (3 layers).
-        #[arg(long, value_parser = flags::count::<usize>(flags::MAX_WIDTH), default_value_t = 400)]
+        #[arg(long, value_parser = flags::count::<usize>(terl_bench::args::MAX_WIDTH), default_value_t = 400)]
         policy_hidden: usize,
         /// Skip the guidance measurement (no MuJoCo needed).
         #[arg(long)]
