@@ -626,7 +626,7 @@ impl Launcher {
         std::fs::create_dir_all(&out)
             .with_context(|| format!("cannot create {}", out.display()))?;
         // A full filesystem: nothing would start, and every file written now would be cut.
-        if let Some(free) = free_bytes(&out).filter(|&b| b < FULL_DISK_BYTES) {
+        if let Some(free) = full_disk(&out) {
             if created {
                 let _ = std::fs::remove_dir(&out);
             }
@@ -1012,7 +1012,7 @@ impl Launcher {
         let n = self.restarts_of.get(role).copied().unwrap_or(0);
         // A full disk: the process's own error may not have reached its log (written to the
         // same filesystem), and a restart would fail the same way.
-        if let Some(free) = free_bytes(&self.out).filter(|&b| b < FULL_DISK_BYTES) {
+        if let Some(free) = full_disk(&self.out) {
             let reason = format!(
                 "{role} (pid {pid}) exited with code {code} and the run folder's filesystem is \
                  full ({free} bytes free in {}): free space, then continue with --resume {}",
@@ -1120,7 +1120,7 @@ impl Launcher {
         }
         // A process that failed while stopping on a full disk (the learner's final checkpoint
         // did not fit): say so, as for a failure during the run.
-        if let Some(free) = free_bytes(&self.out).filter(|&b| b < FULL_DISK_BYTES) {
+        if let Some(free) = full_disk(&self.out) {
             if !failed.is_empty() {
                 eprintln!(
                     "[cluster] {} exited with an error while stopping, and the run folder's \
@@ -1157,10 +1157,12 @@ impl Launcher {
 /// metrics chunk or a log line would not fit).
 const FULL_DISK_BYTES: u64 = 1 << 20;
 
-/// Bytes an unprivileged process may still write on the filesystem of `dir` (`statvfs`).
-fn free_bytes(dir: &Path) -> Option<u64> {
+/// The bytes still free on the filesystem of `dir` when it counts as full (fewer than
+/// [`FULL_DISK_BYTES`] an unprivileged process may write, by `statvfs`); `None` when it is not
+/// full or cannot be asked.
+fn full_disk(dir: &Path) -> Option<u64> {
     let st = nix::sys::statvfs::statvfs(dir).ok()?;
-    Some(st.blocks_available().saturating_mul(st.fragment_size()))
+    Some(st.blocks_available().saturating_mul(st.fragment_size())).filter(|&b| b < FULL_DISK_BYTES)
 }
 
 fn append_line(path: &Path, line: &str) -> Result<()> {
