@@ -191,6 +191,9 @@ pub struct LearnerStatus {
     pub tep_an_loss: f64,
     /// Selected transitions received (from the selector or a loaded dataset).
     pub selected_samples: u64,
+    /// Selected transitions kept out of the TEP buffer because they came after their
+    /// trajectory's first success.
+    pub tep_after_success: u64,
     /// Env steps executed with the Action Network, all actors.
     pub guided_steps: u64,
     /// Mean bootstrapped TEP target `1 + F̃(..)` over the last window, in env steps (≥ 1; 0
@@ -589,6 +592,7 @@ impl TryFrom<pb::LearnerStatus> for LearnerStatus {
             tep_f_loss: finite("tep_f_loss", m.tep_f_loss)?,
             tep_an_loss: finite("tep_an_loss", m.tep_an_loss)?,
             selected_samples: m.selected_samples,
+            tep_after_success: m.tep_after_success,
             guided_steps: m.guided_steps,
             tep_target_mean: non_negative("tep_target_mean", m.tep_target_mean)?,
             tep_goal_distance_mean: non_negative(
@@ -637,6 +641,7 @@ impl From<LearnerStatus> for pb::LearnerStatus {
             tep_f_loss: d.tep_f_loss,
             tep_an_loss: d.tep_an_loss,
             selected_samples: d.selected_samples,
+            tep_after_success: d.tep_after_success,
             guided_steps: d.guided_steps,
             tep_target_mean: d.tep_target_mean,
             tep_goal_distance_mean: d.tep_goal_distance_mean,

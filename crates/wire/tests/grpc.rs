@@ -65,6 +65,7 @@ fn learner_status() -> LearnerStatus {
         tep_f_loss: 1.75,
         tep_an_loss: 12.5,
         selected_samples: 2048,
+        tep_after_success: 17,
         guided_steps: 99,
         tep_target_mean: 14.5,
         tep_goal_distance_mean: 13.25,

@@ -373,10 +373,10 @@ fn print_table(learner: &LearnerStatus, selector: Result<&SelectorStatus, &anyho
             })
             .collect();
         println!(
-            "tep       planner v{}  updates {}  buffer {}/{}  loss F {:.3} AN {:.3}  target {:.2}  distance {:.2}  selected {}  guided steps {}",
+            "tep       planner v{}  updates {}  buffer {}/{}  loss F {:.3} AN {:.3}  target {:.2}  distance {:.2}  selected {} (after a success {})  guided steps {}",
             l.planner_version, l.tep_updates, l.tep_buffer_size, l.tep_buffer_capacity,
             l.tep_f_loss, l.tep_an_loss, l.tep_target_mean, l.tep_goal_distance_mean,
-            l.selected_samples, l.guided_steps
+            l.selected_samples, l.tep_after_success, l.guided_steps
         );
         println!(
             "guidance  guided share (σ^N where the planner may act, share of f_t ≥ f_t-1 of the compared steps, mean ‖AN−π‖ of guided steps)  {}",

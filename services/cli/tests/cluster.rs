@@ -599,7 +599,7 @@ fn terl_cluster_selects_trains_the_planner_and_guides() {
         &run_dir,
     );
     let learner = wait_for_file(&run_dir.join("learner.addr"));
-    let loaded = (0..100)
+    let (loaded, after_success) = (0..100)
         .find_map(|_| {
             std::thread::sleep(Duration::from_millis(100));
             let s = status(&learner, "127.0.0.1:1")?;
@@ -610,10 +610,31 @@ fn terl_cluster_selects_trains_the_planner_and_guides() {
                 .iter()
                 .map(|t| t["held_out_transitions"].as_u64().unwrap_or(0))
                 .sum();
-            (n > 0).then_some(n + held)
+            (n > 0).then_some((n + held, u(&s["learner"], &["tep_after_success"])))
         })
         .expect("the reloaded learner reports its TEP buffer");
-    assert_eq!(loaded, data.samples.len() as u64);
+    // Every sample is in the buffer, held out, or after its trajectory's first success: the
+    // last counted from the file here, trajectory by trajectory.
+    let mut by_trajectory: std::collections::BTreeMap<u64, Vec<(u32, bool)>> = Default::default();
+    for x in &data.samples {
+        by_trajectory
+            .entry(x.trajectory_id)
+            .or_default()
+            .push((x.step, x.success));
+    }
+    let expected_after: u64 = by_trajectory
+        .values_mut()
+        .map(|steps| {
+            steps.sort_unstable();
+            steps
+                .iter()
+                .position(|&(_, success)| success)
+                .map_or(0, |i| (steps.len() - i - 1) as u64)
+        })
+        .sum();
+    eprintln!("reloaded: {loaded} in the buffer or held out, {after_success} after a success");
+    assert_eq!(after_success, expected_after);
+    assert_eq!(loaded + after_success, data.samples.len() as u64);
     stop_all(&mut again, &run_dir);
 
     let leftover: Vec<String> = shm_files().difference(&shm_before).cloned().collect();

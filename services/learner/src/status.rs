@@ -377,6 +377,7 @@ impl StatusBoard {
         let mut tep_after_success = 0;
         if let Some(p) = planner {
             tep_after_success = p.after_success;
+            status.tep_after_success = p.after_success;
             if window_closed {
                 p.roll_window();
             }
