@@ -409,6 +409,26 @@ impl ClusterConfig {
         }
     }
 
+    /// [`ClusterConfig::transport_config`] as a service opens it: with the control-plane
+    /// token (`env_token`, the `TERL_TOKEN` value, else `token_file`) as the Zenoh sessions'
+    /// shared secret when there is one, so every session of the run authenticates and Zenoh
+    /// endpoints beyond loopback are allowed.
+    ///
+    /// # Errors
+    /// The token cannot be read or is malformed (the source is named, never the value).
+    pub fn service_transport_config(
+        &self,
+        run_id: impl Into<String>,
+        num_actors: usize,
+        env_token: Option<String>,
+    ) -> Result<terl_transport::TransportConfig> {
+        let mut config = self.transport_config(run_id, num_actors);
+        if let Some(token) = self.token(env_token)? {
+            config.zenoh.secret = Some(terl_transport::ZenohSecret::new(token.expose())?);
+        }
+        Ok(config)
+    }
+
     /// `max_message_mib` in bytes.
     pub fn max_message_bytes(&self) -> usize {
         self.max_message_mib << 20

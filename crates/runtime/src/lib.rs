@@ -184,6 +184,9 @@ pub fn host_name() -> String {
         .unwrap_or_else(|| "unknown".to_owned())
 }
 
+/// The log directive every terl process adds after `RUST_LOG`'s (see [`init_tracing`]).
+const ZENOH_SESSION_LOG_CAP: &str = "zenoh::api::session=warn";
+
 /// Initialises `tracing` for a service binary: `RUST_LOG` or `info`, to stderr (colours only on
 /// a terminal). Log lines carry the service's span (`learner{run=..}`, `selector{run=..}`,
 /// `actor{id=..}`) before the message.
@@ -194,11 +197,14 @@ pub fn init_tracing() {
 /// [`init_tracing`] with another default filter when `RUST_LOG` is unset (the `terl` command
 /// line: `warn`). Does nothing when a subscriber is already set.
 pub fn init_tracing_with_default(default_filter: &str) {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_filter))
+        // Zenoh logs a session's whole configuration, its authentication password (the run's
+        // token) included, at debug level when the session opens: capped at warn whatever
+        // RUST_LOG asks.
+        .add_directive(ZENOH_SESSION_LOG_CAP.parse().expect("a valid directive"));
     let _ = tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_filter)),
-        )
+        .with_env_filter(filter)
         .with_writer(std::io::stderr)
         // A log write that fails (a full disk under the run folder's log) is dropped: the
         // default reports it with `eprint!`, which panics when stderr is that same file.

@@ -76,8 +76,9 @@ pub enum ZenohMode {
 pub struct ZenohConfig {
     /// Peer, client or router (default: peer).
     pub mode: ZenohMode,
-    /// Endpoints to listen on, e.g. `tcp/0.0.0.0:7447`. Empty: Zenoh's default for the mode
-    /// (a peer listens on a random TCP port of every interface).
+    /// Endpoints to listen on, e.g. `tcp/0.0.0.0:7447` (every interface: needs
+    /// [`ZenohConfig::secret`]). Empty: loopback only (a peer on a free port of 127.0.0.1, a
+    /// router on 127.0.0.1:7447, a client nowhere).
     pub listen: Vec<String>,
     /// Endpoints to connect to, e.g. `tcp/10.0.0.1:7447` (the learner's host or a router).
     /// Retried until reachable.
@@ -85,17 +86,75 @@ pub struct ZenohConfig {
     /// Find peers on the local network by UDP multicast as well (off: only `connect` and
     /// the gossip of connected peers).
     pub multicast_scouting: bool,
+    /// The run's shared secret for Zenoh's user/password authentication (every session of the
+    /// run proves it holds it; one without it is refused when it opens). Not read from the run
+    /// file: the services set it from the control-plane token (`TERL_TOKEN` or
+    /// `cluster.token_file`). Without it every endpoint must be a loopback address.
+    #[serde(skip)]
+    pub secret: Option<ZenohSecret>,
+}
+
+/// The run's shared secret as Zenoh's authentication uses it: 16 to 1024 visible ASCII
+/// characters (the control-plane token's rules). `Debug` prints `ZenohSecret(<redacted>)`.
+#[derive(Clone, PartialEq, Eq)]
+pub struct ZenohSecret(String);
+
+impl core::fmt::Debug for ZenohSecret {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str("ZenohSecret(<redacted>)")
+    }
+}
+
+impl ZenohSecret {
+    /// The user name every session of a run authenticates as (Zenoh's `usrpwd` user).
+    pub const USER: &'static str = "terl";
+
+    /// Checks `value`: 16 to 1024 visible ASCII characters (no spaces, no control characters).
+    ///
+    /// # Errors
+    /// [`TransportError::Config`] naming the rule broken, never the value.
+    pub fn new(value: impl Into<String>) -> Result<Self, TransportError> {
+        let value = value.into();
+        if !(16..=1024).contains(&value.len()) || !value.bytes().all(|b| b.is_ascii_graphic()) {
+            return Err(TransportError::Config(
+                "the Zenoh secret must be 16 to 1024 visible ASCII characters".into(),
+            ));
+        }
+        Ok(Self(value))
+    }
+
+    /// The secret itself, for the session's authentication only.
+    pub(crate) fn expose(&self) -> &str {
+        &self.0
+    }
 }
 
 impl ZenohConfig {
     /// Checks the endpoint syntax: `tcp/<host>:<port>` (only TCP is built in), the port a
-    /// number up to 65535, optionally followed by Zenoh's `?config` / `#metadata`.
+    /// number up to 65535, optionally followed by Zenoh's `?config` / `#metadata`; and that
+    /// every endpoint is a loopback address (`127.0.0.0/8`, `[::1]`, `localhost`) unless
+    /// [`ZenohConfig::secret`] is set.
     pub fn validate(&self) -> Result<(), TransportError> {
         for endpoint in self.listen.iter().chain(&self.connect) {
             if !endpoint_is_tcp_host_port(endpoint) {
                 return Err(TransportError::Config(format!(
                     "zenoh endpoint {endpoint:?} must look like tcp/<host>:<port> (only TCP is \
                      built in)"
+                )));
+            }
+        }
+        if self.secret.is_none() {
+            if let Some(endpoint) = self
+                .listen
+                .iter()
+                .chain(&self.connect)
+                .find(|e| !endpoint_is_loopback(e))
+            {
+                return Err(TransportError::Config(format!(
+                    "zenoh endpoint {endpoint:?} is not a loopback address, and a Zenoh session \
+                     beyond this host needs the run's token: set the TERL_TOKEN environment \
+                     variable or cluster.token_file for every process of the run (sessions \
+                     then authenticate with it), or use 127.0.0.1 endpoints"
                 )));
             }
         }
@@ -107,6 +166,33 @@ impl ZenohConfig {
         }
         Ok(())
     }
+}
+
+/// The endpoints a session listens on: `listen`, or when it is empty a loopback one (a peer on
+/// a free port, a router on Zenoh's port 7447; a client none), never every interface.
+pub(crate) fn listen_endpoints(config: &ZenohConfig) -> Vec<String> {
+    match (config.listen.is_empty(), config.mode) {
+        (false, _) => config.listen.clone(),
+        (true, ZenohMode::Peer) => vec!["tcp/127.0.0.1:0".into()],
+        (true, ZenohMode::Router) => vec!["tcp/127.0.0.1:7447".into()],
+        (true, ZenohMode::Client) => vec![],
+    }
+}
+
+/// Whether a `tcp/<host>:<port>` endpoint names this host only: `localhost`, an IPv4 address
+/// in `127.0.0.0/8` or `[::1]`.
+fn endpoint_is_loopback(endpoint: &str) -> bool {
+    let address = endpoint.strip_prefix("tcp/").unwrap_or(endpoint);
+    let address = address.split(['?', '#']).next().unwrap_or_default();
+    let host = address.rsplit_once(':').map_or(address, |(h, _)| h);
+    let host = host
+        .strip_prefix('[')
+        .and_then(|h| h.strip_suffix(']'))
+        .unwrap_or(host);
+    host.eq_ignore_ascii_case("localhost")
+        || host
+            .parse::<std::net::IpAddr>()
+            .is_ok_and(|ip| ip.is_loopback())
 }
 
 /// `tcp/<host>:<port>[?...][#...]` with a non-empty host (a name, an IPv4 address or a
@@ -293,6 +379,7 @@ mod tests {
             listen: vec![endpoint.to_string()],
             ..ZenohConfig::default()
         };
+        let secret = ZenohSecret::new("0123456789abcdef").unwrap();
         for good in [
             "tcp/0.0.0.0:7447",
             "tcp/terl-zenoh:7447",
@@ -300,7 +387,11 @@ mod tests {
             "tcp/10.0.0.1:65535",
             "tcp/[fe80::1]:7447#iface=eth0",
         ] {
-            assert!(with(good).validate().is_ok(), "{good}");
+            let config = ZenohConfig {
+                secret: Some(secret.clone()),
+                ..with(good)
+            };
+            assert!(config.validate().is_ok(), "{good}");
         }
         for bad in [
             "",
@@ -317,6 +408,77 @@ mod tests {
             let err = with(bad).validate().unwrap_err().to_string();
             assert!(err.contains("tcp/<host>:<port>"), "{bad:?}: {err}");
         }
+    }
+
+    #[test]
+    fn endpoints_beyond_this_host_need_the_secret() {
+        let secret = ZenohSecret::new("0123456789abcdef").unwrap();
+        for (endpoint, loopback) in [
+            ("tcp/127.0.0.1:7447", true),
+            ("tcp/127.9.0.3:0", true),
+            ("tcp/localhost:7447", true),
+            ("tcp/LOCALHOST:7447", true),
+            ("tcp/[::1]:7447#iface=lo", true),
+            ("tcp/0.0.0.0:7447", false),
+            ("tcp/[::]:7447", false),
+            ("tcp/10.0.0.1:7447", false),
+            ("tcp/terl-zenoh:7447", false),
+            ("tcp/localhost.example:7447", false),
+            ("tcp/128.0.0.1:7447", false),
+        ] {
+            for (listen, connect) in [
+                (vec![endpoint.to_string()], vec![]),
+                (vec![], vec![endpoint.to_string()]),
+            ] {
+                let open = ZenohConfig {
+                    listen,
+                    connect,
+                    ..ZenohConfig::default()
+                };
+                match open.validate() {
+                    Ok(()) => assert!(loopback, "{endpoint} needs the secret"),
+                    Err(e) => {
+                        assert!(!loopback, "{endpoint}: {e}");
+                        let e = e.to_string();
+                        assert!(e.contains("TERL_TOKEN") && e.contains(endpoint), "{e}");
+                    }
+                }
+                let locked = ZenohConfig {
+                    secret: Some(secret.clone()),
+                    ..open
+                };
+                assert!(locked.validate().is_ok(), "{endpoint}");
+            }
+        }
+        // The default listens on loopback only, whatever the mode.
+        for mode in [ZenohMode::Peer, ZenohMode::Router, ZenohMode::Client] {
+            let config = ZenohConfig {
+                mode,
+                ..ZenohConfig::default()
+            };
+            assert!(listen_endpoints(&config)
+                .iter()
+                .all(|e| endpoint_is_loopback(e)));
+        }
+    }
+
+    #[test]
+    fn the_secret_is_checked_and_never_printed() {
+        let value = "0123456789abcdef-secret";
+        let secret = ZenohSecret::new(value).unwrap();
+        let config = ZenohConfig {
+            secret: Some(secret),
+            ..ZenohConfig::default()
+        };
+        assert!(!format!("{config:?}").contains(value));
+        assert!(!serde_json::to_string(&config).unwrap().contains(value));
+        assert!(ZenohSecret::new("").is_err());
+        for bad in ["short", "has a space 0123456789", "tab\t0123456789abcdef"] {
+            let e = ZenohSecret::new(bad).unwrap_err().to_string();
+            assert!(!e.contains(bad), "{e}");
+        }
+        assert!(ZenohSecret::new("x".repeat(1025)).is_err());
+        assert!(ZenohSecret::new("x".repeat(1024)).is_ok());
     }
 
     #[test]

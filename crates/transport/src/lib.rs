@@ -36,7 +36,9 @@ pub use channel::{
     EpisodeSink, EpisodeSource, Message, MessageSink, MessageSource, SelectedSink, SelectedSource,
     ServiceTransport, Topic, TransitionSink, TransitionSource, Transport,
 };
-pub use config::{ServiceLimits, TransportConfig, TransportKind, ZenohConfig, ZenohMode};
+pub use config::{
+    ServiceLimits, TransportConfig, TransportKind, ZenohConfig, ZenohMode, ZenohSecret,
+};
 pub use error::TransportError;
 pub use flow::{
     LossTracker, Losses, OverflowPolicy, RateLimiter, RateLimiterError, SendOutcome, SenderLosses,

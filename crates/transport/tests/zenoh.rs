@@ -15,6 +15,8 @@ use terl_transport::*;
 #[derive(Default)]
 struct Mesh {
     endpoints: Mutex<Vec<String>>,
+    /// The run's secret every session of the mesh authenticates with (none: open).
+    secret: Option<ZenohSecret>,
 }
 
 fn free_port() -> u16 {
@@ -36,6 +38,7 @@ impl Mesh {
                     listen: vec![listen.clone()],
                     connect,
                     multicast_scouting: false,
+                    secret: self.secret.clone(),
                 },
                 ..cfg.clone()
             };
@@ -75,6 +78,7 @@ impl Star {
                     listen: vec![],
                     connect: vec![endpoint],
                     multicast_scouting: false,
+                    secret: None,
                 },
                 ..cfg.clone()
             };
@@ -227,6 +231,76 @@ fn malformed_frames_are_rejected_and_counted() {
     assert_eq!(source.stats().received, 1);
 }
 
+/// A run whose sessions authenticate with its secret (Zenoh's user/password) works as an
+/// open one does, and a session without the secret or with another one never joins it: its
+/// frames reach no receiver (not even as rejected frames), it sees no receiver, and it cannot
+/// claim an actor id.
+#[test]
+fn only_sessions_with_the_run_secret_join() {
+    let secret = ZenohSecret::new("zenoh-test-secret-0123456789").unwrap();
+    let mesh = Mesh {
+        secret: Some(secret.clone()),
+        ..Mesh::default()
+    };
+    let make = mesh.make();
+    let cfg = TransportConfig::new(unique_run("auth"), 2);
+    let learner = make(&cfg, "learner");
+    let mut source = learner.zenoh_source::<TransitionBatch>().unwrap();
+    let actor = make(&cfg, "actor-0");
+    let _claim = actor.claim_actor_id(0).unwrap();
+    let mut sink = actor.zenoh_sink::<TransitionBatch>().unwrap();
+    sink.wait_for_receivers(1, Duration::from_secs(10)).unwrap();
+    assert_eq!(sink.send(&batch(0, 1)).unwrap(), SendOutcome::Delivered);
+    assert_eq!(*receive_next(&mut source).unwrap(), *batch(0, 1));
+
+    let key = format!("{}/to/*", cfg.service_name(Topic::Transitions));
+    let endpoints = mesh.endpoints.lock().unwrap().clone();
+    let other = ZenohSecret::new("another-secret-0123456789").unwrap();
+    for (name, rogue_secret) in [("no secret", None), ("another secret", Some(other))] {
+        let rogue = ZenohTransport::open(
+            TransportConfig {
+                zenoh: ZenohConfig {
+                    connect: endpoints.clone(),
+                    secret: rogue_secret,
+                    ..ZenohConfig::default()
+                },
+                ..cfg.clone()
+            },
+            "rogue",
+        )
+        .unwrap();
+        let rogue_sink = rogue.zenoh_sink::<TransitionBatch>().unwrap();
+        assert!(
+            rogue_sink
+                .wait_for_receivers(1, Duration::from_secs(3))
+                .is_err(),
+            "{name}: the rogue sees the learner"
+        );
+        use zenoh::Wait;
+        for bytes in [vec![1u8; 7], vec![0u8; 16 + 22_561]] {
+            rogue.session().put(&key, bytes).wait().unwrap();
+        }
+        let err = rogue.claim_actor_id(1).unwrap_err();
+        assert!(
+            matches!(err, TransportError::Timeout { .. }),
+            "{name}: {err}"
+        );
+        assert_eq!(
+            rogue.session().info().peers_zid().wait().count(),
+            0,
+            "{name}"
+        );
+    }
+    std::thread::sleep(Duration::from_millis(200));
+    assert!(source.try_receive().unwrap().is_none());
+    assert_eq!(source.rejected(), 0, "a rogue frame reached the learner");
+    // The run goes on: its own sessions still deliver and claim.
+    assert_eq!(sink.send(&batch(0, 2)).unwrap(), SendOutcome::Delivered);
+    assert_eq!(*receive_next(&mut source).unwrap(), *batch(0, 2));
+    let late = make(&cfg, "actor-1");
+    let _second = late.claim_actor_id(1).unwrap();
+}
+
 /// A client-mode session without an endpoint is refused with a clear message.
 #[test]
 fn client_without_connect_is_a_config_error() {
@@ -335,6 +409,7 @@ fn a_peer_that_reaches_nobody_refuses_to_claim() {
             listen: vec![format!("tcp/127.0.0.1:{}", free_port())],
             connect: vec![format!("tcp/127.0.0.1:{}", free_port())],
             multicast_scouting: false,
+            secret: None,
         },
         ..TransportConfig::new(unique_run("alone"), 2)
     };

@@ -145,6 +145,12 @@ impl Token {
         Self::new(text.trim_end(), &path.display().to_string())
     }
 
+    /// The token itself, to hand to another authenticator of the same run (the Zenoh
+    /// sessions' user/password authentication); never to be logged.
+    pub fn expose(&self) -> &str {
+        &self.0
+    }
+
     /// The `authorization` metadata value, marked sensitive.
     fn header(&self) -> MetadataValue<Ascii> {
         let mut value = MetadataValue::try_from(format!("Bearer {}", self.0))

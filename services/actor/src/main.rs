@@ -32,10 +32,11 @@ async fn main() -> anyhow::Result<()> {
         format!("actor-{actor_id}")
     };
     let transport = terl_runtime::service::open_transport(
-        config
-            .run
-            .cluster
-            .transport_config(config.run_id.as_str(), config.num_actors),
+        config.run.cluster.service_transport_config(
+            config.run_id.as_str(),
+            config.num_actors,
+            terl_runtime::token_from_env(),
+        )?,
         &role,
     )?;
     terl_actor::run(config, transport, shutdown).await

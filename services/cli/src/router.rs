@@ -9,9 +9,14 @@ use clap::Args;
 
 #[derive(Debug, Args)]
 pub struct RouterArgs {
-    /// Endpoint to listen on (repeatable).
-    #[arg(long, value_name = "ENDPOINT", default_value = "tcp/0.0.0.0:7447")]
+    /// Endpoint to listen on (repeatable). Any but a loopback address needs the run's token
+    /// (TERL_TOKEN or --token-file): every session that connects must then prove it.
+    #[arg(long, value_name = "ENDPOINT", default_value = "tcp/127.0.0.1:7447")]
     listen: Vec<String>,
+    /// File holding the run's token (the run file's cluster.token_file); the TERL_TOKEN
+    /// environment variable wins over it.
+    #[arg(long, value_name = "FILE")]
+    token_file: Option<std::path::PathBuf>,
     /// Also find peers by UDP multicast on the local network.
     #[arg(long)]
     multicast_scouting: bool,
@@ -19,17 +24,31 @@ pub struct RouterArgs {
 
 /// Runs the router until SIGINT or SIGTERM.
 pub fn run(args: RouterArgs) -> Result<ExitCode> {
+    let token = match (terl_runtime::token_from_env(), &args.token_file) {
+        (Some(value), _) => Some(terl_wire::Token::new(value, terl_wire::TOKEN_ENV)?),
+        (None, Some(path)) => Some(terl_wire::Token::from_file(path).context("--token-file")?),
+        (None, None) => None,
+    };
+    let secret = token
+        .map(|t| terl_transport::ZenohSecret::new(t.expose()))
+        .transpose()?;
     let config = terl_transport::ZenohConfig {
         mode: terl_transport::ZenohMode::Router,
         listen: args.listen,
         connect: vec![],
         multicast_scouting: args.multicast_scouting,
+        secret,
     };
     let router = terl_transport::ZenohRouter::open(&config).context("cannot start the router")?;
     eprintln!(
-        "zenoh router {} listening on {}",
+        "zenoh router {} listening on {}{}",
         router.session().zid(),
-        config.listen.join(", ")
+        config.listen.join(", "),
+        if config.secret.is_some() {
+            " (sessions authenticate with the run's token)"
+        } else {
+            ""
+        }
     );
     tokio::runtime::Builder::new_current_thread()
         .enable_all()

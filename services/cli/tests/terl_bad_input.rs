@@ -190,3 +190,86 @@ fn services_with_an_unwritable_log_run_and_stop_cleanly() {
         );
     }
 }
+
+/// The Zenoh data plane is locked like gRPC. `terl zenoh-router` listening beyond loopback
+/// refuses to start without the run's token, naming TERL_TOKEN. With it, a session holding the
+/// token joins and one without it is refused, and even at `RUST_LOG=trace` (Zenoh logs a
+/// session's configuration at debug level) the token appears in no line of the router's log.
+#[test]
+fn a_zenoh_router_beyond_loopback_needs_the_token_and_never_logs_it() {
+    let terl = Path::new(env!("CARGO_BIN_EXE_terl"));
+    let out = Command::new(terl)
+        .args(["zenoh-router", "--listen", "tcp/0.0.0.0:0"])
+        .env_remove("TERL_TOKEN")
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    let err = stderr(&out);
+    assert!(
+        err.contains("tcp/0.0.0.0:0") && err.contains("TERL_TOKEN"),
+        "{err}"
+    );
+
+    let token = "router-test-token-0123456789abcdef";
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("router.log");
+    let mut router = Command::new(terl)
+        .args(["zenoh-router", "--listen", &endpoint])
+        .env("TERL_TOKEN", token)
+        .env("RUST_LOG", "trace")
+        .stderr(std::fs::File::create(&log).unwrap())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    while !std::fs::read_to_string(&log)
+        .unwrap_or_default()
+        .contains("listening on")
+    {
+        assert!(router.try_wait().unwrap().is_none(), "the router exited");
+        assert!(start.elapsed() < Duration::from_secs(30), "no router");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let client = |secret: Option<&str>| {
+        terl_transport::ZenohTransport::open(
+            terl_transport::TransportConfig {
+                zenoh: terl_transport::ZenohConfig {
+                    mode: terl_transport::ZenohMode::Client,
+                    connect: vec![endpoint.clone()],
+                    secret: secret.map(|s| terl_transport::ZenohSecret::new(s).unwrap()),
+                    ..Default::default()
+                },
+                ..terl_transport::TransportConfig::new("router-test", 1)
+            },
+            "test",
+        )
+    };
+    // A client fails to open when it reaches no router that lets it in.
+    assert!(client(Some(token)).is_ok(), "the token holder is refused");
+    assert!(client(None).is_err(), "a client without the token got in");
+    assert!(client(Some("another-token-0123456789")).is_err());
+    nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(router.id() as i32),
+        nix::sys::signal::Signal::SIGTERM,
+    )
+    .unwrap();
+    assert!(router.wait().unwrap().success());
+    let text = std::fs::read_to_string(&log).unwrap();
+    assert!(
+        text.contains("sessions authenticate with the run's token"),
+        "{text}"
+    );
+    // Logging was on at trace level, Zenoh's own lines included.
+    assert!(
+        text.lines()
+            .any(|l| l.contains("TRACE") && l.contains("zenoh")),
+        "no trace lines: {}",
+        &text[..text.len().min(2000)]
+    );
+    assert!(!text.contains(token), "the token is in the router's log");
+}

@@ -33,10 +33,11 @@ async fn main() -> anyhow::Result<()> {
         .await
         .with_context(|| format!("cannot listen on {}", config.addr))?;
     let transport = terl_runtime::service::open_transport(
-        config
-            .run
-            .cluster
-            .transport_config(config.run_id.as_str(), config.num_actors),
+        config.run.cluster.service_transport_config(
+            config.run_id.as_str(),
+            config.num_actors,
+            terl_runtime::token_from_env(),
+        )?,
         "learner",
     )?;
     terl_learner::run(config, listener, transport, shutdown).await

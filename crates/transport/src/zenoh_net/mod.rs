@@ -137,6 +137,41 @@ impl core::fmt::Debug for ZenohTransport {
     }
 }
 
+/// Sets Zenoh's `transport/auth/usrpwd` from `secret`: the user and password this session
+/// proves, and the dictionary (a `user:password` line in a private temporary file, returned so
+/// the caller removes it once the session is open) it checks the sessions that connect to it
+/// against. Zenoh 1.10's handshake sends an HMAC of a nonce, never the password.
+fn authenticate(
+    zc: &mut zenoh::Config,
+    secret: &crate::ZenohSecret,
+) -> Result<tempfile::NamedTempFile, TransportError> {
+    use std::io::Write as _;
+    let user = crate::ZenohSecret::USER;
+    let mut dictionary = tempfile::Builder::new()
+        .prefix("terl-zenoh-")
+        .tempfile()
+        .and_then(|mut f| {
+            writeln!(f, "{user}:{}", secret.expose())?;
+            f.flush()?;
+            Ok(f)
+        })
+        .map_err(|e| {
+            TransportError::Config(format!("cannot write the Zenoh authentication file: {e}"))
+        })?;
+    let path = dictionary.path().display().to_string();
+    for (key, value) in [
+        ("transport/auth/usrpwd/user", user),
+        ("transport/auth/usrpwd/password", secret.expose()),
+        ("transport/auth/usrpwd/dictionary_file", path.as_str()),
+    ] {
+        // The error names the key only: the value may be the secret.
+        zc.insert_json5(key, &serde_json::Value::from(value).to_string())
+            .map_err(|_| TransportError::Config(format!("zenoh {key}: not accepted")))?;
+    }
+    dictionary.as_file_mut().sync_all().ok();
+    Ok(dictionary)
+}
+
 impl ZenohTransport {
     /// Opens a Zenoh session from `config.zenoh` (mode, listen and connect endpoints). In
     /// peer mode the session opens even when no `connect` endpoint is reachable (after Zenoh's
@@ -162,20 +197,31 @@ impl ZenohTransport {
             zc.insert_json5(key, &value)
                 .map_err(|e| TransportError::Config(format!("zenoh {key} = {value}: {e}")))?;
         }
-        if !z.listen.is_empty() {
-            let value = json(&z.listen);
+        let listen = crate::config::listen_endpoints(z);
+        if !listen.is_empty() {
+            let value = json(&listen);
             zc.insert_json5("listen/endpoints", &value)
                 .map_err(|e| TransportError::Config(format!("zenoh listen = {value}: {e}")))?;
         }
+        // Zenoh's user/password authentication: every session both proves the secret (user,
+        // password) and asks it of the sessions that connect to it (the dictionary, which
+        // Zenoh reads from a file while the session opens: a private temporary file, removed
+        // right after).
+        let dictionary = match &z.secret {
+            Some(secret) => Some(authenticate(&mut zc, secret)?),
+            None => None,
+        };
         let session = zenoh::open(zc)
             .wait()
             .map_err(|e| zenoh_err("open session", &format!("terl/{}", config.run_id), e))?;
+        drop(dictionary);
         tracing::info!(
             role,
             zid = %session.zid(),
             mode,
-            listen = ?z.listen,
+            ?listen,
             connect = ?z.connect,
+            authenticated = z.secret.is_some(),
             "zenoh session open"
         );
         Ok(Self {
