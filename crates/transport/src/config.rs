@@ -131,30 +131,13 @@ impl ZenohSecret {
 
 impl ZenohConfig {
     /// Checks the endpoint syntax: `tcp/<host>:<port>` (only TCP is built in), the port a
-    /// number up to 65535, optionally followed by Zenoh's `?config` / `#metadata`; and that
-    /// every endpoint is a loopback address (`127.0.0.0/8`, `[::1]`, `localhost`) unless
-    /// [`ZenohConfig::secret`] is set.
+    /// number up to 65535, optionally followed by Zenoh's `?config` / `#metadata`.
     pub fn validate(&self) -> Result<(), TransportError> {
         for endpoint in self.listen.iter().chain(&self.connect) {
             if !endpoint_is_tcp_host_port(endpoint) {
                 return Err(TransportError::Config(format!(
                     "zenoh endpoint {endpoint:?} must look like tcp/<host>:<port> (only TCP is \
                      built in)"
-                )));
-            }
-        }
-        if self.secret.is_none() {
-            if let Some(endpoint) = self
-                .listen
-                .iter()
-                .chain(&self.connect)
-                .find(|e| !endpoint_is_loopback(e))
-            {
-                return Err(TransportError::Config(format!(
-                    "zenoh endpoint {endpoint:?} is not a loopback address, and a Zenoh session \
-                     beyond this host needs the run's token: set the TERL_TOKEN environment \
-                     variable or cluster.token_file for every process of the run (sessions \
-                     then authenticate with it), or use 127.0.0.1 endpoints"
                 )));
             }
         }
@@ -165,6 +148,33 @@ impl ZenohConfig {
             ));
         }
         Ok(())
+    }
+
+    /// What a session checks before it opens, beyond [`ZenohConfig::validate`]: every endpoint
+    /// is a loopback address (`127.0.0.0/8`, `[::1]`, `localhost`) unless
+    /// [`ZenohConfig::secret`] is set. (A run file is validated without it: the services add
+    /// the token when they start.)
+    ///
+    /// # Errors
+    /// [`TransportError::Config`] naming the first endpoint beyond loopback and `TERL_TOKEN`.
+    pub fn check_locked(&self) -> Result<(), TransportError> {
+        if self.secret.is_some() {
+            return Ok(());
+        }
+        match self
+            .listen
+            .iter()
+            .chain(&self.connect)
+            .find(|e| !endpoint_is_loopback(e))
+        {
+            Some(endpoint) => Err(TransportError::Config(format!(
+                "zenoh endpoint {endpoint:?} is not a loopback address, and a Zenoh session \
+                 beyond this host needs the run's token: set the TERL_TOKEN environment \
+                 variable or cluster.token_file for every process of the run (sessions then \
+                 authenticate with it), or use 127.0.0.1 endpoints"
+            ))),
+            None => Ok(()),
+        }
     }
 }
 
@@ -379,7 +389,6 @@ mod tests {
             listen: vec![endpoint.to_string()],
             ..ZenohConfig::default()
         };
-        let secret = ZenohSecret::new("0123456789abcdef").unwrap();
         for good in [
             "tcp/0.0.0.0:7447",
             "tcp/terl-zenoh:7447",
@@ -387,11 +396,7 @@ mod tests {
             "tcp/10.0.0.1:65535",
             "tcp/[fe80::1]:7447#iface=eth0",
         ] {
-            let config = ZenohConfig {
-                secret: Some(secret.clone()),
-                ..with(good)
-            };
-            assert!(config.validate().is_ok(), "{good}");
+            assert!(with(good).validate().is_ok(), "{good}");
         }
         for bad in [
             "",
@@ -435,7 +440,11 @@ mod tests {
                     connect,
                     ..ZenohConfig::default()
                 };
-                match open.validate() {
+                assert!(
+                    open.validate().is_ok(),
+                    "{endpoint}: a run file may name it"
+                );
+                match open.check_locked() {
                     Ok(()) => assert!(loopback, "{endpoint} needs the secret"),
                     Err(e) => {
                         assert!(!loopback, "{endpoint}: {e}");
@@ -447,7 +456,7 @@ mod tests {
                     secret: Some(secret.clone()),
                     ..open
                 };
-                assert!(locked.validate().is_ok(), "{endpoint}");
+                assert!(locked.check_locked().is_ok(), "{endpoint}");
             }
         }
         // The default listens on loopback only, whatever the mode.

@@ -57,18 +57,42 @@ fn ip(args: &[&str]) -> Result<(), String> {
 
 impl Net {
     fn spawn(&mut self, ns: &str, bin: &Path, args: &[String], log: &Path) {
-        let log = std::fs::File::create(log).unwrap();
-        let child = Command::new("ip")
-            .args(["netns", "exec", ns])
-            .arg(bin)
-            .args(args)
-            .env("RUST_LOG", "info")
-            .env("TERL_TOKEN", TOKEN)
-            .stdout(Stdio::null())
-            .stderr(log)
-            .spawn()
-            .unwrap();
+        let child = spawn_in(ns, bin, args, log, TOKEN);
         self.children.push(child);
+    }
+}
+
+/// Starts `bin` in namespace `ns` with `token` as TERL_TOKEN, its stderr to `log`.
+fn spawn_in(ns: &str, bin: &Path, args: &[String], log: &Path, token: &str) -> Child {
+    let log = std::fs::File::create(log).unwrap();
+    Command::new("ip")
+        .args(["netns", "exec", ns])
+        .arg(bin)
+        .args(args)
+        .env("RUST_LOG", "info")
+        .env("TERL_TOKEN", token)
+        .stdout(Stdio::null())
+        .stderr(log)
+        .spawn()
+        .unwrap()
+}
+
+/// Waits up to 90 s for a process that must stop on its own; its exit status and log.
+fn exit_of(mut child: Child, log: &Path) -> (std::process::ExitStatus, String) {
+    let start = Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            return (status, std::fs::read_to_string(log).unwrap_or_default());
+        }
+        if start.elapsed() > Duration::from_secs(90) {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!(
+                "still running after 90 s:\n{}",
+                std::fs::read_to_string(log).unwrap_or_default()
+            );
+        }
+        std::thread::sleep(Duration::from_millis(100));
     }
 }
 
@@ -347,6 +371,52 @@ fn actor_in_another_namespace_trains_over_zenoh_and_survives_a_link_outage() {
     assert!(
         address.starts_with(&format!("{addr_b}:")),
         "the actor's address {address:?} is not in its namespace ({addr_b})"
+    );
+
+    // The Zenoh data plane is locked with the run's token. An actor from another host with
+    // a wrong token reaches no session of the run: it cannot check, so cannot claim, an actor
+    // id, and stops naming the learner's endpoint. One with the right token reaches the run
+    // and is refused the id actor 0 holds.
+    for (token, name) in [
+        ("wrong-token-0123456789abcdefghij", "rogue"),
+        (TOKEN, "second"),
+    ] {
+        let log = run_dir.join(format!("actor-{name}.log"));
+        let child = spawn_in(
+            &ns_b,
+            &bins.join("terl-actor"),
+            &common(&[
+                "--actor-id",
+                "0",
+                "--learner-addr",
+                &learner,
+                "--zenoh-connect",
+                &zenoh_learner,
+            ]),
+            &log,
+            token,
+        );
+        let (exit, text) = exit_of(child, &log);
+        eprintln!(
+            "{name} actor: {exit}, {}",
+            text.lines().last().unwrap_or_default()
+        );
+        assert!(!exit.success(), "the {name} actor ran:\n{text}");
+        if token == TOKEN {
+            assert!(text.contains("already streaming"), "{text}");
+        } else {
+            assert!(
+                text.contains("timed out") && text.contains(&zenoh_learner),
+                "{text}"
+            );
+            assert!(!text.contains("already streaming"), "{text}");
+        }
+    }
+    let v = status(&ns_a, &learner, &selector).expect("the learner answers");
+    assert_eq!(
+        v["learner"]["actors"].as_array().map(Vec::len),
+        Some(1),
+        "{v}"
     );
 
     // The link goes down, and stays down until the actor has visibly given something up:

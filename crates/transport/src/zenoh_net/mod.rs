@@ -181,6 +181,7 @@ impl ZenohTransport {
     pub fn open(config: TransportConfig, role: &str) -> Result<Self, TransportError> {
         config.validate()?;
         config.zenoh.validate()?;
+        config.zenoh.check_locked()?;
         let z = &config.zenoh;
         let mut zc = zenoh::Config::default();
         let json = |v: &dyn erased::Json| v.json();
