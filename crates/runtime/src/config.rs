@@ -330,8 +330,10 @@ impl RunConfig {
 /// The value of the `TERL_TOKEN` environment variable, if set and not empty (what the service
 /// binaries pass to [`ClusterConfig::server_security`] / [`ClusterConfig::client_security`]).
 pub fn token_from_env() -> Option<String> {
-    std::env::var(terl_wire::TOKEN_ENV)
-        .ok()
+    // A value that is not UTF-8 is passed on (lossily) rather than taken for unset, so the
+    // token check refuses it by name instead of a token file silently winning.
+    std::env::var_os(terl_wire::TOKEN_ENV)
+        .map(|v| v.to_string_lossy().into_owned())
         .filter(|v| !v.is_empty())
 }
 

@@ -184,8 +184,17 @@ pub fn host_name() -> String {
         .unwrap_or_else(|| "unknown".to_owned())
 }
 
-/// The log directive every terl process adds after `RUST_LOG`'s (see [`init_tracing`]).
-const ZENOH_SESSION_LOG_CAP: &str = "zenoh::api::session=warn";
+/// Zenoh logs a session's whole configuration, its authentication password (the run's token)
+/// included, at debug level from this module when the session opens. Every terl process drops
+/// that module's events below warn after `RUST_LOG`'s filter, whatever it asks (a directive
+/// with a field filter is more specific than any directive added to it, so this is a filter
+/// of its own, not a directive).
+const ZENOH_SESSION_TARGET: &str = "zenoh::api::session";
+
+fn zenoh_session_capped(meta: &tracing::Metadata<'_>) -> bool {
+    !meta.target().starts_with(ZENOH_SESSION_TARGET)
+        || matches!(*meta.level(), tracing::Level::ERROR | tracing::Level::WARN)
+}
 
 /// Initialises `tracing` for a service binary: `RUST_LOG` or `info`, to stderr (colours only on
 /// a terminal). Log lines carry the service's span (`learner{run=..}`, `selector{run=..}`,
@@ -197,19 +206,19 @@ pub fn init_tracing() {
 /// [`init_tracing`] with another default filter when `RUST_LOG` is unset (the `terl` command
 /// line: `warn`). Does nothing when a subscriber is already set.
 pub fn init_tracing_with_default(default_filter: &str) {
+    use tracing_subscriber::layer::SubscriberExt as _;
+    use tracing_subscriber::util::SubscriberInitExt as _;
+    use tracing_subscriber::Layer as _;
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_filter))
-        // Zenoh logs a session's whole configuration, its authentication password (the run's
-        // token) included, at debug level when the session opens: capped at warn whatever
-        // RUST_LOG asks.
-        .add_directive(ZENOH_SESSION_LOG_CAP.parse().expect("a valid directive"));
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(filter)
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_filter));
+    let layer = tracing_subscriber::fmt::layer()
         .with_writer(std::io::stderr)
         // A log write that fails (a full disk under the run folder's log) is dropped: the
         // default reports it with `eprint!`, which panics when stderr is that same file.
         .log_internal_errors(false)
         // Plain text when logs go to a file (the launcher writes runs/<id>/*.log).
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .try_init();
+        .with_filter(filter)
+        .with_filter(tracing_subscriber::filter::filter_fn(zenoh_session_capped));
+    let _ = tracing_subscriber::registry().with(layer).try_init();
 }

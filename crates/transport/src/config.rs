@@ -84,7 +84,8 @@ pub struct ZenohConfig {
     /// Retried until reachable.
     pub connect: Vec<String>,
     /// Find peers on the local network by UDP multicast as well (off: only `connect` and
-    /// the gossip of connected peers).
+    /// the gossip of connected peers). Refused when a session opens
+    /// ([`ZenohConfig::check_locked`]): it would connect to unknown peers.
     pub multicast_scouting: bool,
     /// The run's shared secret for Zenoh's user/password authentication (every session of the
     /// run proves it holds it; one without it is refused when it opens). Not read from the run
@@ -150,14 +151,26 @@ impl ZenohConfig {
         Ok(())
     }
 
-    /// What a session checks before it opens, beyond [`ZenohConfig::validate`]: every endpoint
-    /// is a loopback address (`127.0.0.0/8`, `[::1]`, `localhost`) unless
-    /// [`ZenohConfig::secret`] is set. (A run file is validated without it: the services add
+    /// What a session checks before it opens, beyond [`ZenohConfig::validate`]: no multicast
+    /// scouting, and every endpoint a loopback address (`127.0.0.0/8`, `[::1]`, `localhost`)
+    /// unless [`ZenohConfig::secret`] is set. (A run file is validated without it: the services add
     /// the token when they start.)
     ///
     /// # Errors
     /// [`TransportError::Config`] naming the first endpoint beyond loopback and `TERL_TOKEN`.
     pub fn check_locked(&self) -> Result<(), TransportError> {
+        if self.multicast_scouting {
+            // Scouting connects to whatever answers on the network, and Zenoh's user/password
+            // authentication is checked by the side that accepts a connection only: a session
+            // that connects out to an unknown peer would let it in, token or not.
+            return Err(TransportError::Config(
+                "zenoh multicast_scouting connects to any peer that answers on the local \
+                 network, and Zenoh's authentication checks only the side that opens a \
+                 connection, so an unknown peer could join the run: name the run's peers in \
+                 `connect` instead"
+                    .into(),
+            ));
+        }
         if self.secret.is_some() {
             return Ok(());
         }
@@ -458,6 +471,16 @@ mod tests {
                 };
                 assert!(locked.check_locked().is_ok(), "{endpoint}");
             }
+        }
+        // Multicast scouting would connect to whatever answers: refused, token or not.
+        for secret in [None, Some(secret.clone())] {
+            let scouting = ZenohConfig {
+                multicast_scouting: true,
+                secret,
+                ..ZenohConfig::default()
+            };
+            let e = scouting.check_locked().unwrap_err().to_string();
+            assert!(e.contains("multicast_scouting"), "{e}");
         }
         // The default listens on loopback only, whatever the mode.
         for mode in [ZenohMode::Peer, ZenohMode::Router, ZenohMode::Client] {

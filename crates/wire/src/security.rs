@@ -166,16 +166,34 @@ fn read_bounded(path: &Path, what: &'static str, max: u64) -> Result<Vec<u8>, Se
         path: path.to_owned(),
         source,
     };
-    let len = std::fs::metadata(path).map_err(read_err)?.len();
-    if len > max {
-        return Err(SecurityError::TooLarge {
-            what,
-            path: path.to_owned(),
-            len,
-            max,
-        });
+    let meta = std::fs::metadata(path).map_err(read_err)?;
+    if !meta.is_file() {
+        // A directory, a FIFO (would block), a device (/dev/zero never ends).
+        return Err(read_err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            "not a regular file",
+        )));
     }
-    std::fs::read(path).map_err(read_err)
+    let too_large = |len| SecurityError::TooLarge {
+        what,
+        path: path.to_owned(),
+        len,
+        max,
+    };
+    if meta.len() > max {
+        return Err(too_large(meta.len()));
+    }
+    // The size read is bounded too: the file may grow after the check.
+    let mut bytes = Vec::new();
+    std::io::Read::read_to_end(
+        &mut std::io::Read::take(std::fs::File::open(path).map_err(read_err)?, max + 1),
+        &mut bytes,
+    )
+    .map_err(read_err)?;
+    if bytes.len() as u64 > max {
+        return Err(too_large(bytes.len() as u64));
+    }
+    Ok(bytes)
 }
 
 fn read_pem(path: &Path, what: &'static str) -> Result<Vec<u8>, SecurityError> {
@@ -452,6 +470,12 @@ mod tests {
             Token::from_file(&path),
             Err(SecurityError::TooLarge { .. })
         ));
+        // Not regular files: a directory, and a device that never ends (its reported size
+        // is 0, so only the kind and a bounded read keep it out).
+        for other in [dir.as_path(), Path::new("/dev/zero")] {
+            let e = Token::from_file(other).unwrap_err().to_string();
+            assert!(e.contains("not a regular file"), "{e}");
+        }
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

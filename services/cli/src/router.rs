@@ -17,9 +17,6 @@ pub struct RouterArgs {
     /// environment variable wins over it.
     #[arg(long, value_name = "FILE")]
     token_file: Option<std::path::PathBuf>,
-    /// Also find peers by UDP multicast on the local network.
-    #[arg(long)]
-    multicast_scouting: bool,
 }
 
 /// Runs the router until SIGINT or SIGTERM.
@@ -36,7 +33,7 @@ pub fn run(args: RouterArgs) -> Result<ExitCode> {
         mode: terl_transport::ZenohMode::Router,
         listen: args.listen,
         connect: vec![],
-        multicast_scouting: args.multicast_scouting,
+        multicast_scouting: false,
         secret,
     };
     let router = terl_transport::ZenohRouter::open(&config).context("cannot start the router")?;

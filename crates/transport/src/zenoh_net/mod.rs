@@ -138,38 +138,68 @@ impl core::fmt::Debug for ZenohTransport {
 }
 
 /// Sets Zenoh's `transport/auth/usrpwd` from `secret`: the user and password this session
-/// proves, and the dictionary (a `user:password` line in a private temporary file, returned so
-/// the caller removes it once the session is open) it checks the sessions that connect to it
-/// against. Zenoh 1.10's handshake sends an HMAC of a nonce, never the password.
+/// proves, and the dictionary it checks the sessions that connect to it against. Zenoh reads
+/// the dictionary from a file while the session opens; on Linux that file is an anonymous
+/// in-memory file (`memfd_create`, read through `/proc/self/fd`), so the secret never touches a
+/// disk and nothing is left behind even when the process is killed. Elsewhere it is a private
+/// temporary file. The returned handle keeps it readable; the caller drops it once the session
+/// is open. Zenoh 1.10's handshake sends an HMAC of a nonce, never the password.
 fn authenticate(
     zc: &mut zenoh::Config,
     secret: &crate::ZenohSecret,
-) -> Result<tempfile::NamedTempFile, TransportError> {
-    use std::io::Write as _;
+) -> Result<Dictionary, TransportError> {
     let user = crate::ZenohSecret::USER;
-    let mut dictionary = tempfile::Builder::new()
-        .prefix("terl-zenoh-")
-        .tempfile()
-        .and_then(|mut f| {
-            writeln!(f, "{user}:{}", secret.expose())?;
-            f.flush()?;
-            Ok(f)
-        })
-        .map_err(|e| {
-            TransportError::Config(format!("cannot write the Zenoh authentication file: {e}"))
-        })?;
-    let path = dictionary.path().display().to_string();
+    let dictionary = Dictionary::new(&format!("{user}:{}\n", secret.expose())).map_err(|e| {
+        TransportError::Config(format!("cannot write the Zenoh authentication file: {e}"))
+    })?;
     for (key, value) in [
         ("transport/auth/usrpwd/user", user),
         ("transport/auth/usrpwd/password", secret.expose()),
-        ("transport/auth/usrpwd/dictionary_file", path.as_str()),
+        (
+            "transport/auth/usrpwd/dictionary_file",
+            dictionary.path.as_str(),
+        ),
     ] {
         // The error names the key only: the value may be the secret.
         zc.insert_json5(key, &serde_json::Value::from(value).to_string())
             .map_err(|_| TransportError::Config(format!("zenoh {key}: not accepted")))?;
     }
-    dictionary.as_file_mut().sync_all().ok();
     Ok(dictionary)
+}
+
+/// The user/password dictionary as a file Zenoh can read by path.
+struct Dictionary {
+    #[cfg(target_os = "linux")]
+    _file: std::fs::File,
+    #[cfg(not(target_os = "linux"))]
+    _file: tempfile::NamedTempFile,
+    path: String,
+}
+
+impl Dictionary {
+    #[cfg(target_os = "linux")]
+    fn new(content: &str) -> std::io::Result<Self> {
+        use std::io::Write as _;
+        use std::os::fd::AsRawFd as _;
+        let fd = nix::sys::memfd::memfd_create(
+            c"terl-zenoh-auth",
+            nix::sys::memfd::MFdFlags::MFD_CLOEXEC,
+        )?;
+        let mut file = std::fs::File::from(fd);
+        file.write_all(content.as_bytes())?;
+        let path = format!("/proc/self/fd/{}", file.as_raw_fd());
+        Ok(Self { _file: file, path })
+    }
+
+    #[cfg(not(target_os = "linux"))]
+    fn new(content: &str) -> std::io::Result<Self> {
+        use std::io::Write as _;
+        let mut file = tempfile::Builder::new().prefix("terl-zenoh-").tempfile()?;
+        file.write_all(content.as_bytes())?;
+        file.flush()?;
+        let path = file.path().display().to_string();
+        Ok(Self { _file: file, path })
+    }
 }
 
 impl ZenohTransport {
@@ -206,8 +236,7 @@ impl ZenohTransport {
         }
         // Zenoh's user/password authentication: every session both proves the secret (user,
         // password) and asks it of the sessions that connect to it (the dictionary, which
-        // Zenoh reads from a file while the session opens: a private temporary file, removed
-        // right after).
+        // Zenoh reads from a file while the session opens; see `authenticate`).
         let dictionary = match &z.secret {
             Some(secret) => Some(authenticate(&mut zc, secret)?),
             None => None,
@@ -270,7 +299,8 @@ impl ZenohTransport {
                 return Err(TransportError::Timeout {
                     what: format!(
                         "a Zenoh peer at {:?}, to check that actor id {actor_id} is free (start \
-                         the learner first)",
+                         the learner first; with a token, every process of the run needs the \
+                         same TERL_TOKEN)",
                         self.config.zenoh.connect
                     ),
                     after: PEER_WAIT,
