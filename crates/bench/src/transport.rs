@@ -313,12 +313,19 @@ impl PublishReport {
     }
 }
 
+/// The measurement's transport between two network namespaces of this machine. Its endpoints
+/// are not loopback, so its sessions authenticate ([`ZenohConfig::check_locked`]) as a run's
+/// do; both halves derive the same secret from the bench's run id (a throw-away run in private
+/// namespaces, not a credential), so the authenticated handshake is part of what is measured.
 fn remote_config(run_id: &str, publishers: usize, zenoh: ZenohConfig) -> TransportConfig {
     TransportConfig {
         overflow: OverflowPolicy::Block,
         buffer_batches: 64,
         transport: TransportKind::Zenoh,
-        zenoh,
+        zenoh: ZenohConfig {
+            secret: terl_transport::ZenohSecret::new(format!("terl-bench-{run_id}-secret")).ok(),
+            ..zenoh
+        },
         ..TransportConfig::new(run_id, publishers)
     }
 }
