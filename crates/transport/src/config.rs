@@ -65,8 +65,7 @@ pub enum ZenohMode {
     /// Connects only to the router or peer in `connect`; everything goes through it.
     Client,
     /// Routes between the clients and peers that connect to it (`terl zenoh-router`, or a
-    /// process of the run itself); listens on `listen` (Zenoh's default `tcp/[::]:7447` if
-    /// empty).
+    /// process of the run itself); listens on `listen` (`tcp/127.0.0.1:7447` if empty).
     Router,
 }
 
