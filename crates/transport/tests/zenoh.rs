@@ -399,6 +399,73 @@ fn a_new_peer_never_takes_an_id_a_live_actor_holds() {
     }
 }
 
+/// A holder the newcomer cannot reach itself is still seen: the learner's session answers
+/// with the claims it sees. Across hosts such a holder is an actor listening on its own
+/// loopback; here it is a peer session listening nowhere that declares the claim token
+/// `terl/<run_id>/claims/actor-<id>/<session id>` (the layout `claim_actor_id` documents).
+/// Whether Zenoh relays a token between two peers through a third depends on its routing
+/// state (in CI a second actor took a held id); the learner's answer does not.
+#[test]
+fn a_holder_reachable_only_through_the_learner_keeps_its_id() {
+    use zenoh::Wait as _;
+    let hub = format!("tcp/127.0.0.1:{}", free_port());
+    let base = TransportConfig::new(unique_run("hub"), 2);
+    let peer = |listen: Vec<String>, connect: Vec<String>| TransportConfig {
+        zenoh: ZenohConfig {
+            mode: ZenohMode::Peer,
+            listen,
+            connect,
+            multicast_scouting: false,
+            secret: None,
+        },
+        ..base.clone()
+    };
+    let _learner = ZenohTransport::open(peer(vec![hub.clone()], vec![]), "learner").unwrap();
+    let mut unreachable = zenoh::Config::default();
+    for (key, value) in [
+        ("mode", "\"peer\"".to_string()),
+        ("scouting/multicast/enabled", "false".to_string()),
+        ("listen/endpoints", "[]".to_string()),
+        ("connect/endpoints", format!("[\"{hub}\"]")),
+    ] {
+        unreachable.insert_json5(key, &value).unwrap();
+    }
+    let holder = zenoh::open(unreachable).wait().unwrap();
+    let claim = format!("terl/{}/claims/actor-0/{}", base.run_id, holder.zid());
+    let _token = holder.liveliness().declare_token(&claim).wait().unwrap();
+    std::thread::sleep(Duration::from_millis(500));
+    let newcomer = ZenohTransport::open(
+        peer(vec![format!("tcp/127.0.0.1:{}", free_port())], vec![hub]),
+        "actor-auto",
+    )
+    .unwrap();
+    // The learner answers the claim view with the holder's claim (whether Zenoh itself
+    // would relay the token between the two peers depends on its routing state).
+    let view = format!("terl/{}/claim-view/actor-0", base.run_id);
+    let replies = newcomer
+        .session()
+        .get(&view)
+        .consolidation(zenoh::query::ConsolidationMode::None)
+        .timeout(Duration::from_secs(2))
+        .wait()
+        .unwrap();
+    let answers: Vec<String> = std::iter::from_fn(|| replies.recv().ok())
+        .filter_map(|r| r.result().ok().map(|s| s.payload().to_bytes().into_owned()))
+        .flat_map(|b| {
+            String::from_utf8(b)
+                .unwrap()
+                .lines()
+                .map(str::to_owned)
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    assert!(answers.contains(&claim), "{answers:?}");
+    let err = newcomer.claim_actor_id(0).unwrap_err();
+    assert!(matches!(err, TransportError::IdInUse { .. }), "{err}");
+    // Another id is free.
+    let _other = newcomer.claim_actor_id(1).unwrap();
+}
+
 /// A peer that reaches none of its `connect` endpoints refuses to claim an id it cannot
 /// check, naming the endpoint, instead of taking it blindly.
 #[test]

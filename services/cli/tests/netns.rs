@@ -332,17 +332,18 @@ fn actor_in_another_namespace_trains_over_zenoh_and_survives_a_link_outage() {
         &run_dir.join("selector.log"),
     );
     let selector = wait_for_file(&run_dir.join("selector.addr"));
+    let actor_args = common(&[
+        "--actor-id",
+        "0",
+        "--learner-addr",
+        &learner,
+        "--zenoh-connect",
+        &zenoh_learner,
+    ]);
     net.spawn(
         &ns_b,
         &bins.join("terl-actor"),
-        &common(&[
-            "--actor-id",
-            "0",
-            "--learner-addr",
-            &learner,
-            "--zenoh-connect",
-            &zenoh_learner,
-        ]),
+        &actor_args,
         &run_dir.join("actor0.log"),
     );
 
@@ -375,27 +376,15 @@ fn actor_in_another_namespace_trains_over_zenoh_and_survives_a_link_outage() {
 
     // The Zenoh data plane is locked with the run's token. An actor from another host with
     // a wrong token reaches no session of the run: it cannot check, so cannot claim, an actor
-    // id, and stops naming the learner's endpoint. One with the right token reaches the run
-    // and is refused the id actor 0 holds.
-    for (token, name) in [
-        ("wrong-token-0123456789abcdefghij", "rogue"),
-        (TOKEN, "second"),
+    // id, and stops naming the learner's endpoint. One with the right token is refused the id
+    // actor 0 holds, also from the learner's namespace, where actor 0 (listening on its own
+    // loopback) cannot be reached: the learner answers with the claims it sees.
+    for (token, name, ns) in [
+        ("wrong-token-0123456789abcdefghij", "rogue", &ns_b),
+        (TOKEN, "second", &ns_a),
     ] {
         let log = run_dir.join(format!("actor-{name}.log"));
-        let child = spawn_in(
-            &ns_b,
-            &bins.join("terl-actor"),
-            &common(&[
-                "--actor-id",
-                "0",
-                "--learner-addr",
-                &learner,
-                "--zenoh-connect",
-                &zenoh_learner,
-            ]),
-            &log,
-            token,
-        );
+        let child = spawn_in(ns, &bins.join("terl-actor"), &actor_args, &log, token);
         let (exit, text) = exit_of(child, &log);
         eprintln!(
             "{name} actor: {exit}, {}",

@@ -61,6 +61,7 @@ use crate::config::{TransportConfig, ZenohConfig, ZenohMode};
 use crate::error::TransportError;
 use crate::flow::{OverflowPolicy, SendOutcome, StatsSnapshot, TransportStats};
 
+mod claims;
 mod router;
 mod sink;
 mod source;
@@ -245,6 +246,7 @@ impl ZenohTransport {
             .wait()
             .map_err(|e| zenoh_err("open session", &format!("terl/{}", config.run_id), e))?;
         drop(dictionary);
+        claims::serve(&session, &config.run_id)?;
         tracing::info!(
             role,
             zid = %session.zid(),
@@ -278,9 +280,13 @@ impl ZenohTransport {
     /// lease when its host vanished). Errors with [`TransportError::IdInUse`] while a live
     /// process holds it.
     ///
+    /// Every reachable process is asked for its own tokens of the id and for the claims it
+    /// sees of its peers: actors on two hosts that reach each other only through the
+    /// learner's session still see each other's claims (see [`claims`]).
+    ///
     /// Two processes claiming the same id at the same instant never both get it: each
     /// declares its token first, lets it reach the others ([`CLAIM_SETTLE`]) and only then
-    /// asks every reachable process for the id's tokens; of two such claims at least one sees
+    /// asks every reachable process for the id's claims; of two such claims at least one sees
     /// the other's token, and whoever sees another holder withdraws. A claimant that withdrew
     /// tries again after a random pause while no token of the id is seen, up to
     /// [`CLAIM_ATTEMPTS`] times.
@@ -307,7 +313,7 @@ impl ZenohTransport {
                 });
             }
         }
-        let prefix = format!("terl/{}/claims/actor-{actor_id}", self.config.run_id);
+        let prefix = claims::claim_prefix(&self.config.run_id, actor_id);
         let key = format!("{prefix}/{}", self.session.zid());
         let in_use = || TransportError::IdInUse {
             what: format!("actor id {actor_id}"),
@@ -315,12 +321,12 @@ impl ZenohTransport {
             service: prefix.clone(),
         };
         for attempt in 0..CLAIM_ATTEMPTS {
-            if self.other_holders(&prefix, &key)? {
+            if self.other_holders(actor_id, &prefix, &key)? {
                 return Err(in_use());
             }
             let token = self.declare_token(&key)?;
             std::thread::sleep(CLAIM_SETTLE);
-            if !self.other_holders(&prefix, &key)? {
+            if !self.other_holders(actor_id, &prefix, &key)? {
                 return Ok(ZenohClaim { key, _token: token });
             }
             drop(token);
@@ -349,10 +355,21 @@ impl ZenohTransport {
         }
     }
 
-    /// Whether a live token under `prefix/*` other than `mine` exists, asked of every
-    /// reachable process.
-    fn other_holders(&self, prefix: &str, mine: &str) -> Result<bool, TransportError> {
-        Ok(self.live_tokens(prefix)?.iter().any(|key| key != mine))
+    /// Whether a live claim of `actor_id` (a token under `prefix/*`) other than `mine`
+    /// exists: asked of every reachable process, for its own tokens and for the claims it
+    /// sees (a holder this session is not connected to; see [`claims`]).
+    fn other_holders(
+        &self,
+        actor_id: u16,
+        prefix: &str,
+        mine: &str,
+    ) -> Result<bool, TransportError> {
+        let seen = claims::ask(&self.session, &self.config.run_id, actor_id)?;
+        Ok(self
+            .live_tokens(prefix)?
+            .iter()
+            .chain(&seen)
+            .any(|key| key != mine))
     }
 
     /// Keys of the live tokens under `prefix/*`, asked of every reachable process.
