@@ -282,7 +282,8 @@ impl ZenohTransport {
     ///
     /// Every reachable process is asked for its own tokens of the id and for the claims it
     /// sees of its peers: actors on two hosts that reach each other only through the
-    /// learner's session still see each other's claims (see [`claims`]).
+    /// learner's session still see each other's claims, because every session answers
+    /// `terl/<run_id>/claim-view/actor-<id>` with the claims it sees.
     ///
     /// Two processes claiming the same id at the same instant never both get it: each
     /// declares its token first, lets it reach the others ([`CLAIM_SETTLE`]) and only then
