@@ -33,6 +33,8 @@ pub struct ServiceArgs {
     pub parent_pid: Option<u32>,
     /// With `[cluster] transport = "zenoh"`: a Zenoh endpoint to listen on, e.g.
     /// `tcp/0.0.0.0:7447` (repeatable; replaces the run file's `[cluster.zenoh] listen`).
+    /// Any but a loopback address needs the run's token (TERL_TOKEN or the run file's
+    /// `cluster.token_file`).
     #[arg(long = "zenoh-listen", value_name = "ENDPOINT")]
     pub zenoh_listen: Vec<String>,
     /// With `[cluster] transport = "zenoh"`: a Zenoh endpoint to connect to, e.g. the

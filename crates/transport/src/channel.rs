@@ -190,6 +190,18 @@ pub trait Transport: Debug {
     fn cancel_blocked_sends(&self);
 }
 
+/// An actor id held by this process, for as long as the value lives.
+pub trait HeldClaim: Send + Debug {
+    /// `Some(why)` once another process is seen holding the same id since before this claim:
+    /// two holders can meet only after a partition healed (a learner restarted before the
+    /// earlier holder reconnected, a host came back after its lease expired). The later
+    /// holder must then stop streaming under the id. Shared memory and the in-memory twin,
+    /// whose claims are exact on one host: always `None`.
+    fn superseded(&self) -> Option<String> {
+        None
+    }
+}
+
 /// What a service needs of its transport beyond sinks and sources: holding an actor id,
 /// removing what dead processes left, and the main loop's wait. [`crate::RunTransport`]
 /// (shared memory or Zenoh, one per process) and [`crate::MemoryTransport`] (every service of
@@ -197,7 +209,7 @@ pub trait Transport: Debug {
 /// selector and actor loops run unchanged over either.
 pub trait ServiceTransport: Transport + Send + Sync + 'static {
     /// An actor id held for as long as this value lives.
-    type Claim: Send + Debug;
+    type Claim: HeldClaim;
 
     /// Claims `actor_id` on this run so no two actors stream under one id; errors with
     /// [`TransportError::IdInUse`] while another live holder has it.

@@ -182,8 +182,9 @@ impl ZenohConfig {
             Some(endpoint) => Err(TransportError::Config(format!(
                 "zenoh endpoint {endpoint:?} is not a loopback address, and a Zenoh session \
                  beyond this host needs the run's token: set the TERL_TOKEN environment \
-                 variable or cluster.token_file for every process of the run (sessions then \
-                 authenticate with it), or use 127.0.0.1 endpoints"
+                 variable (or the run file's cluster.token_file; terl zenoh-router \
+                 --token-file) for every process of the run (sessions then authenticate with \
+                 it), or use 127.0.0.1 endpoints"
             ))),
             None => Ok(()),
         }

@@ -33,8 +33,8 @@ pub use actor_to_learner::{
 };
 pub use actor_to_selector::{EpisodeSummary, TrajectoryStep, MAX_EPISODE_STEPS, NO_VARIATION};
 pub use channel::{
-    EpisodeSink, EpisodeSource, Message, MessageSink, MessageSource, SelectedSink, SelectedSource,
-    ServiceTransport, Topic, TransitionSink, TransitionSource, Transport,
+    EpisodeSink, EpisodeSource, HeldClaim, Message, MessageSink, MessageSource, SelectedSink,
+    SelectedSource, ServiceTransport, Topic, TransitionSink, TransitionSource, Transport,
 };
 pub use config::{
     ServiceLimits, TransportConfig, TransportKind, ZenohConfig, ZenohMode, ZenohSecret,

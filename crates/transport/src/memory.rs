@@ -201,6 +201,8 @@ pub struct MemoryClaim {
     label: String,
 }
 
+impl crate::channel::HeldClaim for MemoryClaim {}
+
 impl Drop for MemoryClaim {
     fn drop(&mut self) {
         self.claims

@@ -3,7 +3,7 @@
 
 use std::time::Duration;
 
-use crate::channel::{Message, MessageSink, MessageSource, ServiceTransport, Transport};
+use crate::channel::{HeldClaim, Message, MessageSink, MessageSource, ServiceTransport, Transport};
 use crate::config::{TransportConfig, TransportKind};
 use crate::error::TransportError;
 use crate::shm::{SenderClaim, ShmTransport};
@@ -25,6 +25,15 @@ pub enum ActorClaim {
     Shm(Box<SenderClaim>),
     /// The claim over Zenoh.
     Zenoh(ZenohClaim),
+}
+
+impl HeldClaim for ActorClaim {
+    fn superseded(&self) -> Option<String> {
+        match self {
+            Self::Shm(c) => c.superseded(),
+            Self::Zenoh(c) => c.superseded(),
+        }
+    }
 }
 
 impl RunTransport {

@@ -466,6 +466,72 @@ fn a_holder_reachable_only_through_the_learner_keeps_its_id() {
     let _other = newcomer.claim_actor_id(1).unwrap();
 }
 
+/// Two holders of one id meet only once a partition heals (a learner restarted before the
+/// earlier holder reconnected, a host back after its lease expired). The holder whose claim
+/// is the later one is told within a few seconds; a claim later than its own does not
+/// disturb it. The other holder is a peer session listening nowhere, declaring a claim
+/// token with a chosen time (`<claimed at ms>-<session id>`, as `claim_actor_id` documents).
+#[test]
+fn the_later_of_two_holders_that_meet_again_is_told() {
+    use zenoh::Wait as _;
+    let hub = format!("tcp/127.0.0.1:{}", free_port());
+    let base = TransportConfig::new(unique_run("heal"), 2);
+    let peer = |listen: Vec<String>, connect: Vec<String>| TransportConfig {
+        zenoh: ZenohConfig {
+            mode: ZenohMode::Peer,
+            listen,
+            connect,
+            multicast_scouting: false,
+            secret: None,
+        },
+        ..base.clone()
+    };
+    let _learner = ZenohTransport::open(peer(vec![hub.clone()], vec![]), "learner").unwrap();
+    let holder = ZenohTransport::open(
+        peer(
+            vec![format!("tcp/127.0.0.1:{}", free_port())],
+            vec![hub.clone()],
+        ),
+        "actor-0",
+    )
+    .unwrap();
+    let claim = holder.claim_actor_id(0).unwrap();
+    let mut other = zenoh::Config::default();
+    for (key, value) in [
+        ("mode", "\"peer\"".to_string()),
+        ("scouting/multicast/enabled", "false".to_string()),
+        ("listen/endpoints", "[]".to_string()),
+        ("connect/endpoints", format!("[\"{hub}\"]")),
+    ] {
+        other.insert_json5(key, &value).unwrap();
+    }
+    let other = zenoh::open(other).wait().unwrap();
+    let now_ms = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_millis();
+    let prefix = format!("terl/{}/claims/actor-0", base.run_id);
+    let later = format!("{prefix}/{}-{}", now_ms + 60_000, other.zid());
+    let later_token = other.liveliness().declare_token(&later).wait().unwrap();
+    std::thread::sleep(Duration::from_secs(5));
+    assert_eq!(claim.superseded(), None, "a later claim took the id away");
+    drop(later_token);
+    let earlier = format!("{prefix}/1-{}", other.zid());
+    let _earlier_token = other.liveliness().declare_token(&earlier).wait().unwrap();
+    let start = std::time::Instant::now();
+    let why = loop {
+        if let Some(why) = claim.superseded() {
+            break why;
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(15),
+            "the earlier claim {earlier} went unseen"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    assert!(why.contains(&earlier), "{why}");
+}
+
 /// A peer that reaches none of its `connect` endpoints refuses to claim an id it cannot
 /// check, naming the endpoint, instead of taking it blindly.
 #[test]

@@ -14,8 +14,8 @@ use terl_rl::rollout::{
 use terl_rl::{Policy, PolicySpec};
 use terl_runtime::{Algorithm, Lockstep, MetaWorldVec, RunConfig};
 use terl_transport::{
-    flags, EpisodeSummary, Message, MessageSink, ServiceTransport, TrajectoryStep, Transition,
-    TransitionBatch, TransportError, ACTION_DIM, OBS_DIM,
+    flags, EpisodeSummary, HeldClaim, Message, MessageSink, ServiceTransport, TrajectoryStep,
+    Transition, TransitionBatch, TransportError, ACTION_DIM, OBS_DIM,
 };
 
 use crate::{ActorConfig, Mailbox};
@@ -355,6 +355,8 @@ impl PolicySource for ActorPolicy<'_> {
 /// pause while no learner receives, and the progress log.
 struct ActorSink<'a, T: ServiceTransport> {
     transport: &'a T,
+    /// The actor id this process holds; a later holder of an id held twice stops.
+    claim: &'a T::Claim,
     mailbox: &'a Mailbox,
     transitions: Box<dyn MessageSink<TransitionBatch>>,
     episodes: Box<dyn MessageSink<EpisodeSummary>>,
@@ -512,6 +514,12 @@ impl<T: ServiceTransport> TransitionSink for ActorSink<'_, T> {
             );
             (self.log_at, self.log_steps) = (Instant::now(), progress.env_steps);
         }
+        if let Some(why) = self.claim.superseded() {
+            anyhow::bail!(
+                "actor id {} is held by two processes and this one stops: {why}",
+                self.actor_id
+            );
+        }
         Ok(self.check_learner())
     }
 }
@@ -560,7 +568,7 @@ pub(crate) fn run<T: ServiceTransport>(
     let run = &config.run;
     let tasks = terl_runtime::resolve_tasks(&run.tasks)?;
     // One actor per actor id and run, held until this function returns.
-    let (actor_id, _claim) = claim(transport, config)?;
+    let (actor_id, held) = claim(transport, config)?;
     tracing::Span::current().record("id", actor_id);
     let _ = claimed.send(usize::from(actor_id));
     // An actor with a fixed id steps its share of the cluster's environments; one that took
@@ -647,6 +655,7 @@ pub(crate) fn run<T: ServiceTransport>(
     let start = Instant::now();
     let mut sink = ActorSink {
         transport,
+        claim: &held,
         mailbox,
         transitions,
         episodes,

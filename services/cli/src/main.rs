@@ -12,10 +12,29 @@ fn main() -> std::process::ExitCode {
     match terl_cli::run(cli) {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", chain(&e));
             std::process::ExitCode::FAILURE
         }
     }
+}
+
+/// The error and its causes joined by ": ", like `{:#}`, but a cause whose text its parent
+/// already ends with (a message that quotes its source, such as an OS error) is said once.
+fn chain(e: &anyhow::Error) -> String {
+    let mut text = String::new();
+    let mut last = String::new();
+    for cause in e.chain() {
+        let message = cause.to_string();
+        if !text.is_empty() {
+            if last.ends_with(&message) {
+                continue;
+            }
+            text.push_str(": ");
+        }
+        text.push_str(&message);
+        last = message;
+    }
+    text
 }
 
 /// A closed pipe on stdout (`terl … | head`) ends the process as it does any Unix tool (killed

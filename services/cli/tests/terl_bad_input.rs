@@ -210,6 +210,21 @@ fn a_zenoh_router_beyond_loopback_needs_the_token_and_never_logs_it() {
         "{err}"
     );
 
+    // A missing token file is named, and its OS error said once (the message quotes it and
+    // it is the message's source too).
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("no-token");
+    let out = Command::new(terl)
+        .args(["zenoh-router", "--token-file"])
+        .arg(&missing)
+        .env_remove("TERL_TOKEN")
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    let err = stderr(&out);
+    assert!(err.contains(&missing.display().to_string()), "{err}");
+    assert_eq!(err.matches("No such file or directory").count(), 1, "{err}");
+
     let token = "router-test-token-0123456789abcdef";
     // A field filter makes a directive more specific than any cap added as a directive.
     for rust_log in ["trace", "zenoh::api::session[{message}]=debug,trace"] {

@@ -328,6 +328,8 @@ pub struct SenderClaim {
     _node: Arc<Node<ShmService>>,
 }
 
+impl crate::channel::HeldClaim for SenderClaim {}
+
 impl core::fmt::Debug for SenderClaim {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.debug_struct("SenderClaim")

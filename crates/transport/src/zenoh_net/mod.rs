@@ -275,7 +275,8 @@ impl ZenohTransport {
     }
 
     /// Claims `actor_id` on this run for as long as the returned [`ZenohClaim`] lives: the
-    /// liveliness token `terl/<run_id>/claims/actor-<id>/<session id>`. A killed holder's
+    /// liveliness token `terl/<run_id>/claims/actor-<id>/<claimed at>-<session id>` (the
+    /// claim time in ms since the Unix epoch). A killed holder's
     /// token disappears with its session (at once on a closed connection, after Zenoh's 10 s
     /// lease when its host vanished). Errors with [`TransportError::IdInUse`] while a live
     /// process holds it.
@@ -284,6 +285,11 @@ impl ZenohTransport {
     /// sees of its peers: actors on two hosts that reach each other only through the
     /// learner's session still see each other's claims, because every session answers
     /// `terl/<run_id>/claim-view/actor-<id>` with the claims it sees.
+    ///
+    /// Two holders can still meet after a partition heals (a learner restarted before the
+    /// holder reconnected to it; a host back after its lease expired). The claim watches for
+    /// that: its [`HeldClaim::superseded`](crate::HeldClaim::superseded) turns `Some` in the
+    /// holder whose claim is the later one, which must stop.
     ///
     /// Two processes claiming the same id at the same instant never both get it: each
     /// declares its token first, lets it reach the others ([`CLAIM_SETTLE`]) and only then
@@ -315,20 +321,30 @@ impl ZenohTransport {
             }
         }
         let prefix = claims::claim_prefix(&self.config.run_id, actor_id);
-        let key = format!("{prefix}/{}", self.session.zid());
+        let key = claims::claim_key(&prefix, &self.session.zid().to_string());
         let in_use = || TransportError::IdInUse {
             what: format!("actor id {actor_id}"),
             run_id: self.config.run_id.clone(),
             service: prefix.clone(),
         };
         for attempt in 0..CLAIM_ATTEMPTS {
-            if self.other_holders(actor_id, &prefix, &key)? {
+            if self.other_holders(actor_id, &key)? {
                 return Err(in_use());
             }
             let token = self.declare_token(&key)?;
             std::thread::sleep(CLAIM_SETTLE);
-            if !self.other_holders(actor_id, &prefix, &key)? {
-                return Ok(ZenohClaim { key, _token: token });
+            if !self.other_holders(actor_id, &key)? {
+                let watch = claims::Watch::start(
+                    self.session.clone(),
+                    self.config.run_id.clone(),
+                    actor_id,
+                    key.clone(),
+                );
+                return Ok(ZenohClaim {
+                    key,
+                    watch,
+                    _token: token,
+                });
             }
             drop(token);
             let pause = rand::random::<u64>() % (50 * (u64::from(attempt) + 1));
@@ -359,18 +375,12 @@ impl ZenohTransport {
     /// Whether a live claim of `actor_id` (a token under `prefix/*`) other than `mine`
     /// exists: asked of every reachable process, for its own tokens and for the claims it
     /// sees (a holder this session is not connected to; see [`claims`]).
-    fn other_holders(
-        &self,
-        actor_id: u16,
-        prefix: &str,
-        mine: &str,
-    ) -> Result<bool, TransportError> {
-        let seen = claims::ask(&self.session, &self.config.run_id, actor_id)?;
-        Ok(self
-            .live_tokens(prefix)?
-            .iter()
-            .chain(&seen)
-            .any(|key| key != mine))
+    fn other_holders(&self, actor_id: u16, mine: &str) -> Result<bool, TransportError> {
+        Ok(
+            claims::holders(&self.session, &self.config.run_id, actor_id)?
+                .iter()
+                .any(|key| key != mine),
+        )
     }
 
     /// Keys of the live tokens under `prefix/*`, asked of every reachable process.
@@ -634,7 +644,24 @@ impl Transport for ZenohTransport {
 /// released when dropped.
 pub struct ZenohClaim {
     key: String,
+    /// Stopped (its thread joined) when the claim is dropped.
+    watch: claims::Watch,
     _token: LivelinessToken,
+}
+
+impl crate::channel::HeldClaim for ZenohClaim {
+    /// Checked every 2 s in the background: an earlier claim of the same id, seen once two
+    /// parts of the run meet again.
+    fn superseded(&self) -> Option<String> {
+        self.watch.superseded_by().map(|earlier| {
+            format!(
+                "this process claimed it as {} but an earlier claim, {earlier}, is live too \
+                 (two parts of the run met again: a learner restarted before the earlier \
+                 holder reconnected, or a host came back after its lease expired)",
+                self.key
+            )
+        })
+    }
 }
 
 impl core::fmt::Debug for ZenohClaim {

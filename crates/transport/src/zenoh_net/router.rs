@@ -23,7 +23,8 @@ impl ZenohRouter {
     /// Opens the router session, listening on `config.listen`.
     ///
     /// # Errors
-    /// [`TransportError::Config`] for a malformed endpoint; [`TransportError::Zenoh`] when Zenoh
+    /// [`TransportError::Config`] for a malformed endpoint, for multicast scouting, and for an
+    /// endpoint beyond loopback without `config.secret`; [`TransportError::Zenoh`] when Zenoh
     /// cannot open the session (e.g. the port is taken).
     pub fn open(config: &ZenohConfig) -> Result<Self, TransportError> {
         let config = ZenohConfig {
