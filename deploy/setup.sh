@@ -8,6 +8,7 @@
 # - records what it did in .deps/setup.done so a re-run is instant and works offline.
 #
 # - installs what `terl render` needs: EGL and Mesa's OpenGL (headless rendering), ffmpeg;
+# - installs cargo-nextest when missing (the test runner of deploy/test.sh);
 # - creates the Python environments the tests use (.deps/grpc-venv, .deps/mcap-venv,
 #   .deps/k8s-venv, .deps/rliable-venv, .deps/render-venv, .deps/tensorboard-venv);
 #   `--no-test-tools` skips them (the container image's build stage);
@@ -136,8 +137,18 @@ setup_k8s_venv() {
         || die "creating .deps/k8s-venv failed" "re-run deploy/k8s/setup-validator.sh and read its output"
 }
 
+# cargo-nextest runs the tests (deploy/test.sh): one process per test, and the test groups of
+# .config/nextest.toml that keep the shared-memory tests apart. Built once when missing.
+setup_nextest() {
+    cargo nextest --version >/dev/null 2>&1 && return 0
+    say "installing cargo-nextest (once; a few minutes)"
+    cargo install --locked cargo-nextest >&2 \
+        || die "installing cargo-nextest failed" "run: cargo install --locked cargo-nextest"
+}
+
 setup_test_tools() {
     [ "$test_tools" = 1 ] || return 0
+    setup_nextest
     setup_grpc_venv
     setup_mcap_venv
     setup_k8s_venv

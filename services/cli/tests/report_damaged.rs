@@ -358,9 +358,13 @@ fn files_of_an_earlier_report_into_the_same_folder_are_named() {
     );
     assert!(stale.is_file(), "an earlier report's file is never removed");
     // A report already writing into the folder (here: its lock held) refuses a second one.
+    // Its `sleep` outlives the killed `flock`: no pipe of the test is handed to it.
     let mut holder = Command::new("flock")
         .arg(&out_dir)
         .args(["sleep", "30"])
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
         .spawn()
         .unwrap();
     let mut refused = None;
