@@ -399,46 +399,43 @@ fn a_new_peer_never_takes_an_id_a_live_actor_holds() {
     }
 }
 
+/// A raw Zenoh peer session connected to the mesh's first session (the learner) and
+/// listening nowhere, so no other session can open a connection to it: what an actor on
+/// another host, listening on its own loopback, is to the run.
+fn peer_listening_nowhere(mesh: &Mesh) -> zenoh::Session {
+    use zenoh::Wait as _;
+    let learner = mesh.endpoints.lock().unwrap()[0].clone();
+    let mut config = zenoh::Config::default();
+    for (key, value) in [
+        ("mode", "\"peer\"".to_string()),
+        ("scouting/multicast/enabled", "false".to_string()),
+        ("listen/endpoints", "[]".to_string()),
+        ("connect/endpoints", format!("[\"{learner}\"]")),
+    ] {
+        config.insert_json5(key, &value).unwrap();
+    }
+    zenoh::open(config).wait().unwrap()
+}
+
 /// A holder the newcomer cannot reach itself is still seen: the learner's session answers
 /// with the claims it sees. Across hosts such a holder is an actor listening on its own
-/// loopback; here it is a peer session listening nowhere that declares the claim token
-/// `terl/<run_id>/claims/actor-<id>/<session id>` (the layout `claim_actor_id` documents).
+/// loopback; here it is a peer session listening nowhere that declares a claim token
+/// `terl/<run_id>/claims/actor-<id>/<session id>` (no claim time: the earliest claim in the
+/// order `claim_actor_id` documents).
 /// Whether Zenoh relays a token between two peers through a third depends on its routing
 /// state (in CI a second actor took a held id); the learner's answer does not.
 #[test]
 fn a_holder_reachable_only_through_the_learner_keeps_its_id() {
     use zenoh::Wait as _;
-    let hub = format!("tcp/127.0.0.1:{}", free_port());
+    let mesh = Mesh::default();
+    let make = mesh.make();
     let base = TransportConfig::new(unique_run("hub"), 2);
-    let peer = |listen: Vec<String>, connect: Vec<String>| TransportConfig {
-        zenoh: ZenohConfig {
-            mode: ZenohMode::Peer,
-            listen,
-            connect,
-            multicast_scouting: false,
-            secret: None,
-        },
-        ..base.clone()
-    };
-    let _learner = ZenohTransport::open(peer(vec![hub.clone()], vec![]), "learner").unwrap();
-    let mut unreachable = zenoh::Config::default();
-    for (key, value) in [
-        ("mode", "\"peer\"".to_string()),
-        ("scouting/multicast/enabled", "false".to_string()),
-        ("listen/endpoints", "[]".to_string()),
-        ("connect/endpoints", format!("[\"{hub}\"]")),
-    ] {
-        unreachable.insert_json5(key, &value).unwrap();
-    }
-    let holder = zenoh::open(unreachable).wait().unwrap();
+    let _learner = make(&base, "learner");
+    let holder = peer_listening_nowhere(&mesh);
     let claim = format!("terl/{}/claims/actor-0/{}", base.run_id, holder.zid());
     let _token = holder.liveliness().declare_token(&claim).wait().unwrap();
     std::thread::sleep(Duration::from_millis(500));
-    let newcomer = ZenohTransport::open(
-        peer(vec![format!("tcp/127.0.0.1:{}", free_port())], vec![hub]),
-        "actor-auto",
-    )
-    .unwrap();
+    let newcomer = make(&base, "actor-auto");
     // The learner answers the claim view with the holder's claim (whether Zenoh itself
     // would relay the token between the two peers depends on its routing state).
     let view = format!("terl/{}/claim-view/actor-0", base.run_id);
@@ -474,38 +471,13 @@ fn a_holder_reachable_only_through_the_learner_keeps_its_id() {
 #[test]
 fn the_later_of_two_holders_that_meet_again_is_told() {
     use zenoh::Wait as _;
-    let hub = format!("tcp/127.0.0.1:{}", free_port());
+    let mesh = Mesh::default();
+    let make = mesh.make();
     let base = TransportConfig::new(unique_run("heal"), 2);
-    let peer = |listen: Vec<String>, connect: Vec<String>| TransportConfig {
-        zenoh: ZenohConfig {
-            mode: ZenohMode::Peer,
-            listen,
-            connect,
-            multicast_scouting: false,
-            secret: None,
-        },
-        ..base.clone()
-    };
-    let _learner = ZenohTransport::open(peer(vec![hub.clone()], vec![]), "learner").unwrap();
-    let holder = ZenohTransport::open(
-        peer(
-            vec![format!("tcp/127.0.0.1:{}", free_port())],
-            vec![hub.clone()],
-        ),
-        "actor-0",
-    )
-    .unwrap();
+    let _learner = make(&base, "learner");
+    let holder = make(&base, "actor-0");
     let claim = holder.claim_actor_id(0).unwrap();
-    let mut other = zenoh::Config::default();
-    for (key, value) in [
-        ("mode", "\"peer\"".to_string()),
-        ("scouting/multicast/enabled", "false".to_string()),
-        ("listen/endpoints", "[]".to_string()),
-        ("connect/endpoints", format!("[\"{hub}\"]")),
-    ] {
-        other.insert_json5(key, &value).unwrap();
-    }
-    let other = zenoh::open(other).wait().unwrap();
+    let other = peer_listening_nowhere(&mesh);
     let now_ms = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .unwrap()

@@ -18,7 +18,7 @@ use zenoh::query::ConsolidationMode;
 use zenoh::sample::SampleKind;
 use zenoh::{Session, Wait};
 
-use super::{lock, zenoh_err, QUERY_TIMEOUT};
+use super::{live_tokens, lock, zenoh_err, QUERY_TIMEOUT};
 use crate::error::TransportError;
 
 /// How often a holder checks that no earlier claim of its id has appeared.
@@ -111,15 +111,11 @@ pub(super) fn serve(session: &Session, run_id: &str) -> Result<(), TransportErro
 }
 
 /// The claims of `actor_id` that the sessions reachable from `session` see (their own and
-/// those of their peers), without duplicates; at most [`QUERY_TIMEOUT`].
+/// those of their peers); at most [`QUERY_TIMEOUT`].
 ///
 /// # Errors
 /// [`TransportError::Zenoh`] when the query cannot be sent.
-pub(super) fn ask(
-    session: &Session,
-    run_id: &str,
-    actor_id: u16,
-) -> Result<Vec<String>, TransportError> {
+fn ask(session: &Session, run_id: &str, actor_id: u16) -> Result<HashSet<String>, TransportError> {
     let key = view_key(run_id, actor_id);
     let prefix = format!("{}/", claim_prefix(run_id, actor_id));
     let replies = session
@@ -142,33 +138,19 @@ pub(super) fn ask(
             }
         }
     }
-    Ok(keys.into_iter().collect())
+    Ok(keys)
 }
 
-/// Every live claim of `actor_id` that the sessions reachable from `session` hold or see.
+/// Every live claim of `actor_id` that the sessions reachable from `session` hold or see,
+/// without duplicates.
 pub(super) fn holders(
     session: &Session,
     run_id: &str,
     actor_id: u16,
 ) -> Result<Vec<String>, TransportError> {
-    let prefix = claim_prefix(run_id, actor_id);
-    let query = format!("{prefix}/*");
-    let replies = session
-        .liveliness()
-        .get(&query)
-        .timeout(QUERY_TIMEOUT)
-        .wait()
-        .map_err(|e| zenoh_err("liveliness query", &query, e))?;
     let mut keys = ask(session, run_id, actor_id)?;
-    while let Ok(reply) = replies.recv() {
-        if let Ok(sample) = reply.result() {
-            let key = sample.key_expr().as_str();
-            if !keys.iter().any(|k| k == key) {
-                keys.push(key.to_owned());
-            }
-        }
-    }
-    Ok(keys)
+    keys.extend(live_tokens(session, &claim_prefix(run_id, actor_id))?);
+    Ok(keys.into_iter().collect())
 }
 
 /// Watches a held claim: every [`WATCH_EVERY`] it asks for the id's holders and, once one

@@ -114,6 +114,25 @@ fn token_id(key: &str) -> Option<u64> {
     u64::from_str_radix(key.rsplit('/').next()?, 16).ok()
 }
 
+/// Keys of the live tokens under `prefix/*`, asked of every process `session` reaches; at
+/// most [`QUERY_TIMEOUT`].
+fn live_tokens(session: &Session, prefix: &str) -> Result<Vec<String>, TransportError> {
+    let query = format!("{prefix}/*");
+    let replies = session
+        .liveliness()
+        .get(&query)
+        .timeout(QUERY_TIMEOUT)
+        .wait()
+        .map_err(|e| zenoh_err("liveliness query", &query, e))?;
+    let mut keys = vec![];
+    while let Ok(reply) = replies.recv() {
+        if let Ok(sample) = reply.result() {
+            keys.push(sample.key_expr().as_str().to_owned());
+        }
+    }
+    Ok(keys)
+}
+
 fn read_u64(bytes: &[u8], at: usize) -> Option<u64> {
     let b: [u8; 8] = bytes.get(at..at + 8)?.try_into().ok()?;
     Some(u64::from_le_bytes(b))
@@ -383,25 +402,6 @@ impl ZenohTransport {
         )
     }
 
-    /// Keys of the live tokens under `prefix/*`, asked of every reachable process.
-    fn live_tokens(&self, prefix: &str) -> Result<Vec<String>, TransportError> {
-        let query = format!("{prefix}/*");
-        let replies = self
-            .session
-            .liveliness()
-            .get(&query)
-            .timeout(QUERY_TIMEOUT)
-            .wait()
-            .map_err(|e| zenoh_err("liveliness query", &query, e))?;
-        let mut keys = vec![];
-        while let Ok(reply) = replies.recv() {
-            if let Ok(sample) = reply.result() {
-                keys.push(sample.key_expr().as_str().to_owned());
-            }
-        }
-        Ok(keys)
-    }
-
     /// Declares the liveliness token `key`, alive until dropped.
     fn declare_token(&self, key: &str) -> Result<LivelinessToken, TransportError> {
         self.session
@@ -418,7 +418,10 @@ impl ZenohTransport {
     /// Ids of the live tokens under `prefix/*`, asked of every reachable process.
     fn query_tokens(&self, prefix: &str) -> Result<Vec<u64>, TransportError> {
         let mut ids = vec![];
-        for id in self.live_tokens(prefix)?.iter().filter_map(|k| token_id(k)) {
+        for id in live_tokens(&self.session, prefix)?
+            .iter()
+            .filter_map(|k| token_id(k))
+        {
             if !ids.contains(&id) {
                 ids.push(id);
             }
