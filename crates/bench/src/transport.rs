@@ -314,9 +314,10 @@ impl PublishReport {
 }
 
 /// The measurement's transport between two network namespaces of this machine. Its endpoints
-/// are not loopback, so its sessions authenticate ([`ZenohConfig::check_locked`]) as a run's
-/// do; both halves derive the same secret from the bench's run id (a throw-away run in private
-/// namespaces, not a credential), so the authenticated handshake is part of what is measured.
+/// are not loopback, so its sessions speak TLS and authenticate
+/// ([`ZenohConfig::check_locked`]) as a run's do; both halves derive the same secret from the
+/// bench's run id (a throw-away run in private namespaces, not a credential), so TLS and the
+/// authenticated handshake are part of what is measured.
 fn remote_config(run_id: &str, publishers: usize, zenoh: ZenohConfig) -> TransportConfig {
     TransportConfig {
         overflow: OverflowPolicy::Block,
@@ -332,12 +333,14 @@ fn remote_config(run_id: &str, publishers: usize, zenoh: ZenohConfig) -> Transpo
 
 /// Publishing half of a measurement between hosts (network namespaces in `terl bench
 /// transport --netns`): `publishers` threads, each with its own Zenoh client session connected
-/// to `connect` (the receiver's endpoint), send full batches for `seconds` under `Block`.
+/// to `connect` (the receiver's `tls/` endpoint, its certificate checked against `ca`), send
+/// full batches for `seconds` under `Block`.
 ///
 /// # Errors
 /// A session that cannot open or a receiver that does not appear within 10 s.
 pub fn zenoh_publish(
     connect: &str,
+    ca: &std::path::Path,
     run_id: &str,
     publishers: usize,
     seconds: f64,
@@ -348,6 +351,10 @@ pub fn zenoh_publish(
         ZenohConfig {
             mode: ZenohMode::Client,
             connect: vec![connect.to_owned()],
+            tls: terl_transport::ZenohTls {
+                ca: Some(ca.to_path_buf()),
+                ..terl_transport::ZenohTls::default()
+            },
             ..ZenohConfig::default()
         },
     );
@@ -374,8 +381,8 @@ pub fn zenoh_publish(
     })
 }
 
-/// Receiving half of a measurement between hosts: a Zenoh peer listening on `listen` takes
-/// batches from `publishers` remote publishers ([`zenoh_publish`]) until `publisher_done`
+/// Receiving half of a measurement between hosts: a Zenoh peer listening on `listen` (a
+/// `tls/` endpoint presenting `tls.cert`) takes batches from `publishers` remote publishers ([`zenoh_publish`]) until `publisher_done`
 /// returns what they sent and nothing more has arrived for 500 ms. `publisher_done` is first
 /// called once the session listens (start the publishers there) and then polled. The rate is
 /// over the span from the first to the last batch received; loss is sent minus received.
@@ -384,6 +391,7 @@ pub fn zenoh_publish(
 /// A session that cannot open, or `publisher_done` failing (the publishing process failed).
 pub fn zenoh_receive(
     listen: &str,
+    tls: terl_transport::ZenohTls,
     run_id: &str,
     publishers: usize,
     label: &str,
@@ -394,6 +402,7 @@ pub fn zenoh_receive(
         publishers,
         ZenohConfig {
             listen: vec![listen.to_owned()],
+            tls,
             ..ZenohConfig::default()
         },
     );
@@ -447,8 +456,8 @@ mod tests {
         }
     }
 
-    /// The two halves of a cross-host measurement, here in two threads on loopback: every
-    /// batch the publishers sent is received, in order.
+    /// The two halves of a cross-host measurement, here in two threads on loopback over TLS
+    /// as between hosts: every batch the publishers sent is received, in order.
     #[test]
     fn remote_halves_count_every_batch() {
         let port = std::net::TcpListener::bind("127.0.0.1:0")
@@ -456,15 +465,27 @@ mod tests {
             .local_addr()
             .unwrap()
             .port();
-        let endpoint = format!("tcp/127.0.0.1:{port}");
+        let endpoint = format!("tls/127.0.0.1:{port}");
         let run = format!("bench-halves-{}", std::process::id());
+        let certs = tempfile::tempdir().unwrap();
+        let files = terl_wire::certs::write_run_certificates(
+            certs.path(),
+            "bench test",
+            &["127.0.0.1".into()],
+        )
+        .unwrap();
+        let tls = terl_transport::ZenohTls {
+            ca: Some(files.ca.clone()),
+            cert: Some(files.cert),
+            key: Some(files.key),
+        };
         // The publishers start once the receiver listens (its first call of the callback),
         // as `terl bench transport --netns` starts its publishing process.
         let mut publisher = None;
-        let r = zenoh_receive(&endpoint, &run, 2, "zenoh-test", || {
+        let r = zenoh_receive(&endpoint, tls, &run, 2, "zenoh-test", || {
             let handle = publisher.get_or_insert_with(|| {
-                let (endpoint, run) = (endpoint.clone(), run.clone());
-                std::thread::spawn(move || zenoh_publish(&endpoint, &run, 2, 0.3))
+                let (endpoint, run, ca) = (endpoint.clone(), run.clone(), files.ca.clone());
+                std::thread::spawn(move || zenoh_publish(&endpoint, &ca, &run, 2, 0.3))
             });
             if handle.is_finished() {
                 let handle = publisher.take().unwrap();

@@ -413,8 +413,9 @@ impl ClusterConfig {
 
     /// [`ClusterConfig::transport_config`] as a service opens it: with the control-plane
     /// token (`env_token`, the `TERL_TOKEN` value, else `token_file`) as the Zenoh sessions'
-    /// shared secret when there is one, so every session of the run authenticates and Zenoh
-    /// endpoints beyond loopback are allowed.
+    /// shared secret when there is one, so every session of the run authenticates, and with
+    /// `tls_ca`, `tls_cert` and `tls_key` as the files of Zenoh's `tls/` endpoints; Zenoh
+    /// endpoints beyond loopback need both ([`terl_transport::ZenohConfig::check_locked`]).
     ///
     /// # Errors
     /// The token cannot be read or is malformed (the source is named, never the value).
@@ -428,6 +429,11 @@ impl ClusterConfig {
         if let Some(token) = self.token(env_token)? {
             config.zenoh.secret = Some(terl_transport::ZenohSecret::new(token.expose())?);
         }
+        config.zenoh.tls = terl_transport::ZenohTls {
+            ca: self.tls_ca.clone(),
+            cert: self.tls_cert.clone(),
+            key: self.tls_key.clone(),
+        };
         Ok(config)
     }
 
@@ -1052,5 +1058,29 @@ mod message_limit_tests {
         let defaults = terl_transport::TransportConfig::new("run-a", 3);
         assert_eq!(t.buffer_episodes, defaults.buffer_episodes);
         assert_eq!(t.buffer_selected, defaults.buffer_selected);
+    }
+
+    #[test]
+    fn a_service_s_zenoh_session_takes_the_token_and_the_run_s_tls_files() {
+        let cfg = run_file(
+            "[cluster]\ntransport = \"zenoh\"\ntls_ca = \"t/ca.pem\"\ntls_cert = \"t/cert.pem\"\n\
+             tls_key = \"t/key.pem\"\n[cluster.zenoh]\nconnect = [\"tls/10.0.0.1:7447\"]\n",
+        );
+        // The run file alone does not admit the endpoint: no token.
+        let plain = cfg.cluster.transport_config("run-a", 1);
+        assert!(plain.zenoh.check_locked().is_err());
+        let t = cfg
+            .cluster
+            .service_transport_config("run-a", 1, Some("service-token-0123456789".into()))
+            .unwrap();
+        assert!(t.zenoh.secret.is_some());
+        assert_eq!(t.zenoh.tls.ca.as_deref(), Some(Path::new("t/ca.pem")));
+        assert_eq!(t.zenoh.tls.cert.as_deref(), Some(Path::new("t/cert.pem")));
+        assert_eq!(t.zenoh.tls.key.as_deref(), Some(Path::new("t/key.pem")));
+        t.zenoh.check_locked().unwrap();
+        // Plain TCP beyond loopback stays refused, token and files or not.
+        let mut tcp = t.clone();
+        tcp.zenoh.connect = vec!["tcp/10.0.0.1:7447".into()];
+        assert!(tcp.zenoh.check_locked().is_err());
     }
 }

@@ -162,7 +162,8 @@ fn mt50_runs_every_task_with_the_reference_mtsac_settings() {
 
 /// The run file inside the Kubernetes ConfigMap (deploy/k8s/run.yaml, key `run.toml`, a YAML
 /// block scalar indented by four spaces) loads, runs over Zenoh as a client of the
-/// `terl-zenoh` router, and is MT10's run file in every other key.
+/// `terl-zenoh` router over TLS with the files the manifests mount, and is MT10's run file in
+/// every other key.
 #[test]
 fn the_kubernetes_run_file_is_mt10_over_zenoh_through_the_router() {
     let yaml = std::fs::read_to_string(configs_dir().join("../k8s/run.yaml")).unwrap();
@@ -180,10 +181,54 @@ fn the_kubernetes_run_file_is_mt10_over_zenoh_through_the_router() {
     let k8s = RunConfig::load(&path).unwrap_or_else(|e| panic!("run.toml of run.yaml: {e:#}"));
     assert_eq!(k8s.cluster.transport, terl_transport::TransportKind::Zenoh);
     assert_eq!(k8s.cluster.zenoh.mode, terl_transport::ZenohMode::Client);
-    assert_eq!(k8s.cluster.zenoh.connect, ["tcp/terl-zenoh:7447"]);
+    assert_eq!(k8s.cluster.zenoh.connect, ["tls/terl-zenoh:7447"]);
+    // As a pod opens it (with the terl-token secret), the Zenoh session passes the lock: TLS
+    // to the router, its certificate checked against the terl-tls secret's CA.
+    let session = k8s
+        .cluster
+        .service_transport_config("mt10-k8s", 16, Some("k8s-test-token-0123456789".into()))
+        .unwrap();
+    session.zenoh.check_locked().unwrap();
+    // The TLS files are where the manifests mount the terl-tls secret, and the router serves
+    // the endpoint the run connects to with the same certificate.
+    let tls_dir = "/etc/terl-tls";
+    for (file, key) in [
+        (&k8s.cluster.tls_ca, "ca.pem"),
+        (&k8s.cluster.tls_cert, "cert.pem"),
+        (&k8s.cluster.tls_key, "key.pem"),
+    ] {
+        assert_eq!(
+            file.as_deref(),
+            Some(Path::new(tls_dir).join(key).as_path())
+        );
+    }
+    let manifest =
+        |name: &str| std::fs::read_to_string(configs_dir().join("../k8s").join(name)).unwrap();
+    for name in ["learner.yaml", "actors.yaml", "zenoh-router.yaml"] {
+        let m = manifest(name);
+        assert!(
+            m.contains(&format!("mountPath: {tls_dir}")) && m.contains("secretName: terl-tls"),
+            "{name} does not mount the terl-tls secret at {tls_dir}"
+        );
+    }
+    let router = manifest("zenoh-router.yaml");
+    for flag in [
+        "--listen=tls/0.0.0.0:7447".to_string(),
+        format!("--tls-cert={tls_dir}/cert.pem"),
+        format!("--tls-key={tls_dir}/key.pem"),
+        "--run-id=$(TERL_RUN_ID)".to_string(),
+    ] {
+        assert!(
+            router.contains(&flag),
+            "the router is not started with {flag}"
+        );
+    }
     let mut as_shm = k8s.clone();
     as_shm.cluster.transport = Default::default();
     as_shm.cluster.zenoh = Default::default();
+    as_shm.cluster.tls_ca = None;
+    as_shm.cluster.tls_cert = None;
+    as_shm.cluster.tls_key = None;
     assert_eq!(format!("{as_shm:?}"), format!("{:?}", load("mt10.toml")));
 }
 

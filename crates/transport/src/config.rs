@@ -4,6 +4,7 @@
 //! N actors streaming into one learner; every limit here is derived from the actor count
 //! so a service created by the first process fits everyone who joins later.
 
+use std::path::PathBuf;
 use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
@@ -75,11 +76,13 @@ pub enum ZenohMode {
 pub struct ZenohConfig {
     /// Peer, client or router (default: peer).
     pub mode: ZenohMode,
-    /// Endpoints to listen on, e.g. `tcp/0.0.0.0:7447` (every interface: needs
-    /// [`ZenohConfig::secret`]). Empty: loopback only (a peer on a free port of 127.0.0.1, a
-    /// router on 127.0.0.1:7447, a client nowhere).
+    /// Endpoints to listen on: `tcp/<host>:<port>` on a loopback address, or
+    /// `tls/<host>:<port>`, e.g. `tls/0.0.0.0:7447` (every interface; beyond loopback only TLS
+    /// with [`ZenohConfig::secret`] is accepted, see [`ZenohConfig::check_locked`]). Empty:
+    /// loopback only (a peer on a free port of 127.0.0.1, a router on 127.0.0.1:7447, a client
+    /// nowhere).
     pub listen: Vec<String>,
-    /// Endpoints to connect to, e.g. `tcp/10.0.0.1:7447` (the learner's host or a router).
+    /// Endpoints to connect to, e.g. `tls/10.0.0.1:7447` (the learner's host or a router).
     /// Retried until reachable.
     pub connect: Vec<String>,
     /// Find peers on the local network by UDP multicast as well (off: only `connect` and
@@ -92,6 +95,31 @@ pub struct ZenohConfig {
     /// `cluster.token_file`). Without it every endpoint must be a loopback address.
     #[serde(skip)]
     pub secret: Option<ZenohSecret>,
+    /// The TLS files of `tls/` endpoints. Not read from `[cluster.zenoh]`: the services take
+    /// them from `[cluster] tls_ca`, `tls_cert` and `tls_key`, the files of the gRPC servers
+    /// (`terl certs` makes them), and `terl zenoh-router` from its flags.
+    #[serde(skip)]
+    pub tls: ZenohTls,
+}
+
+/// The PEM files of a session's `tls/` endpoints (Zenoh's TLS transport, rustls; TLS 1.3).
+/// Zenoh reads them when a link opens: a missing or malformed file fails that listener or
+/// connection, naming the file.
+///
+/// A connecting session checks the certificate of the endpoint it dials against `ca` and the
+/// host in the endpoint (a DNS name or IP address among the certificate's subject alternative
+/// names). Zenoh 1.10's TLS client also trusts the public web roots beside `ca`, so a name a
+/// public authority would certify for someone else is not safe as an endpoint host; the run's
+/// token (Zenoh's user/password authentication inside the TLS link) is checked either way.
+/// Clients present no certificate (no mutual TLS): they prove the token instead.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct ZenohTls {
+    /// CA certificate(s) the `tls/` endpoints a session connects to are checked against.
+    pub ca: Option<PathBuf>,
+    /// Certificate chain presented on `tls/` listen endpoints (with `key`).
+    pub cert: Option<PathBuf>,
+    /// Private key of `cert` (PKCS#8, SEC1 or PKCS#1).
+    pub key: Option<PathBuf>,
 }
 
 /// The run's shared secret as Zenoh's authentication uses it: 16 to 1024 visible ASCII
@@ -130,14 +158,15 @@ impl ZenohSecret {
 }
 
 impl ZenohConfig {
-    /// Checks the endpoint syntax: `tcp/<host>:<port>` (only TCP is built in), the port a
-    /// number up to 65535, optionally followed by Zenoh's `?config` / `#metadata`.
+    /// Checks the endpoint syntax: `tcp/<host>:<port>` or `tls/<host>:<port>` (TCP and TLS
+    /// over TCP are built in), the port a number up to 65535, optionally followed by Zenoh's
+    /// `?config` / `#metadata`.
     pub fn validate(&self) -> Result<(), TransportError> {
         for endpoint in self.listen.iter().chain(&self.connect) {
-            if !endpoint_is_tcp_host_port(endpoint) {
+            if !endpoint_is_host_port(endpoint) {
                 return Err(TransportError::Config(format!(
-                    "zenoh endpoint {endpoint:?} must look like tcp/<host>:<port> (only TCP is \
-                     built in)"
+                    "zenoh endpoint {endpoint:?} must look like tcp/<host>:<port> or \
+                     tls/<host>:<port> (TCP and TLS are built in)"
                 )));
             }
         }
@@ -150,13 +179,20 @@ impl ZenohConfig {
         Ok(())
     }
 
-    /// What a session checks before it opens, beyond [`ZenohConfig::validate`]: no multicast
-    /// scouting, and every endpoint a loopback address (`127.0.0.0/8`, `[::1]`, `localhost`)
-    /// unless [`ZenohConfig::secret`] is set. (A run file is validated without it: the services add
-    /// the token when they start.)
+    /// What a session checks before it opens, beyond [`ZenohConfig::validate`]:
+    /// - no multicast scouting;
+    /// - every endpoint beyond loopback (`127.0.0.0/8`, `[::1]`, `localhost`) is a `tls/`
+    ///   one, and [`ZenohConfig::secret`] is set: beyond this host the data plane is encrypted
+    ///   and every session proves the run's token, as a gRPC server beyond loopback needs the
+    ///   token;
+    /// - a `tls/` listen endpoint has [`ZenohTls::cert`] and [`ZenohTls::key`], a `tls/`
+    ///   connect endpoint [`ZenohTls::ca`].
+    ///
+    /// (A run file is validated without the secret and the TLS files: the services add them
+    /// when they start.)
     ///
     /// # Errors
-    /// [`TransportError::Config`] naming the first endpoint beyond loopback and `TERL_TOKEN`.
+    /// [`TransportError::Config`] naming the endpoint and the settings that would admit it.
     pub fn check_locked(&self) -> Result<(), TransportError> {
         if self.multicast_scouting {
             // Scouting connects to whatever answers on the network, and Zenoh's user/password
@@ -170,24 +206,47 @@ impl ZenohConfig {
                     .into(),
             ));
         }
-        if self.secret.is_some() {
-            return Ok(());
+        let endpoints =
+            (self.listen.iter().map(|e| (e, true))).chain(self.connect.iter().map(|e| (e, false)));
+        for (endpoint, listening) in endpoints {
+            let tls = endpoint.starts_with("tls/");
+            if !endpoint_is_loopback(endpoint) {
+                if !tls {
+                    let host_port = endpoint.split_once('/').map_or("", |(_, a)| a);
+                    return Err(TransportError::Config(format!(
+                        "zenoh endpoint {endpoint:?} is not a loopback address, and beyond this \
+                         host the Zenoh data plane runs over TLS only: write it \
+                         tls/{host_port}, give the processes the run's certificates \
+                         ([cluster] tls_ca; tls_cert and tls_key where a process listens; \
+                         `terl certs` makes them; terl zenoh-router --tls-cert/--tls-key) and \
+                         the run's token, or use 127.0.0.1 endpoints"
+                    )));
+                }
+                if self.secret.is_none() {
+                    return Err(TransportError::Config(format!(
+                        "zenoh endpoint {endpoint:?} is not a loopback address, and a Zenoh \
+                         session beyond this host needs the run's token: set the TERL_TOKEN \
+                         environment variable (or the run file's cluster.token_file; terl \
+                         zenoh-router --token-file) for every process of the run (sessions \
+                         then authenticate with it), or use 127.0.0.1 endpoints"
+                    )));
+                }
+            }
+            if tls && listening && (self.tls.cert.is_none() || self.tls.key.is_none()) {
+                return Err(TransportError::Config(format!(
+                    "zenoh listen endpoint {endpoint:?} is TLS and needs a certificate and its \
+                     key: [cluster] tls_cert and tls_key (terl zenoh-router --tls-cert and \
+                     --tls-key; `terl certs` makes them)"
+                )));
+            }
+            if tls && !listening && self.tls.ca.is_none() {
+                return Err(TransportError::Config(format!(
+                    "zenoh connect endpoint {endpoint:?} is TLS and needs the CA to check the \
+                     certificate it is shown: [cluster] tls_ca (`terl certs` makes it)"
+                )));
+            }
         }
-        match self
-            .listen
-            .iter()
-            .chain(&self.connect)
-            .find(|e| !endpoint_is_loopback(e))
-        {
-            Some(endpoint) => Err(TransportError::Config(format!(
-                "zenoh endpoint {endpoint:?} is not a loopback address, and a Zenoh session \
-                 beyond this host needs the run's token: set the TERL_TOKEN environment \
-                 variable (or the run file's cluster.token_file; terl zenoh-router \
-                 --token-file) for every process of the run (sessions then authenticate with \
-                 it), or use 127.0.0.1 endpoints"
-            ))),
-            None => Ok(()),
-        }
+        Ok(())
     }
 }
 
@@ -202,10 +261,13 @@ pub(crate) fn listen_endpoints(config: &ZenohConfig) -> Vec<String> {
     }
 }
 
-/// Whether a `tcp/<host>:<port>` endpoint names this host only: `localhost`, an IPv4 address
-/// in `127.0.0.0/8` or `[::1]`.
+/// Whether a `tcp/` or `tls/` endpoint names this host only: `localhost`, an IPv4 address in
+/// `127.0.0.0/8` or `[::1]`.
 fn endpoint_is_loopback(endpoint: &str) -> bool {
-    let address = endpoint.strip_prefix("tcp/").unwrap_or(endpoint);
+    let address = endpoint
+        .strip_prefix("tcp/")
+        .or_else(|| endpoint.strip_prefix("tls/"))
+        .unwrap_or(endpoint);
     let address = address.split(['?', '#']).next().unwrap_or_default();
     let host = address.rsplit_once(':').map_or(address, |(h, _)| h);
     let host = host
@@ -218,10 +280,13 @@ fn endpoint_is_loopback(endpoint: &str) -> bool {
             .is_ok_and(|ip| ip.is_loopback())
 }
 
-/// `tcp/<host>:<port>[?...][#...]` with a non-empty host (a name, an IPv4 address or a
-/// bracketed IPv6 address) and a port in 0..=65535.
-fn endpoint_is_tcp_host_port(endpoint: &str) -> bool {
-    let Some(address) = endpoint.strip_prefix("tcp/") else {
+/// `tcp/<host>:<port>[?...][#...]` or the same with `tls/`, with a non-empty host (a name, an
+/// IPv4 address or a bracketed IPv6 address) and a port in 0..=65535.
+fn endpoint_is_host_port(endpoint: &str) -> bool {
+    let Some(address) = endpoint
+        .strip_prefix("tcp/")
+        .or_else(|| endpoint.strip_prefix("tls/"))
+    else {
         return false;
     };
     let address = address.split(['?', '#']).next().unwrap_or_default();
@@ -397,7 +462,7 @@ mod tests {
     }
 
     #[test]
-    fn zenoh_endpoints_need_tcp_host_and_port() {
+    fn zenoh_endpoints_need_tcp_or_tls_host_and_port() {
         let with = |endpoint: &str| ZenohConfig {
             listen: vec![endpoint.to_string()],
             ..ZenohConfig::default()
@@ -408,16 +473,21 @@ mod tests {
             "tcp/[::1]:0",
             "tcp/10.0.0.1:65535",
             "tcp/[fe80::1]:7447#iface=eth0",
+            "tls/terl-zenoh:7447",
+            "tls/10.0.0.1:7447",
         ] {
             assert!(with(good).validate().is_ok(), "{good}");
         }
         for bad in [
             "",
             "tcp/",
+            "tls/",
             "udp/0.0.0.0:7447",
+            "quic/0.0.0.0:7447",
             "tcp/127.0.0.1:99999",
             "tcp/127.0.0.1",
             "tcp/:7447",
+            "tls/:7447",
             "tcp/127.0.0.1:",
             "tcp/127.0.0.1:74x7",
             "tcp/::1:7447",
@@ -428,48 +498,129 @@ mod tests {
         }
     }
 
+    fn run_tls() -> ZenohTls {
+        ZenohTls {
+            ca: Some("ca.pem".into()),
+            cert: Some("cert.pem".into()),
+            key: Some("key.pem".into()),
+        }
+    }
+
     #[test]
-    fn endpoints_beyond_this_host_need_the_secret() {
+    fn endpoints_beyond_this_host_need_tls_and_the_secret() {
         let secret = ZenohSecret::new("0123456789abcdef").unwrap();
-        for (endpoint, loopback) in [
-            ("tcp/127.0.0.1:7447", true),
-            ("tcp/127.9.0.3:0", true),
-            ("tcp/localhost:7447", true),
-            ("tcp/LOCALHOST:7447", true),
-            ("tcp/[::1]:7447#iface=lo", true),
-            ("tcp/0.0.0.0:7447", false),
-            ("tcp/[::]:7447", false),
-            ("tcp/10.0.0.1:7447", false),
-            ("tcp/terl-zenoh:7447", false),
-            ("tcp/localhost.example:7447", false),
-            ("tcp/128.0.0.1:7447", false),
+        for (host_port, loopback) in [
+            ("127.0.0.1:7447", true),
+            ("127.9.0.3:0", true),
+            ("localhost:7447", true),
+            ("LOCALHOST:7447", true),
+            ("[::1]:7447#iface=lo", true),
+            ("0.0.0.0:7447", false),
+            ("[::]:7447", false),
+            ("10.0.0.1:7447", false),
+            ("terl-zenoh:7447", false),
+            ("localhost.example:7447", false),
+            ("128.0.0.1:7447", false),
         ] {
-            for (listen, connect) in [
-                (vec![endpoint.to_string()], vec![]),
-                (vec![], vec![endpoint.to_string()]),
-            ] {
-                let open = ZenohConfig {
-                    listen,
-                    connect,
-                    ..ZenohConfig::default()
-                };
-                assert!(
-                    open.validate().is_ok(),
-                    "{endpoint}: a run file may name it"
-                );
-                match open.check_locked() {
-                    Ok(()) => assert!(loopback, "{endpoint} needs the secret"),
-                    Err(e) => {
-                        assert!(!loopback, "{endpoint}: {e}");
-                        let e = e.to_string();
-                        assert!(e.contains("TERL_TOKEN") && e.contains(endpoint), "{e}");
+            let (tcp, tls) = (format!("tcp/{host_port}"), format!("tls/{host_port}"));
+            for listening in [true, false] {
+                let with = |endpoint: &str| {
+                    let e = vec![endpoint.to_string()];
+                    let (listen, connect) = if listening { (e, vec![]) } else { (vec![], e) };
+                    ZenohConfig {
+                        listen,
+                        connect,
+                        ..ZenohConfig::default()
                     }
-                }
+                };
+                // Plain TCP: on loopback as it is, beyond it never, token and files or not.
+                let open = with(&tcp);
+                assert!(open.validate().is_ok(), "{tcp}: a run file may name it");
                 let locked = ZenohConfig {
                     secret: Some(secret.clone()),
-                    ..open
+                    tls: run_tls(),
+                    ..open.clone()
                 };
-                assert!(locked.check_locked().is_ok(), "{endpoint}");
+                for config in [&open, &locked] {
+                    match config.check_locked() {
+                        Ok(()) => assert!(loopback, "{tcp} beyond loopback"),
+                        Err(e) => {
+                            assert!(!loopback, "{tcp}: {e}");
+                            let e = e.to_string();
+                            assert!(e.contains(&tcp) && e.contains(&tls), "{e}");
+                            assert!(e.contains("tls_ca") && e.contains("token"), "{e}");
+                        }
+                    }
+                }
+                // TLS: beyond loopback with the secret only; anywhere with the files of its
+                // side (the listener's certificate and key, the connector's CA).
+                let full = ZenohConfig {
+                    secret: Some(secret.clone()),
+                    tls: run_tls(),
+                    ..with(&tls)
+                };
+                assert!(full.check_locked().is_ok(), "{tls}");
+                let no_secret = ZenohConfig {
+                    secret: None,
+                    ..full.clone()
+                };
+                match no_secret.check_locked() {
+                    Ok(()) => assert!(loopback, "{tls} without the secret"),
+                    Err(e) => assert!(!loopback && e.to_string().contains("TERL_TOKEN"), "{e}"),
+                }
+                let missing = if listening {
+                    [
+                        ZenohTls {
+                            cert: None,
+                            ..run_tls()
+                        },
+                        ZenohTls {
+                            key: None,
+                            ..run_tls()
+                        },
+                    ]
+                } else {
+                    [
+                        ZenohTls {
+                            ca: None,
+                            ..run_tls()
+                        },
+                        ZenohTls {
+                            ca: None,
+                            cert: None,
+                            key: None,
+                        },
+                    ]
+                };
+                for tls_files in missing {
+                    let e = ZenohConfig {
+                        tls: tls_files.clone(),
+                        ..full.clone()
+                    }
+                    .check_locked()
+                    .unwrap_err()
+                    .to_string();
+                    let named = if listening { "tls_cert" } else { "tls_ca" };
+                    assert!(e.contains(&tls) && e.contains(named), "{tls_files:?}: {e}");
+                }
+                // The other side's files are not needed.
+                let own_side = if listening {
+                    ZenohTls {
+                        ca: None,
+                        ..run_tls()
+                    }
+                } else {
+                    ZenohTls {
+                        ca: run_tls().ca,
+                        ..ZenohTls::default()
+                    }
+                };
+                assert!(ZenohConfig {
+                    tls: own_side,
+                    ..full.clone()
+                }
+                .check_locked()
+                .is_ok());
             }
         }
         // Multicast scouting would connect to whatever answers: refused, token or not.

@@ -37,7 +37,7 @@ pub use channel::{
     SelectedSource, ServiceTransport, Topic, TransitionSink, TransitionSource, Transport,
 };
 pub use config::{
-    ServiceLimits, TransportConfig, TransportKind, ZenohConfig, ZenohMode, ZenohSecret,
+    ServiceLimits, TransportConfig, TransportKind, ZenohConfig, ZenohMode, ZenohSecret, ZenohTls,
 };
 pub use error::TransportError;
 pub use flow::{

@@ -17,6 +17,30 @@ struct Mesh {
     endpoints: Mutex<Vec<String>>,
     /// The run's secret every session of the mesh authenticates with (none: open).
     secret: Option<ZenohSecret>,
+    /// Sessions listen and connect over TLS (`tls/` endpoints, [`run_certificates`]).
+    tls: bool,
+}
+
+/// The TLS files of this test process's runs, as `terl certs` makes them (a CA and one
+/// certificate for localhost and 127.0.0.1), made once.
+fn run_certificates() -> ZenohTls {
+    static FILES: std::sync::OnceLock<(tempfile::TempDir, ZenohTls)> = std::sync::OnceLock::new();
+    let (_, tls) = FILES.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let files = terl_wire::certs::write_run_certificates(
+            dir.path(),
+            "zenoh test",
+            &["localhost".into(), "127.0.0.1".into()],
+        )
+        .unwrap();
+        let tls = ZenohTls {
+            ca: Some(files.ca),
+            cert: Some(files.cert),
+            key: Some(files.key),
+        };
+        (dir, tls)
+    });
+    tls.clone()
 }
 
 fn free_port() -> u16 {
@@ -30,7 +54,8 @@ fn free_port() -> u16 {
 impl Mesh {
     fn make(&self) -> impl Fn(&TransportConfig, &str) -> ZenohTransport + Sync + '_ {
         move |cfg, role| {
-            let listen = format!("tcp/127.0.0.1:{}", free_port());
+            let scheme = if self.tls { "tls" } else { "tcp" };
+            let listen = format!("{scheme}/127.0.0.1:{}", free_port());
             let connect = self.endpoints.lock().unwrap().clone();
             let cfg = TransportConfig {
                 zenoh: ZenohConfig {
@@ -39,6 +64,11 @@ impl Mesh {
                     connect,
                     multicast_scouting: false,
                     secret: self.secret.clone(),
+                    tls: if self.tls {
+                        run_certificates()
+                    } else {
+                        ZenohTls::default()
+                    },
                 },
                 ..cfg.clone()
             };
@@ -63,10 +93,13 @@ impl Star {
                 let mut router = self.router.lock().unwrap();
                 let (endpoint, _) = router.get_or_insert_with(|| {
                     let listen = format!("tcp/127.0.0.1:{}", free_port());
-                    let r = ZenohRouter::open(&ZenohConfig {
-                        listen: vec![listen.clone()],
-                        ..ZenohConfig::default()
-                    })
+                    let r = ZenohRouter::open(
+                        &ZenohConfig {
+                            listen: vec![listen.clone()],
+                            ..ZenohConfig::default()
+                        },
+                        None,
+                    )
                     .unwrap();
                     (listen, r)
                 });
@@ -77,8 +110,7 @@ impl Star {
                     mode: ZenohMode::Client,
                     listen: vec![],
                     connect: vec![endpoint],
-                    multicast_scouting: false,
-                    secret: None,
+                    ..ZenohConfig::default()
                 },
                 ..cfg.clone()
             };
@@ -231,15 +263,16 @@ fn malformed_frames_are_rejected_and_counted() {
     assert_eq!(source.stats().received, 1);
 }
 
-/// A run whose sessions authenticate with its secret (Zenoh's user/password) works as an
-/// open one does, and a session without the secret or with another one never joins it: its
-/// frames reach no receiver (not even as rejected frames), it sees no receiver, and it cannot
-/// claim an actor id.
+/// A run whose sessions speak TLS and authenticate with its secret (Zenoh's user/password)
+/// works as an open one does, and a session without the secret, with another one, or with the
+/// secret but trusting another CA never joins it: its frames reach no receiver (not even as
+/// rejected frames), it sees no receiver, and it cannot claim an actor id.
 #[test]
-fn only_sessions_with_the_run_secret_join() {
+fn only_sessions_with_the_run_secret_and_ca_join() {
     let secret = ZenohSecret::new("zenoh-test-secret-0123456789").unwrap();
     let mesh = Mesh {
         secret: Some(secret.clone()),
+        tls: true,
         ..Mesh::default()
     };
     let make = mesh.make();
@@ -256,12 +289,28 @@ fn only_sessions_with_the_run_secret_join() {
     let key = format!("{}/to/*", cfg.service_name(Topic::Transitions));
     let endpoints = mesh.endpoints.lock().unwrap().clone();
     let other = ZenohSecret::new("another-secret-0123456789").unwrap();
-    for (name, rogue_secret) in [("no secret", None), ("another secret", Some(other))] {
+    let other_ca = tempfile::tempdir().unwrap();
+    let other_ca = terl_wire::certs::write_run_certificates(
+        other_ca.path(),
+        "another run",
+        &["127.0.0.1".into()],
+    )
+    .unwrap()
+    .ca;
+    for (name, rogue_secret, ca) in [
+        ("no secret", None, run_certificates().ca),
+        ("another secret", Some(other), run_certificates().ca),
+        ("another CA", Some(secret.clone()), Some(other_ca)),
+    ] {
         let rogue = ZenohTransport::open(
             TransportConfig {
                 zenoh: ZenohConfig {
                     connect: endpoints.clone(),
                     secret: rogue_secret,
+                    tls: ZenohTls {
+                        ca,
+                        ..ZenohTls::default()
+                    },
                     ..ZenohConfig::default()
                 },
                 ..cfg.clone()
@@ -513,8 +562,7 @@ fn a_peer_that_reaches_nobody_refuses_to_claim() {
             mode: ZenohMode::Peer,
             listen: vec![format!("tcp/127.0.0.1:{}", free_port())],
             connect: vec![format!("tcp/127.0.0.1:{}", free_port())],
-            multicast_scouting: false,
-            secret: None,
+            ..ZenohConfig::default()
         },
         ..TransportConfig::new(unique_run("alone"), 2)
     };

@@ -9,14 +9,26 @@ use clap::Args;
 
 #[derive(Debug, Args)]
 pub struct RouterArgs {
-    /// Endpoint to listen on (repeatable). Any but a loopback address needs the run's token
-    /// (TERL_TOKEN or --token-file): every session that connects must then prove it.
+    /// Endpoint to listen on (repeatable). Beyond a loopback address only TLS
+    /// (`tls/0.0.0.0:7447`, with --tls-cert and --tls-key) with the run's token (TERL_TOKEN or
+    /// --token-file) is accepted: every session that connects must then prove the token.
     #[arg(long, value_name = "ENDPOINT", default_value = "tcp/127.0.0.1:7447")]
     listen: Vec<String>,
     /// File holding the run's token (the run file's cluster.token_file); the TERL_TOKEN
     /// environment variable wins over it.
     #[arg(long, value_name = "FILE")]
     token_file: Option<std::path::PathBuf>,
+    /// The run whose keys the router carries (`terl/<run id>/**`, and it answers for the run's
+    /// actor-id claims); without it, every run's `terl/**`. Nothing else is routed.
+    #[arg(long, value_name = "ID")]
+    run_id: Option<String>,
+    /// Certificate chain (PEM) presented on `tls/` endpoints (the run's cluster.tls_cert;
+    /// `terl certs` makes it).
+    #[arg(long, value_name = "FILE", requires = "tls_key")]
+    tls_cert: Option<std::path::PathBuf>,
+    /// Private key of --tls-cert (PEM; the run's cluster.tls_key).
+    #[arg(long, value_name = "FILE", requires = "tls_cert")]
+    tls_key: Option<std::path::PathBuf>,
 }
 
 /// Runs the router until SIGINT or SIGTERM.
@@ -35,12 +47,22 @@ pub fn run(args: RouterArgs) -> Result<ExitCode> {
         connect: vec![],
         multicast_scouting: false,
         secret,
+        tls: terl_transport::ZenohTls {
+            ca: None,
+            cert: args.tls_cert,
+            key: args.tls_key,
+        },
     };
-    let router = terl_transport::ZenohRouter::open(&config).context("cannot start the router")?;
+    let router = terl_transport::ZenohRouter::open(&config, args.run_id.as_deref())
+        .context("cannot start the router")?;
     eprintln!(
-        "zenoh router {} listening on {}{}",
+        "zenoh router {} listening on {}, carrying {}{}",
         router.session().zid(),
         config.listen.join(", "),
+        args.run_id.as_deref().map_or_else(
+            || "every run's keys".to_string(),
+            |r| format!("run {r}'s keys")
+        ),
         if config.secret.is_some() {
             " (sessions authenticate with the run's token)"
         } else {

@@ -337,7 +337,7 @@ fn cluster_in_one_container(pods: &mut Podman, image: &str, tag: &str, dir: &Pat
 }
 
 /// Learner, selector and actor in three containers on a podman network: transitions and
-/// episodes over Zenoh, weights and status over gRPC with a token; `terl status` answers from the host; SIGTERM stops each with
+/// episodes over Zenoh, weights and status over gRPC, both with TLS and a token; `terl status` answers from the host; SIGTERM stops each with
 /// exit code 0, the learner with a final checkpoint.
 fn cluster_across_containers(pods: &mut Podman, image: &str, tag: &str, dir: &Path, volume: &str) {
     let net = format!("terl-net-{tag}");
@@ -355,14 +355,36 @@ fn cluster_across_containers(pods: &mut Podman, image: &str, tag: &str, dir: &Pa
     let token_env = format!("TERL_TOKEN={token}");
     let run_id = format!("container-zenoh-{tag}");
     let run_dir = format!("/runs/{run_id}");
+    // The run's TLS files for the learner's and selector's addresses (gRPC and Zenoh), made
+    // on the host with `terl certs`, readable by the image's user.
+    let made = Command::new(env!("CARGO_BIN_EXE_terl"))
+        .args([
+            "certs",
+            "--host",
+            &learner_ip,
+            "--host",
+            &selector_ip,
+            "--out",
+        ])
+        .arg(dir.join("runs/tls"))
+        .output()
+        .unwrap();
+    assert!(made.status.success(), "{made:?}");
+    let out = Command::new("chown")
+        .args(["-R", "10001:10001"])
+        .arg(dir.join("runs/tls"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "chown: {out:?}");
     let smoke = std::fs::read_to_string(workspace().join("deploy/configs/cluster-smoke.toml"))
         .unwrap()
         .replace(
             "block_timeout_secs = 10\n",
-            "block_timeout_secs = 10\ntransport = \"zenoh\"\n",
+            "block_timeout_secs = 10\ntransport = \"zenoh\"\ntls_ca = \"/runs/tls/ca.pem\"\n\
+             tls_cert = \"/runs/tls/cert.pem\"\ntls_key = \"/runs/tls/key.pem\"\n",
         );
     std::fs::write(dir.join("runs/zenoh.toml"), smoke).unwrap();
-    let zenoh_learner = format!("tcp/{learner_ip}:7447");
+    let zenoh_learner = format!("tls/{learner_ip}:7447");
     let learner_addr = format!("{learner_ip}:50051");
     let selector_addr = format!("{selector_ip}:50052");
     let service = |name: &str, ip: &str, bin: &str, extra: &[&str]| -> Vec<String> {
@@ -423,7 +445,7 @@ fn cluster_across_containers(pods: &mut Podman, image: &str, tag: &str, dir: &Pa
             "--learner-addr",
             &learner_addr,
             "--zenoh-listen",
-            &format!("tcp/{selector_ip}:7448"),
+            &format!("tls/{selector_ip}:7448"),
             "--zenoh-connect",
             &zenoh_learner,
         ],
@@ -457,6 +479,8 @@ fn cluster_across_containers(pods: &mut Podman, image: &str, tag: &str, dir: &Pa
                 .env("TERL_TOKEN", token)
                 .args(["status", "--json", "--timeout", "5"])
                 .args(["--addr", &learner_addr, "--selector-addr", &selector_addr])
+                .arg("--tls-ca")
+                .arg(dir.join("runs/tls/ca.pem"))
                 .output()
                 .unwrap();
             trained(&status, 2_000)

@@ -121,6 +121,9 @@ fn wait_for_file(path: &Path) -> String {
     }
 }
 
+/// The run's CA (`terl certs`), set once the test has made it.
+static CA: std::sync::OnceLock<std::path::PathBuf> = std::sync::OnceLock::new();
+
 fn status(ns: &str, learner: &str, selector: &str) -> Option<Value> {
     let out = Command::new("ip")
         .args(["netns", "exec", ns, env!("CARGO_BIN_EXE_terl")])
@@ -133,6 +136,8 @@ fn status(ns: &str, learner: &str, selector: &str) -> Option<Value> {
             "--selector-addr",
             selector,
         ])
+        .arg("--tls-ca")
+        .arg(CA.get().expect("the run's CA"))
         .output()
         .ok()?;
     out.status
@@ -266,23 +271,39 @@ fn actor_in_another_namespace_trains_over_zenoh_and_survives_a_link_outage() {
     let run_id = format!("netns-{tag}");
     let run_dir = dir.path().join(&run_id);
     std::fs::create_dir_all(&run_dir).unwrap();
+    // The run's TLS files for the learner's namespace address (gRPC and Zenoh), and, for a
+    // rogue, another run's.
+    let certs = |dir: &str| -> String {
+        let out = Command::new(env!("CARGO_BIN_EXE_terl"))
+            .args(["certs", "--host", &addr_a, "--out"])
+            .arg(run_dir.join(dir))
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{out:?}");
+        String::from_utf8(out.stdout)
+            .unwrap()
+            .replace("[cluster]\n", "")
+    };
+    let (tls_keys, other_tls_keys) = (certs("tls"), certs("other-tls"));
+    CA.set(run_dir.join("tls/ca.pem")).unwrap();
     // The smoke cluster over Zenoh, giving up on a full receiver after 1 s so that an
     // outage of a few seconds is counted.
     let smoke =
         std::fs::read_to_string(workspace().join("deploy/configs/cluster-smoke.toml")).unwrap();
     assert!(smoke.contains("block_timeout_secs = 10\n"));
-    let config = run_dir.join("zenoh.toml");
-    std::fs::write(
-        &config,
+    let run_file = |tls: &str| {
         smoke
             .replace(
                 "block_timeout_secs = 10\n",
-                "block_timeout_secs = 1\ntransport = \"zenoh\"\n",
+                &format!("block_timeout_secs = 1\ntransport = \"zenoh\"\n{tls}\n"),
             )
             // A fast actor reaches the smoke run's 1M env steps within this test.
-            .replace("[train]\n", "[train]\ntotal_env_steps = 1_000_000_000\n"),
-    )
-    .unwrap();
+            .replace("[train]\n", "[train]\ntotal_env_steps = 1_000_000_000\n")
+    };
+    let config = run_dir.join("zenoh.toml");
+    std::fs::write(&config, run_file(&tls_keys)).unwrap();
+    let other_ca_config = run_dir.join("zenoh-other-ca.toml");
+    std::fs::write(&other_ca_config, run_file(&other_tls_keys)).unwrap();
     let common = |extra: &[&str]| -> Vec<String> {
         let mut v: Vec<String> = [
             "--config",
@@ -299,7 +320,7 @@ fn actor_in_another_namespace_trains_over_zenoh_and_survives_a_link_outage() {
         v
     };
     let run_dir_s = run_dir.display().to_string();
-    let zenoh_learner = format!("tcp/{addr_a}:7447");
+    let zenoh_learner = format!("tls/{addr_a}:7447");
     net.spawn(
         &ns_a,
         &bins.join("terl-learner"),
@@ -325,7 +346,7 @@ fn actor_in_another_namespace_trains_over_zenoh_and_survives_a_link_outage() {
             "--learner-addr",
             &learner,
             "--zenoh-listen",
-            &format!("tcp/{addr_a}:7448"),
+            &format!("tls/{addr_a}:7448"),
             "--zenoh-connect",
             &zenoh_learner,
         ]),
@@ -374,24 +395,41 @@ fn actor_in_another_namespace_trains_over_zenoh_and_survives_a_link_outage() {
         "the actor's address {address:?} is not in its namespace ({addr_b})"
     );
 
-    // The Zenoh data plane is locked with the run's token. An actor from another host with
-    // a wrong token reaches no session of the run: it cannot check, so cannot claim, an actor
-    // id, and stops naming the learner's endpoint. One with the right token is refused the id
-    // actor 0 holds, also from the learner's namespace, where actor 0 (listening on its own
-    // loopback) cannot be reached: the learner answers with the claims it sees.
-    for (token, name, ns) in [
-        ("wrong-token-0123456789abcdefghij", "rogue", &ns_b),
-        (TOKEN, "second", &ns_a),
+    // The Zenoh data plane is locked with TLS and the run's token. An actor from another host
+    // with a wrong token, or with the right token but another run's CA (it cannot trust the
+    // learner's certificate), reaches no session of the run: it cannot check, so cannot claim,
+    // an actor id, and stops naming the learner's endpoint. One with the right token and CA is
+    // refused the id actor 0 holds, also from the learner's namespace, where actor 0 (listening
+    // on its own loopback) cannot be reached: the learner answers with the claims it sees.
+    let other_ca_args: Vec<String> = actor_args
+        .iter()
+        .map(|a| {
+            if *a == config.display().to_string() {
+                other_ca_config.display().to_string()
+            } else {
+                a.clone()
+            }
+        })
+        .collect();
+    for (token, name, ns, args) in [
+        (
+            "wrong-token-0123456789abcdefghij",
+            "rogue",
+            &ns_b,
+            &actor_args,
+        ),
+        (TOKEN, "other-ca", &ns_b, &other_ca_args),
+        (TOKEN, "second", &ns_a, &actor_args),
     ] {
         let log = run_dir.join(format!("actor-{name}.log"));
-        let child = spawn_in(ns, &bins.join("terl-actor"), &actor_args, &log, token);
+        let child = spawn_in(ns, &bins.join("terl-actor"), args, &log, token);
         let (exit, text) = exit_of(child, &log);
         eprintln!(
             "{name} actor: {exit}, {}",
             text.lines().last().unwrap_or_default()
         );
         assert!(!exit.success(), "the {name} actor ran:\n{text}");
-        if token == TOKEN {
+        if name == "second" {
             assert!(text.contains("already streaming"), "{text}");
         } else {
             assert!(

@@ -192,23 +192,57 @@ fn services_with_an_unwritable_log_run_and_stop_cleanly() {
 }
 
 /// The Zenoh data plane is locked like gRPC. `terl zenoh-router` listening beyond loopback
-/// refuses to start without the run's token, naming TERL_TOKEN. With it, a session holding the
-/// token joins and one without it is refused, and even at `RUST_LOG=trace` (Zenoh logs a
-/// session's configuration at debug level) the token appears in no line of the router's log.
+/// refuses to start over plain TCP (naming the `tls/` endpoint to write), over TLS without the
+/// run's token (naming TERL_TOKEN) and over TLS without a certificate (naming --tls-cert). With
+/// them, over TLS on loopback, a session holding the token and the CA joins, one without the
+/// token or without the CA is refused, and even at `RUST_LOG=trace` (Zenoh logs a session's
+/// configuration at debug level) the token appears in no line of the router's log.
 #[test]
-fn a_zenoh_router_beyond_loopback_needs_the_token_and_never_logs_it() {
+fn a_zenoh_router_beyond_loopback_needs_tls_and_the_token_and_never_logs_it() {
     let terl = Path::new(env!("CARGO_BIN_EXE_terl"));
-    let out = Command::new(terl)
-        .args(["zenoh-router", "--listen", "tcp/0.0.0.0:0"])
-        .env_remove("TERL_TOKEN")
+    let certs = tempfile::tempdir().unwrap();
+    let made = Command::new(terl)
+        .args(["certs", "--out"])
+        .arg(certs.path())
         .output()
         .unwrap();
-    assert_eq!(out.status.code(), Some(1));
-    let err = stderr(&out);
-    assert!(
-        err.contains("tcp/0.0.0.0:0") && err.contains("TERL_TOKEN"),
-        "{err}"
-    );
+    assert!(made.status.success(), "{}", stderr(&made));
+    let file = |name: &str| certs.path().join(name).display().to_string();
+    let tls_flags = [
+        "--tls-cert",
+        &file("cert.pem"),
+        "--tls-key",
+        &file("key.pem"),
+    ];
+    for (listen, token, with_tls, expected) in [
+        (
+            "tcp/0.0.0.0:0",
+            Some("router-test-token-0123456789abcdef"),
+            true,
+            "tls/0.0.0.0:0",
+        ),
+        ("tls/0.0.0.0:0", None, true, "TERL_TOKEN"),
+        (
+            "tls/0.0.0.0:0",
+            Some("router-test-token-0123456789abcdef"),
+            false,
+            "--tls-cert",
+        ),
+    ] {
+        let mut cmd = Command::new(terl);
+        cmd.args(["zenoh-router", "--listen", listen]);
+        if with_tls {
+            cmd.args(tls_flags);
+        }
+        match token {
+            Some(t) => cmd.env("TERL_TOKEN", t),
+            None => cmd.env_remove("TERL_TOKEN"),
+        };
+        let out = cmd.output().unwrap();
+        assert_eq!(out.status.code(), Some(1), "{listen}");
+        let err = stderr(&out);
+        assert!(err.contains(listen) && err.contains(expected), "{err}");
+    }
 
     // A missing token file is named, and its OS error said once (the message quotes it and
     // it is the message's source too).
@@ -228,21 +262,31 @@ fn a_zenoh_router_beyond_loopback_needs_the_token_and_never_logs_it() {
     let token = "router-test-token-0123456789abcdef";
     // A field filter makes a directive more specific than any cap added as a directive.
     for rust_log in ["trace", "zenoh::api::session[{message}]=debug,trace"] {
-        router_keeps_the_token_out_of_its_log(terl, token, rust_log);
+        router_keeps_the_token_out_of_its_log(terl, token, rust_log, certs.path());
     }
 }
 
-fn router_keeps_the_token_out_of_its_log(terl: &Path, token: &str, rust_log: &str) {
+fn router_keeps_the_token_out_of_its_log(terl: &Path, token: &str, rust_log: &str, certs: &Path) {
     let port = std::net::TcpListener::bind("127.0.0.1:0")
         .unwrap()
         .local_addr()
         .unwrap()
         .port();
-    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let endpoint = format!("tls/127.0.0.1:{port}");
     let dir = tempfile::tempdir().unwrap();
     let log = dir.path().join("router.log");
     let mut router = Command::new(terl)
-        .args(["zenoh-router", "--listen", &endpoint])
+        .args([
+            "zenoh-router",
+            "--listen",
+            &endpoint,
+            "--run-id",
+            "router-test",
+        ])
+        .arg("--tls-cert")
+        .arg(certs.join("cert.pem"))
+        .arg("--tls-key")
+        .arg(certs.join("key.pem"))
         .env("TERL_TOKEN", token)
         .env("RUST_LOG", rust_log)
         .stderr(std::fs::File::create(&log).unwrap())
@@ -257,13 +301,17 @@ fn router_keeps_the_token_out_of_its_log(terl: &Path, token: &str, rust_log: &st
         assert!(start.elapsed() < Duration::from_secs(30), "no router");
         std::thread::sleep(Duration::from_millis(50));
     }
-    let client = |secret: Option<&str>| {
+    let client = |secret: Option<&str>, ca: &Path| {
         terl_transport::ZenohTransport::open(
             terl_transport::TransportConfig {
                 zenoh: terl_transport::ZenohConfig {
                     mode: terl_transport::ZenohMode::Client,
                     connect: vec![endpoint.clone()],
                     secret: secret.map(|s| terl_transport::ZenohSecret::new(s).unwrap()),
+                    tls: terl_transport::ZenohTls {
+                        ca: Some(ca.to_path_buf()),
+                        ..Default::default()
+                    },
                     ..Default::default()
                 },
                 ..terl_transport::TransportConfig::new("router-test", 1)
@@ -271,10 +319,29 @@ fn router_keeps_the_token_out_of_its_log(terl: &Path, token: &str, rust_log: &st
             "test",
         )
     };
+    // Another run's CA: the router's certificate is not trusted.
+    let other = tempfile::tempdir().unwrap();
+    let made = Command::new(terl)
+        .args(["certs", "--out"])
+        .arg(other.path())
+        .output()
+        .unwrap();
+    assert!(made.status.success());
+    let (ca, other_ca) = (certs.join("ca.pem"), other.path().join("ca.pem"));
     // A client fails to open when it reaches no router that lets it in.
-    assert!(client(Some(token)).is_ok(), "the token holder is refused");
-    assert!(client(None).is_err(), "a client without the token got in");
-    assert!(client(Some("another-token-0123456789")).is_err());
+    assert!(
+        client(Some(token), &ca).is_ok(),
+        "the token holder is refused"
+    );
+    assert!(
+        client(None, &ca).is_err(),
+        "a client without the token got in"
+    );
+    assert!(client(Some("another-token-0123456789"), &ca).is_err());
+    assert!(
+        client(Some(token), &other_ca).is_err(),
+        "a client trusting another CA got in"
+    );
     nix::sys::signal::kill(
         nix::unistd::Pid::from_raw(router.id() as i32),
         nix::sys::signal::Signal::SIGTERM,

@@ -222,6 +222,103 @@ impl Dictionary {
     }
 }
 
+/// Opens a Zenoh session from `z` (mode, listen and connect endpoints, the secret, the TLS
+/// files) after [`ZenohConfig::validate`] and [`ZenohConfig::check_locked`], with Zenoh's
+/// access control carrying only the keys of run `run_id` (`terl/<run_id>/**`; every run's
+/// `terl/**` for `None`, a router shared by runs). `role` only names the process in logs.
+fn open_session(
+    z: &ZenohConfig,
+    run_id: Option<&str>,
+    role: &str,
+) -> Result<Session, TransportError> {
+    z.validate()?;
+    z.check_locked()?;
+    let mut zc = zenoh::Config::default();
+    let json = |v: &dyn erased::Json| v.json();
+    let mode = match z.mode {
+        ZenohMode::Peer => "peer",
+        ZenohMode::Client => "client",
+        ZenohMode::Router => "router",
+    };
+    let scope = match run_id {
+        Some(run) => format!("terl/{run}/**"),
+        None => "terl/**".to_string(),
+    };
+    for (key, value) in [
+        ("mode", json(&mode)),
+        ("scouting/multicast/enabled", json(&z.multicast_scouting)),
+        ("connect/endpoints", json(&z.connect)),
+        ("access_control", access_control(&scope).to_string()),
+    ] {
+        zc.insert_json5(key, &value)
+            .map_err(|e| TransportError::Config(format!("zenoh {key} = {value}: {e}")))?;
+    }
+    let listen = crate::config::listen_endpoints(z);
+    if !listen.is_empty() {
+        let value = json(&listen);
+        zc.insert_json5("listen/endpoints", &value)
+            .map_err(|e| TransportError::Config(format!("zenoh listen = {value}: {e}")))?;
+    }
+    // Zenoh's TLS transport for `tls/` endpoints: the files are read when a link opens.
+    for (key, path) in [
+        ("transport/link/tls/root_ca_certificate", &z.tls.ca),
+        ("transport/link/tls/listen_certificate", &z.tls.cert),
+        ("transport/link/tls/listen_private_key", &z.tls.key),
+    ] {
+        if let Some(path) = path {
+            let value = json(&path.display().to_string());
+            zc.insert_json5(key, &value)
+                .map_err(|e| TransportError::Config(format!("zenoh {key} = {value}: {e}")))?;
+        }
+    }
+    // Zenoh's user/password authentication: every session both proves the secret (user,
+    // password) and asks it of the sessions that connect to it (the dictionary, which Zenoh
+    // reads from a file while the session opens; see `authenticate`).
+    let dictionary = match &z.secret {
+        Some(secret) => Some(authenticate(&mut zc, secret)?),
+        None => None,
+    };
+    let session = zenoh::open(zc)
+        .wait()
+        .map_err(|e| zenoh_err("open session", &scope, e))?;
+    drop(dictionary);
+    tracing::info!(
+        role,
+        zid = %session.zid(),
+        mode,
+        ?listen,
+        connect = ?z.connect,
+        authenticated = z.secret.is_some(),
+        keys = scope,
+        "zenoh session open"
+    );
+    Ok(session)
+}
+
+/// Zenoh's access control (`access_control` of its configuration) admitting, from and to
+/// every other session, only messages on `scope` (declarations, puts, queries, replies and
+/// liveliness of every kind) and denying everything else: a session of the run, even one
+/// holding the token, cannot publish on, subscribe to or query another run's keys or any
+/// other key through this process.
+fn access_control(scope: &str) -> serde_json::Value {
+    serde_json::json!({
+        "enabled": true,
+        "default_permission": "deny",
+        "rules": [{
+            "id": "run-keys",
+            "messages": [
+                "put", "delete", "declare_subscriber", "query", "declare_queryable", "reply",
+                "liveliness_token", "declare_liveliness_subscriber", "liveliness_query"
+            ],
+            "flows": ["egress", "ingress"],
+            "permission": "allow",
+            "key_exprs": [scope],
+        }],
+        "subjects": [{ "id": "every-session" }],
+        "policies": [{ "rules": ["run-keys"], "subjects": ["every-session"] }],
+    })
+}
+
 impl ZenohTransport {
     /// Opens a Zenoh session from `config.zenoh` (mode, listen and connect endpoints). In
     /// peer mode the session opens even when no `connect` endpoint is reachable (after Zenoh's
@@ -230,51 +327,8 @@ impl ZenohTransport {
     /// names the process in logs.
     pub fn open(config: TransportConfig, role: &str) -> Result<Self, TransportError> {
         config.validate()?;
-        config.zenoh.validate()?;
-        config.zenoh.check_locked()?;
-        let z = &config.zenoh;
-        let mut zc = zenoh::Config::default();
-        let json = |v: &dyn erased::Json| v.json();
-        let mode = match z.mode {
-            ZenohMode::Peer => "peer",
-            ZenohMode::Client => "client",
-            ZenohMode::Router => "router",
-        };
-        for (key, value) in [
-            ("mode", json(&mode)),
-            ("scouting/multicast/enabled", json(&z.multicast_scouting)),
-            ("connect/endpoints", json(&z.connect)),
-        ] {
-            zc.insert_json5(key, &value)
-                .map_err(|e| TransportError::Config(format!("zenoh {key} = {value}: {e}")))?;
-        }
-        let listen = crate::config::listen_endpoints(z);
-        if !listen.is_empty() {
-            let value = json(&listen);
-            zc.insert_json5("listen/endpoints", &value)
-                .map_err(|e| TransportError::Config(format!("zenoh listen = {value}: {e}")))?;
-        }
-        // Zenoh's user/password authentication: every session both proves the secret (user,
-        // password) and asks it of the sessions that connect to it (the dictionary, which
-        // Zenoh reads from a file while the session opens; see `authenticate`).
-        let dictionary = match &z.secret {
-            Some(secret) => Some(authenticate(&mut zc, secret)?),
-            None => None,
-        };
-        let session = zenoh::open(zc)
-            .wait()
-            .map_err(|e| zenoh_err("open session", &format!("terl/{}", config.run_id), e))?;
-        drop(dictionary);
+        let session = open_session(&config.zenoh, Some(&config.run_id), role)?;
         claims::serve(&session, &config.run_id)?;
-        tracing::info!(
-            role,
-            zid = %session.zid(),
-            mode,
-            ?listen,
-            connect = ?z.connect,
-            authenticated = z.secret.is_some(),
-            "zenoh session open"
-        );
         Ok(Self {
             config,
             session,
@@ -719,6 +773,108 @@ mod erased {
     impl<T: serde::Serialize> Json for T {
         fn json(&self) -> String {
             serde_json::to_string(self).expect("plain values serialise")
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The access control of a run's session, against a session that holds the run's secret
+    /// but runs no access control of its own (as a modified process would): of the keys that
+    /// session publishes, only the run's reach the run's process, and of the keys the run's
+    /// process publishes, only the run's reach that session.
+    #[test]
+    fn a_run_s_session_carries_only_the_run_s_keys() {
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        let endpoint = format!("tcp/127.0.0.1:{port}");
+        let secret = crate::ZenohSecret::new("acl-test-secret-0123456789").unwrap();
+        let run = format!("acl-{}", std::process::id());
+        let learner = ZenohTransport::open(
+            TransportConfig {
+                zenoh: ZenohConfig {
+                    listen: vec![endpoint.clone()],
+                    secret: Some(secret.clone()),
+                    ..ZenohConfig::default()
+                },
+                transport: crate::TransportKind::Zenoh,
+                ..TransportConfig::new(&run, 1)
+            },
+            "learner",
+        )
+        .unwrap();
+        let mut zc = zenoh::Config::default();
+        zc.insert_json5("mode", "\"peer\"").unwrap();
+        zc.insert_json5("scouting/multicast/enabled", "false")
+            .unwrap();
+        zc.insert_json5(
+            "connect/endpoints",
+            &serde_json::json!([endpoint]).to_string(),
+        )
+        .unwrap();
+        let dictionary = authenticate(&mut zc, &secret).unwrap();
+        let outsider = zenoh::open(zc).wait().unwrap();
+        drop(dictionary);
+
+        let keys = [
+            format!("terl/{run}/transitions/to/1"),
+            format!("terl/{run}-other/transitions/to/1"),
+            "terl/another-run/x".to_string(),
+            "elsewhere/x".to_string(),
+        ];
+        // Every key subscribed on both sides; what each side receives.
+        let got: [Arc<Mutex<Vec<String>>>; 2] = Default::default();
+        let mut subscribers = vec![];
+        for (session, got) in [(learner.session(), &got[0]), (&outsider, &got[1])] {
+            for key in &keys {
+                let got = Arc::clone(got);
+                subscribers.push(
+                    session
+                        .declare_subscriber(key.as_str())
+                        .callback(move |s| lock(&got).push(s.key_expr().to_string()))
+                        .wait()
+                        .unwrap(),
+                );
+            }
+        }
+        // Both ways, every key, until the run's key has arrived both ways (routes settle).
+        let start = Instant::now();
+        let mut round = 0u8;
+        loop {
+            for session in [learner.session(), &outsider] {
+                for key in &keys {
+                    session.put(key.as_str(), vec![round]).wait().unwrap();
+                }
+            }
+            std::thread::sleep(Duration::from_millis(100));
+            round += 1;
+            let arrived = got.iter().all(|g| lock(g).iter().any(|k| k == &keys[0]));
+            if arrived && round >= 5 {
+                break;
+            }
+            assert!(
+                start.elapsed() < Duration::from_secs(20),
+                "the run's own key never crossed: {got:?}"
+            );
+        }
+        for (side, got) in ["the run's process", "the outsider"].iter().zip(&got) {
+            let got = lock(got);
+            // Each side hears its own `round` puts of every key (a local subscriber); more
+            // than that came from the other session.
+            let heard = |key: &String| got.iter().filter(|k| *k == key).count();
+            assert!(heard(&keys[0]) > usize::from(round), "{side}: {got:?}");
+            for key in &keys[1..] {
+                assert_eq!(
+                    heard(key),
+                    usize::from(round),
+                    "{side} received {key} from the other session"
+                );
+            }
         }
     }
 }

@@ -82,6 +82,9 @@ pub enum BenchCommand {
     TransportPublish {
         #[arg(long)]
         connect: String,
+        /// The CA of the receiver's certificate (PEM).
+        #[arg(long)]
+        tls_ca: std::path::PathBuf,
         #[arg(long)]
         run_id: String,
         #[arg(long, value_parser = flags::count::<usize>(flags::MAX_BENCH_PEERS))]
@@ -222,11 +225,12 @@ pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
         }
         BenchCommand::TransportPublish {
             connect,
+            tls_ca,
             run_id,
             publishers,
             seconds,
         } => {
-            netns::publish(&connect, &run_id, publishers, seconds)?;
+            netns::publish(&connect, &tls_ca, &run_id, publishers, seconds)?;
             Ok(ExitCode::SUCCESS)
         }
         BenchCommand::BroadcastSubscribe { addr, subscribers } => {

@@ -7,7 +7,7 @@
 
 use std::io::Read;
 use std::net::{Ipv4Addr, SocketAddr};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
@@ -221,8 +221,20 @@ fn stderr_file(tag: &str) -> PathBuf {
 /// The transition stream from `publishers` actors' sessions in the namespace to a receiver
 /// on the host side, for `seconds`.
 pub fn transport_across(ns: &Namespace, publishers: usize, seconds: f64) -> Result<ShmBenchReport> {
-    let endpoint = format!("tcp/{}:{}", ns.host_ip, free_port(ns.host_ip)?);
+    let endpoint = format!("tls/{}:{}", ns.host_ip, free_port(ns.host_ip)?);
     let run_id = format!("bench-netns-{}-{publishers}", std::process::id());
+    // The receiver's certificate for the host side's address, as `terl certs` makes it.
+    let certs = tempfile::tempdir()?;
+    let files = terl_wire::certs::write_run_certificates(
+        certs.path(),
+        "terl bench",
+        &[ns.host_ip.to_string()],
+    )?;
+    let tls = terl_transport::ZenohTls {
+        ca: Some(files.ca.clone()),
+        cert: Some(files.cert),
+        key: Some(files.key),
+    };
     let err_path = stderr_file(&format!("publish-{publishers}"));
     let mut child: Option<Child> = None;
     let spawn = || -> Result<Child> {
@@ -231,6 +243,8 @@ pub fn transport_across(ns: &Namespace, publishers: usize, seconds: f64) -> Resu
             "transport-publish".into(),
             "--connect".into(),
             endpoint.clone(),
+            "--tls-ca".into(),
+            files.ca.display().to_string(),
             "--run-id".into(),
             run_id.clone(),
             "--publishers".into(),
@@ -246,9 +260,10 @@ pub fn transport_across(ns: &Namespace, publishers: usize, seconds: f64) -> Resu
     let fail = |msg: String| TransportError::Config(msg);
     let report = terl_bench::transport::zenoh_receive(
         &endpoint,
+        tls,
         &run_id,
         publishers,
-        "zenoh-tcp-netns",
+        "zenoh-tls-netns",
         || {
             if child.is_none() {
                 child = Some(spawn().map_err(|e| fail(format!("{e:#}")))?);
@@ -284,8 +299,14 @@ pub fn transport_across(ns: &Namespace, publishers: usize, seconds: f64) -> Resu
 
 /// The actors' half of [`transport_across`] (`terl bench transport-publish`, inside the
 /// namespace): prints what was sent as JSON.
-pub fn publish(connect: &str, run_id: &str, publishers: usize, seconds: f64) -> Result<()> {
-    let report = terl_bench::transport::zenoh_publish(connect, run_id, publishers, seconds)?;
+pub fn publish(
+    connect: &str,
+    ca: &Path,
+    run_id: &str,
+    publishers: usize,
+    seconds: f64,
+) -> Result<()> {
+    let report = terl_bench::transport::zenoh_publish(connect, ca, run_id, publishers, seconds)?;
     println!("{}", serde_json::to_string(&report)?);
     Ok(())
 }
