@@ -314,9 +314,9 @@ impl PublishReport {
 }
 
 /// The measurement's transport between two network namespaces of this machine. Its endpoints
-/// are not loopback, so its sessions speak TLS and authenticate
+/// are not loopback, so its sessions speak QUIC and authenticate
 /// ([`ZenohConfig::check_locked`]) as a run's do; both halves derive the same secret from the
-/// bench's run id (a throw-away run in private namespaces, not a credential), so TLS and the
+/// bench's run id (a throw-away run in private namespaces, not a credential), so QUIC and the
 /// authenticated handshake are part of what is measured.
 fn remote_config(run_id: &str, publishers: usize, zenoh: ZenohConfig) -> TransportConfig {
     TransportConfig {
@@ -333,7 +333,7 @@ fn remote_config(run_id: &str, publishers: usize, zenoh: ZenohConfig) -> Transpo
 
 /// Publishing half of a measurement between hosts (network namespaces in `terl bench
 /// transport --netns`): `publishers` threads, each with its own Zenoh client session connected
-/// to `connect` (the receiver's `tls/` endpoint, its certificate checked against `ca`), send
+/// to `connect` (the receiver's `quic/` endpoint, its certificate checked against `ca`), send
 /// full batches for `seconds` under `Block`.
 ///
 /// # Errors
@@ -382,7 +382,7 @@ pub fn zenoh_publish(
 }
 
 /// Receiving half of a measurement between hosts: a Zenoh peer listening on `listen` (a
-/// `tls/` endpoint presenting `tls.cert`) takes batches from `publishers` remote publishers ([`zenoh_publish`]) until `publisher_done`
+/// `quic/` endpoint presenting `tls.cert`) takes batches from `publishers` remote publishers ([`zenoh_publish`]) until `publisher_done`
 /// returns what they sent and nothing more has arrived for 500 ms. `publisher_done` is first
 /// called once the session listens (start the publishers there) and then polled. The rate is
 /// over the span from the first to the last batch received; loss is sent minus received.
@@ -456,7 +456,7 @@ mod tests {
         }
     }
 
-    /// The two halves of a cross-host measurement, here in two threads on loopback over TLS
+    /// The two halves of a cross-host measurement, here in two threads on loopback over QUIC
     /// as between hosts: every batch the publishers sent is received, in order.
     #[test]
     fn remote_halves_count_every_batch() {
@@ -465,7 +465,7 @@ mod tests {
             .local_addr()
             .unwrap()
             .port();
-        let endpoint = format!("tls/127.0.0.1:{port}");
+        let endpoint = format!("quic/127.0.0.1:{port}");
         let run = format!("bench-halves-{}", std::process::id());
         let certs = tempfile::tempdir().unwrap();
         let files = terl_wire::certs::write_run_certificates(

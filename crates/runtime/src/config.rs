@@ -414,7 +414,7 @@ impl ClusterConfig {
     /// [`ClusterConfig::transport_config`] as a service opens it: with the control-plane
     /// token (`env_token`, the `TERL_TOKEN` value, else `token_file`) as the Zenoh sessions'
     /// shared secret when there is one, so every session of the run authenticates, and with
-    /// `tls_ca`, `tls_cert` and `tls_key` as the files of Zenoh's `tls/` endpoints; Zenoh
+    /// `tls_ca`, `tls_cert` and `tls_key` as the files of Zenoh's `quic/` endpoints; Zenoh
     /// endpoints beyond loopback need both ([`terl_transport::ZenohConfig::check_locked`]).
     ///
     /// # Errors
@@ -1064,7 +1064,7 @@ mod message_limit_tests {
     fn a_service_s_zenoh_session_takes_the_token_and_the_run_s_tls_files() {
         let cfg = run_file(
             "[cluster]\ntransport = \"zenoh\"\ntls_ca = \"t/ca.pem\"\ntls_cert = \"t/cert.pem\"\n\
-             tls_key = \"t/key.pem\"\n[cluster.zenoh]\nconnect = [\"tls/10.0.0.1:7447\"]\n",
+             tls_key = \"t/key.pem\"\n[cluster.zenoh]\nconnect = [\"quic/10.0.0.1:7447\"]\n",
         );
         // The run file alone does not admit the endpoint: no token.
         let plain = cfg.cluster.transport_config("run-a", 1);

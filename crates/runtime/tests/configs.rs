@@ -181,7 +181,7 @@ fn the_kubernetes_run_file_is_mt10_over_zenoh_through_the_router() {
     let k8s = RunConfig::load(&path).unwrap_or_else(|e| panic!("run.toml of run.yaml: {e:#}"));
     assert_eq!(k8s.cluster.transport, terl_transport::TransportKind::Zenoh);
     assert_eq!(k8s.cluster.zenoh.mode, terl_transport::ZenohMode::Client);
-    assert_eq!(k8s.cluster.zenoh.connect, ["tls/terl-zenoh:7447"]);
+    assert_eq!(k8s.cluster.zenoh.connect, ["quic/terl-zenoh:7447"]);
     // As a pod opens it (with the terl-token secret), the Zenoh session passes the lock: TLS
     // to the router, its certificate checked against the terl-tls secret's CA.
     let session = k8s
@@ -213,7 +213,7 @@ fn the_kubernetes_run_file_is_mt10_over_zenoh_through_the_router() {
     }
     let router = manifest("zenoh-router.yaml");
     for flag in [
-        "--listen=tls/0.0.0.0:7447".to_string(),
+        "--listen=quic/0.0.0.0:7447".to_string(),
         format!("--tls-cert={tls_dir}/cert.pem"),
         format!("--tls-key={tls_dir}/key.pem"),
         "--run-id=$(TERL_RUN_ID)".to_string(),

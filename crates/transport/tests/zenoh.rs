@@ -17,7 +17,7 @@ struct Mesh {
     endpoints: Mutex<Vec<String>>,
     /// The run's secret every session of the mesh authenticates with (none: open).
     secret: Option<ZenohSecret>,
-    /// Sessions listen and connect over TLS (`tls/` endpoints, [`run_certificates`]).
+    /// Sessions listen and connect over QUIC, TLS 1.3 (`quic/` endpoints, [`run_certificates`]).
     tls: bool,
 }
 
@@ -54,7 +54,7 @@ fn free_port() -> u16 {
 impl Mesh {
     fn make(&self) -> impl Fn(&TransportConfig, &str) -> ZenohTransport + Sync + '_ {
         move |cfg, role| {
-            let scheme = if self.tls { "tls" } else { "tcp" };
+            let scheme = if self.tls { "quic" } else { "tcp" };
             let listen = format!("{scheme}/127.0.0.1:{}", free_port());
             let connect = self.endpoints.lock().unwrap().clone();
             let cfg = TransportConfig {
@@ -263,7 +263,7 @@ fn malformed_frames_are_rejected_and_counted() {
     assert_eq!(source.stats().received, 1);
 }
 
-/// A run whose sessions speak TLS and authenticate with its secret (Zenoh's user/password)
+/// A run whose sessions speak QUIC (TLS 1.3) and authenticate with its secret (Zenoh's user/password)
 /// works as an open one does, and a session without the secret, with another one, or with the
 /// secret but trusting another CA never joins it: its frames reach no receiver (not even as
 /// rejected frames), it sees no receiver, and it cannot claim an actor id.

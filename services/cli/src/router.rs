@@ -9,9 +9,10 @@ use clap::Args;
 
 #[derive(Debug, Args)]
 pub struct RouterArgs {
-    /// Endpoint to listen on (repeatable). Beyond a loopback address only TLS
-    /// (`tls/0.0.0.0:7447`, with --tls-cert and --tls-key) with the run's token (TERL_TOKEN or
-    /// --token-file) is accepted: every session that connects must then prove the token.
+    /// Endpoint to listen on (repeatable). Beyond a loopback address only QUIC (TLS 1.3 over
+    /// UDP: `quic/0.0.0.0:7447`, with --tls-cert and --tls-key) with the run's token
+    /// (TERL_TOKEN or --token-file) is accepted: every session that connects must then prove
+    /// the token.
     #[arg(long, value_name = "ENDPOINT", default_value = "tcp/127.0.0.1:7447")]
     listen: Vec<String>,
     /// File holding the run's token (the run file's cluster.token_file); the TERL_TOKEN
@@ -22,7 +23,7 @@ pub struct RouterArgs {
     /// actor-id claims); without it, every run's `terl/**`. Nothing else is routed.
     #[arg(long, value_name = "ID")]
     run_id: Option<String>,
-    /// Certificate chain (PEM) presented on `tls/` endpoints (the run's cluster.tls_cert;
+    /// Certificate chain (PEM) presented on `quic/` endpoints (the run's cluster.tls_cert;
     /// `terl certs` makes it).
     #[arg(long, value_name = "FILE", requires = "tls_key")]
     tls_cert: Option<std::path::PathBuf>,

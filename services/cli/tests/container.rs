@@ -337,7 +337,7 @@ fn cluster_in_one_container(pods: &mut Podman, image: &str, tag: &str, dir: &Pat
 }
 
 /// Learner, selector and actor in three containers on a podman network: transitions and
-/// episodes over Zenoh, weights and status over gRPC, both with TLS and a token; `terl status` answers from the host; SIGTERM stops each with
+/// episodes over Zenoh (QUIC), weights and status over gRPC (TLS), both with a token; `terl status` answers from the host; SIGTERM stops each with
 /// exit code 0, the learner with a final checkpoint.
 fn cluster_across_containers(pods: &mut Podman, image: &str, tag: &str, dir: &Path, volume: &str) {
     let net = format!("terl-net-{tag}");
@@ -384,7 +384,7 @@ fn cluster_across_containers(pods: &mut Podman, image: &str, tag: &str, dir: &Pa
              tls_cert = \"/runs/tls/cert.pem\"\ntls_key = \"/runs/tls/key.pem\"\n",
         );
     std::fs::write(dir.join("runs/zenoh.toml"), smoke).unwrap();
-    let zenoh_learner = format!("tls/{learner_ip}:7447");
+    let zenoh_learner = format!("quic/{learner_ip}:7447");
     let learner_addr = format!("{learner_ip}:50051");
     let selector_addr = format!("{selector_ip}:50052");
     let service = |name: &str, ip: &str, bin: &str, extra: &[&str]| -> Vec<String> {
@@ -445,7 +445,7 @@ fn cluster_across_containers(pods: &mut Podman, image: &str, tag: &str, dir: &Pa
             "--learner-addr",
             &learner_addr,
             "--zenoh-listen",
-            &format!("tls/{selector_ip}:7448"),
+            &format!("quic/{selector_ip}:7448"),
             "--zenoh-connect",
             &zenoh_learner,
         ],

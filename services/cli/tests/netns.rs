@@ -320,7 +320,7 @@ fn actor_in_another_namespace_trains_over_zenoh_and_survives_a_link_outage() {
         v
     };
     let run_dir_s = run_dir.display().to_string();
-    let zenoh_learner = format!("tls/{addr_a}:7447");
+    let zenoh_learner = format!("quic/{addr_a}:7447");
     net.spawn(
         &ns_a,
         &bins.join("terl-learner"),
@@ -346,7 +346,7 @@ fn actor_in_another_namespace_trains_over_zenoh_and_survives_a_link_outage() {
             "--learner-addr",
             &learner,
             "--zenoh-listen",
-            &format!("tls/{addr_a}:7448"),
+            &format!("quic/{addr_a}:7448"),
             "--zenoh-connect",
             &zenoh_learner,
         ]),
@@ -395,7 +395,7 @@ fn actor_in_another_namespace_trains_over_zenoh_and_survives_a_link_outage() {
         "the actor's address {address:?} is not in its namespace ({addr_b})"
     );
 
-    // The Zenoh data plane is locked with TLS and the run's token. An actor from another host
+    // The Zenoh data plane is locked with QUIC (TLS 1.3) and the run's token. An actor from another host
     // with a wrong token, or with the right token but another run's CA (it cannot trust the
     // learner's certificate), reaches no session of the run: it cannot check, so cannot claim,
     // an actor id, and stops naming the learner's endpoint. One with the right token and CA is

@@ -259,7 +259,8 @@ fn open_session(
         zc.insert_json5("listen/endpoints", &value)
             .map_err(|e| TransportError::Config(format!("zenoh listen = {value}: {e}")))?;
     }
-    // Zenoh's TLS transport for `tls/` endpoints: the files are read when a link opens.
+    // Zenoh's QUIC transport (TLS 1.3; its settings are under `tls`) for `quic/` endpoints: the
+    // files are read when a link opens.
     for (key, path) in [
         ("transport/link/tls/root_ca_certificate", &z.tls.ca),
         ("transport/link/tls/listen_certificate", &z.tls.cert),

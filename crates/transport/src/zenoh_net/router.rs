@@ -28,8 +28,8 @@ impl ZenohRouter {
     ///
     /// # Errors
     /// [`TransportError::Config`] for a malformed endpoint or run id, for multicast scouting,
-    /// for an endpoint beyond loopback that is not `tls/` or has no `config.secret`, and for a
-    /// `tls/` endpoint without its files ([`ZenohConfig::check_locked`]);
+    /// for an endpoint beyond loopback that is not `quic/` or has no `config.secret`, and for a
+    /// `quic/` endpoint without its files ([`ZenohConfig::check_locked`]);
     /// [`TransportError::Zenoh`] when Zenoh cannot open the session (e.g. the port is taken).
     pub fn open(config: &ZenohConfig, run_id: Option<&str>) -> Result<Self, TransportError> {
         let config = ZenohConfig {

@@ -221,7 +221,7 @@ fn stderr_file(tag: &str) -> PathBuf {
 /// The transition stream from `publishers` actors' sessions in the namespace to a receiver
 /// on the host side, for `seconds`.
 pub fn transport_across(ns: &Namespace, publishers: usize, seconds: f64) -> Result<ShmBenchReport> {
-    let endpoint = format!("tls/{}:{}", ns.host_ip, free_port(ns.host_ip)?);
+    let endpoint = format!("quic/{}:{}", ns.host_ip, free_port(ns.host_ip)?);
     let run_id = format!("bench-netns-{}-{publishers}", std::process::id());
     // The receiver's certificate for the host side's address, as `terl certs` makes it.
     let certs = tempfile::tempdir()?;
@@ -263,7 +263,7 @@ pub fn transport_across(ns: &Namespace, publishers: usize, seconds: f64) -> Resu
         tls,
         &run_id,
         publishers,
-        "zenoh-tls-netns",
+        "zenoh-quic-netns",
         || {
             if child.is_none() {
                 child = Some(spawn().map_err(|e| fail(format!("{e:#}")))?);
