@@ -650,6 +650,11 @@ mod tests {
                 .is_ok());
             }
         }
+    }
+
+    #[test]
+    fn scouting_is_refused_and_the_default_listens_on_loopback() {
+        let secret = ZenohSecret::new("0123456789abcdef").unwrap();
         // Multicast scouting would connect to whatever answers: refused, token or not.
         for secret in [None, Some(secret.clone())] {
             let scouting = ZenohConfig {
