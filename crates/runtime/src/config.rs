@@ -190,10 +190,10 @@ pub struct ClusterConfig {
     /// [`RunConfig::check_weight_messages`] refuses the run at start-up otherwise.
     pub max_message_mib: usize,
     /// What carries transitions and episodes: `"shm"` (iceoryx2 shared memory, every process
-    /// on one host; the default) or `"zenoh"` (TCP between hosts; see `zenoh`).
+    /// on one host; the default) or `"zenoh"` (between hosts over QUIC, TLS 1.3; see `zenoh`).
     pub transport: terl_transport::TransportKind,
     /// `transport = "zenoh"`: the session of every process (`mode` = `"peer"` or
-    /// `"client"`, `listen` and `connect` endpoints such as `tcp/10.0.0.1:7447`). Each
+    /// `"client"`, `listen` and `connect` endpoints such as `quic/10.0.0.1:7447`). Each
     /// service's `--zenoh-listen`/`--zenoh-connect` replace the lists for that process.
     pub zenoh: terl_transport::ZenohConfig,
     /// `algorithm = "terl"`: the learner stops (final checkpoint, exit 0, as at the budget) once

@@ -21,8 +21,9 @@ pub struct ServiceArgs {
     /// Run file (TOML), e.g. deploy/configs/mt10.toml; every service of a run reads the same.
     #[arg(long)]
     pub config: PathBuf,
-    /// Run id: names the shared-memory services and the default run folder.
-    #[arg(long)]
+    /// Run id: names the shared-memory services and the default run folder (1 to 64
+    /// characters of `[A-Za-z0-9._-]`, not `.` or `..`).
+    #[arg(long, value_parser = parse_run_id)]
     pub run_id: String,
     /// Number of actor processes of the run (sizes the shared-memory services).
     #[arg(long, value_parser = crate::flags::count::<usize>(crate::flags::MAX_ACTORS), default_value_t = 1)]
@@ -32,13 +33,14 @@ pub struct ServiceArgs {
     #[arg(long, value_parser = crate::flags::count::<u32>(crate::flags::MAX_PID))]
     pub parent_pid: Option<u32>,
     /// With `[cluster] transport = "zenoh"`: a Zenoh endpoint to listen on, e.g.
-    /// `tcp/0.0.0.0:7447` (repeatable; replaces the run file's `[cluster.zenoh] listen`).
-    /// Any but a loopback address needs the run's token (TERL_TOKEN or the run file's
-    /// `cluster.token_file`).
+    /// `quic/0.0.0.0:7447` (repeatable; replaces the run file's `[cluster.zenoh] listen`).
+    /// Beyond loopback only `quic/` (TLS 1.3 over UDP) is accepted, with the run's token
+    /// (TERL_TOKEN or the run file's `cluster.token_file`) and `[cluster] tls_cert`/`tls_key`.
     #[arg(long = "zenoh-listen", value_name = "ENDPOINT")]
     pub zenoh_listen: Vec<String>,
     /// With `[cluster] transport = "zenoh"`: a Zenoh endpoint to connect to, e.g. the
-    /// learner host's `tcp/10.0.0.1:7447` (repeatable; replaces `[cluster.zenoh] connect`).
+    /// learner host's `quic/10.0.0.1:7447` (repeatable; replaces `[cluster.zenoh] connect`;
+    /// `quic/` needs the run's token and `[cluster] tls_ca`).
     #[arg(long = "zenoh-connect", value_name = "ENDPOINT")]
     pub zenoh_connect: Vec<String>,
 }
@@ -179,6 +181,15 @@ where
         }
     };
     serve(Box::pin(stop_serving.in_current_span())).await
+}
+
+/// `--run-id` as every transport checks it ([`terl_transport::TransportConfig::validate`]),
+/// while clap parses: a run id that is also a run folder's name cannot leave `runs/`.
+fn parse_run_id(value: &str) -> Result<String, String> {
+    terl_transport::TransportConfig::new(value, 1)
+        .validate()
+        .map(|()| value.to_owned())
+        .map_err(|e| e.to_string())
 }
 
 #[cfg(test)]

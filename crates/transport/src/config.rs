@@ -181,6 +181,24 @@ impl ZenohConfig {
                      quic/{address}, TLS 1.3 over UDP with the same certificate files"
                 )));
             }
+            if let Some(address) = endpoint.strip_prefix("quic/") {
+                // Zenoh reads per-link settings after `?`/`#`, TLS ones included
+                // (`#verify_name_on_connect=false`, another CA or key): not on an encrypted link.
+                if address.contains(['?', '#']) {
+                    return Err(TransportError::Config(format!(
+                        "zenoh endpoint {endpoint:?}: a quic/ endpoint takes no ?config or \
+                         #metadata (Zenoh would read TLS settings from it, past the run's \
+                         certificate files); write quic/<host>:<port>"
+                    )));
+                }
+                if address.starts_with('[') {
+                    return Err(TransportError::Config(format!(
+                        "zenoh endpoint {endpoint:?}: Zenoh 1.10's QUIC link cannot check a \
+                         certificate against an IPv6 address (it keeps the brackets in the \
+                         server name); use an IPv4 address or a host name"
+                    )));
+                }
+            }
             if !endpoint_is_host_port(endpoint) {
                 return Err(TransportError::Config(format!(
                     "zenoh endpoint {endpoint:?} must look like tcp/<host>:<port> or \
@@ -379,13 +397,15 @@ impl TransportConfig {
     pub fn validate(&self) -> Result<(), TransportError> {
         let id = &self.run_id;
         if id.is_empty()
+            || id == "."
+            || id == ".."
             || id.len() > 64
             || !id
                 .chars()
                 .all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
         {
             return Err(TransportError::Config(format!(
-                "run_id {id:?} must be 1..=64 characters of [A-Za-z0-9._-]"
+                "run_id {id:?} must be 1..=64 characters of [A-Za-z0-9._-], not . or .."
             )));
         }
         if self.num_actors == 0 {
@@ -513,6 +533,14 @@ mod tests {
         ] {
             let err = with(bad).validate().unwrap_err().to_string();
             assert!(err.contains("tcp/<host>:<port>"), "{bad:?}: {err}");
+        }
+        // No per-link settings and no IPv6 literal on a quic/ endpoint.
+        for bad in [
+            "quic/10.0.0.1:7447#verify_name_on_connect=false",
+            "quic/10.0.0.1:7447?root_ca_certificate_file=/tmp/ca.pem",
+            "quic/[::1]:7447",
+        ] {
+            assert!(with(bad).validate().is_err(), "{bad}");
         }
         // Zenoh's TLS link: refused with the reason and the endpoint to write instead.
         let err = with("tls/10.0.0.1:7447")

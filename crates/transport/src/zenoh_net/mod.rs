@@ -260,13 +260,33 @@ fn open_session(
             .map_err(|e| TransportError::Config(format!("zenoh listen = {value}: {e}")))?;
     }
     // Zenoh's QUIC transport (TLS 1.3; its settings are under `tls`) for `quic/` endpoints: the
-    // files are read when a link opens.
-    for (key, path) in [
-        ("transport/link/tls/root_ca_certificate", &z.tls.ca),
-        ("transport/link/tls/listen_certificate", &z.tls.cert),
-        ("transport/link/tls/listen_private_key", &z.tls.key),
+    // files are read when a link opens, so they are checked here first, each named.
+    let quic = z
+        .listen
+        .iter()
+        .chain(&z.connect)
+        .any(|e| e.starts_with("quic/"));
+    for (key, setting, path) in [
+        (
+            "transport/link/tls/root_ca_certificate",
+            "[cluster] tls_ca",
+            &z.tls.ca,
+        ),
+        (
+            "transport/link/tls/listen_certificate",
+            "[cluster] tls_cert (terl zenoh-router --tls-cert)",
+            &z.tls.cert,
+        ),
+        (
+            "transport/link/tls/listen_private_key",
+            "[cluster] tls_key (terl zenoh-router --tls-key)",
+            &z.tls.key,
+        ),
     ] {
         if let Some(path) = path {
+            if quic {
+                check_pem_file(setting, path)?;
+            }
             let value = json(&path.display().to_string());
             zc.insert_json5(key, &value)
                 .map_err(|e| TransportError::Config(format!("zenoh {key} = {value}: {e}")))?;
@@ -294,6 +314,35 @@ fn open_session(
         "zenoh session open"
     );
     Ok(session)
+}
+
+/// The largest TLS file a session reads (a certificate chain or key is a few KiB).
+const MAX_PEM_BYTES: u64 = 1 << 20;
+
+/// Checks that `path` (the file of `setting`) is a readable regular file of at most
+/// [`MAX_PEM_BYTES`] holding PEM (`-----BEGIN `): Zenoh reads it only when a link opens, and
+/// then names neither the file nor the setting, blocks on a FIFO and reads `/dev/zero` without
+/// end.
+fn check_pem_file(setting: &str, path: &std::path::Path) -> Result<(), TransportError> {
+    use std::io::Read as _;
+    let bad = |why: String| TransportError::Config(format!("{setting}, {}: {why}", path.display()));
+    let meta = std::fs::metadata(path).map_err(|e| bad(e.to_string()))?;
+    if !meta.is_file() {
+        return Err(bad("not a regular file".into()));
+    }
+    if meta.len() > MAX_PEM_BYTES {
+        return Err(bad(format!("larger than {MAX_PEM_BYTES} bytes")));
+    }
+    let mut text = String::new();
+    std::fs::File::open(path)
+        .and_then(|f| f.take(MAX_PEM_BYTES).read_to_string(&mut text))
+        .map_err(|e| bad(e.to_string()))?;
+    if !text.contains("-----BEGIN ") {
+        return Err(bad(
+            "no PEM block in it (`terl certs` makes the run's files)".into(),
+        ));
+    }
+    Ok(())
 }
 
 /// Zenoh's access control (`access_control` of its configuration) admitting, from and to
@@ -781,6 +830,63 @@ mod erased {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A TLS file that Zenoh would fail on later, hang on or read without end is refused when
+    /// the session opens, naming the setting and the file.
+    #[test]
+    fn tls_files_are_checked_before_the_session_opens() {
+        let dir = tempfile::tempdir().unwrap();
+        let good = dir.path().join("ca.pem");
+        std::fs::write(
+            &good,
+            "-----BEGIN CERTIFICATE-----\nAAAA\n-----END CERTIFICATE-----\n",
+        )
+        .unwrap();
+        check_pem_file("[cluster] tls_ca", &good).unwrap();
+        let garbage = dir.path().join("garbage.pem");
+        std::fs::write(&garbage, "not a certificate").unwrap();
+        let fifo = dir.path().join("fifo");
+        nix::unistd::mkfifo(&fifo, nix::sys::stat::Mode::S_IRWXU).unwrap();
+        let big = dir.path().join("big.pem");
+        std::fs::File::create(&big)
+            .unwrap()
+            .set_len(MAX_PEM_BYTES + 1)
+            .unwrap();
+        for (path, why) in [
+            (dir.path().join("missing.pem"), "No such file"),
+            (dir.path().to_path_buf(), "not a regular file"),
+            (fifo, "not a regular file"),
+            (std::path::PathBuf::from("/dev/zero"), "not a regular file"),
+            (big, "larger than"),
+            (garbage, "no PEM block"),
+        ] {
+            let e = check_pem_file("[cluster] tls_ca", &path)
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("tls_ca") && e.contains(&path.display().to_string()) && e.contains(why),
+                "{e}"
+            );
+        }
+        // The session refuses to open with such a file, naming it.
+        let e = ZenohTransport::open(
+            TransportConfig {
+                zenoh: ZenohConfig {
+                    connect: vec!["quic/127.0.0.1:9".into()],
+                    tls: crate::ZenohTls {
+                        ca: Some(dir.path().join("missing.pem")),
+                        ..crate::ZenohTls::default()
+                    },
+                    ..ZenohConfig::default()
+                },
+                ..TransportConfig::new("pem-check", 1)
+            },
+            "actor",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("missing.pem") && e.contains("tls_ca"), "{e}");
+    }
 
     /// The access control of a run's session, against a session that holds the run's secret
     /// but runs no access control of its own (as a modified process would): of the keys that
