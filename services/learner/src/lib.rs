@@ -216,9 +216,6 @@ async fn run_in_span<T: terl_transport::ServiceTransport>(
             .await
             .context("timing the standalone update rate")??
     };
-    let (announced, _) =
-        terl_runtime::service::announce(&listener, &config.run_dir, "learner", &config.run_id)?;
-
     let shared = Arc::new(Shared {
         started: Instant::now(),
         status: Mutex::new(LearnerStatus {
@@ -231,12 +228,28 @@ async fn run_in_span<T: terl_transport::ServiceTransport>(
     let hub = WeightHub::with_max_message_bytes(max_message_bytes);
     let actors = u32::try_from(config.num_actors).unwrap_or(u32::MAX);
     let (checkpoint_tx, checkpoint_rx) = mpsc::channel();
+    let (opened_tx, opened_rx) = tokio::sync::oneshot::channel();
     let mut trainer = {
         let (shared, hub, config) = (Arc::clone(&shared), hub.clone(), config.clone());
         terl_runtime::service::Worker::spawn("trainer", "trainer thread", span, move || {
-            trainer::run(&config, &transport, &shared, &hub, &checkpoint_rx)
+            trainer::run(
+                &config,
+                &transport,
+                &shared,
+                &hub,
+                &checkpoint_rx,
+                opened_tx,
+            )
         })?
     };
+    // The address appears once the trainer holds the run's streams: a second learner of a
+    // run fails here and leaves the live learner's address file alone.
+    if opened_rx.await.is_err() {
+        trainer.join().await?;
+        anyhow::bail!("the trainer stopped before it opened the run's streams");
+    }
+    let (announced, _) =
+        terl_runtime::service::announce(&listener, &config.run_dir, "learner", &config.run_id)?;
     let backend = Backend {
         shared: Arc::clone(&shared),
         hub: hub.clone(),

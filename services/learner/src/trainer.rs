@@ -201,15 +201,21 @@ pub(crate) fn calibrate(config: &LearnerConfig) -> anyhow::Result<f64> {
 }
 
 /// Runs the training loop on `transport`'s streams until `shared.stop` is set, the training
-/// budget is reached or something fails; writes the final checkpoint on the way out.
+/// budget is reached or something fails; writes the final checkpoint on the way out. Sends on
+/// `opened` once the streams are open and the networks built (or restored): the learner
+/// announces its address only then, so a learner refused by the run's streams (another
+/// learner of the run is live) never replaces the live one's address file.
 pub(crate) fn run<T: Transport>(
     config: &LearnerConfig,
     transport: &T,
     shared: &Shared,
     hub: &WeightHub,
     checkpoint_jobs: &mpsc::Receiver<CheckpointJob>,
+    opened: tokio::sync::oneshot::Sender<()>,
 ) -> anyhow::Result<()> {
     let mut trainer = Trainer::open(config, transport, shared, hub)?;
+    // The receiver is gone only when the service is already stopping.
+    let _ = opened.send(());
     while !shared.stop.load(Ordering::Relaxed) && !trainer.finished() {
         if !trainer.round(hub, checkpoint_jobs, shared)? {
             std::thread::sleep(Duration::from_micros(500));
@@ -316,7 +322,11 @@ impl<'a> Trainer<'a> {
         };
         let spi = run.samples_per_insert();
         let inbound = Inbound {
-            transitions: transport.source::<TransitionBatch>()?,
+            transitions: transport.source::<TransitionBatch>().context(
+                "cannot receive the run's transitions: a run has one learner, and another \
+                 live learner of this run id may hold its streams (stop it, or use another \
+                 --run-id)",
+            )?,
             staging: Staging::new(config.num_actors * run.cluster.buffer_batches),
             limiter: RateLimiter::new(
                 spi,

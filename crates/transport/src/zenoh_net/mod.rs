@@ -299,9 +299,16 @@ fn open_session(
         Some(secret) => Some(authenticate(&mut zc, secret)?),
         None => None,
     };
-    let session = zenoh::open(zc)
-        .wait()
-        .map_err(|e| zenoh_err("open session", &scope, e))?;
+    let session = zenoh::open(zc).wait().map_err(|e| {
+        // A client opens only once a router (or a peer) let it in; Zenoh's own message says
+        // "Unable to connect" whether nothing listened, the token was refused or the
+        // certificate was not trusted, so the error names all three.
+        if z.mode == ZenohMode::Client {
+            zenoh_err("open session", &scope, format!("{e}. {}", refused_hint(z)))
+        } else {
+            zenoh_err("open session", &scope, e)
+        }
+    })?;
     drop(dictionary);
     tracing::info!(
         role,
@@ -314,6 +321,28 @@ fn open_session(
         "zenoh session open"
     );
     Ok(session)
+}
+
+/// What a client whose session no endpoint accepted should check: the listener is up, the
+/// process holds the run's token (the accepting side refuses a missing or different one
+/// without telling why) and, over `quic/`, trusts the listener's certificate.
+fn refused_hint(z: &ZenohConfig) -> String {
+    let token = if z.secret.is_some() {
+        "the same TERL_TOKEN as the router (a different token is refused without a reason)"
+    } else {
+        "the run's TERL_TOKEN (this process has none; a router that asks for one refuses it)"
+    };
+    let ca = if z.connect.iter().any(|e| e.starts_with("quic/")) {
+        ", and [cluster] tls_ca must be the CA that signed the listener's certificate (`terl \
+         certs` makes both)"
+    } else {
+        ""
+    };
+    format!(
+        "No endpoint of {:?} let this session in: check that the router (or the learner) \
+         listens there, that this process has {token}{ca}",
+        z.connect
+    )
 }
 
 /// The largest TLS file a session reads (a certificate chain or key is a few KiB).
