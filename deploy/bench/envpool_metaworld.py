@@ -10,6 +10,7 @@ JSON object: per task env steps/s (all N environments together).
 """
 import argparse
 import json
+import math
 import time
 
 import envpool
@@ -51,7 +52,14 @@ def main() -> None:
     a = ap.parse_args()
     if a.envs < 1 or a.envs > 256:
         ap.error("--envs must be 1..256")
-    tasks = {t: rate(t, a.envs, a.seconds) for t in a.tasks.split(",")}
+    if not (math.isfinite(a.seconds) and 0.1 <= a.seconds <= 60):
+        ap.error("--seconds must be 0.1..60")
+    names = a.tasks.split(",")
+    known = set(envpool.list_all_envs())
+    unknown = [t for t in names if "-" not in t or task_id(t) not in known]
+    if unknown:
+        ap.error(f"not Meta-World v3 tasks of EnvPool: {', '.join(map(repr, unknown))}")
+    tasks = {t: rate(t, a.envs, a.seconds) for t in names}
     print(json.dumps({"implementation": f"envpool-{envpool.__version__}-metaworld",
                       "envs": a.envs,
                       "worker_threads": 1,

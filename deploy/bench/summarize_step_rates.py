@@ -9,6 +9,8 @@ import json
 import statistics
 import sys
 
+if len(sys.argv) != 4 or not sys.argv[2].isdigit() or int(sys.argv[2]) < 1:
+    sys.exit("usage: summarize_step_rates.py DIR ROUNDS SECONDS (ROUNDS >= 1; step_rates.sh calls it)")
 out, rounds, seconds = sys.argv[1], int(sys.argv[2]), float(sys.argv[3])
 
 

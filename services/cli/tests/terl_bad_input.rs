@@ -395,10 +395,10 @@ fn router_keeps_the_token_out_of_its_log(terl: &Path, token: &str, rust_log: &st
             let err = err.to_string();
             assert!(err.contains(names) && err.contains(&endpoint), "{err}");
         };
-    refused(client(None, &ca), "this process has none");
+    refused(client(None, &ca), "this process has no token");
     refused(
         client(Some("another-token-0123456789"), &ca),
-        "the same TERL_TOKEN",
+        "is the listener's",
     );
     refused(client(Some(token), &other_ca), "[cluster] tls_ca");
     nix::sys::signal::kill(

@@ -300,13 +300,20 @@ fn open_session(
         None => None,
     };
     let session = zenoh::open(zc).wait().map_err(|e| {
-        // A client opens only once a router (or a peer) let it in; Zenoh's own message says
-        // "Unable to connect" whether nothing listened, the token was refused or the
-        // certificate was not trusted, so the error names all three.
-        if z.mode == ZenohMode::Client {
-            zenoh_err("open session", &scope, format!("{e}. {}", refused_hint(z)))
+        // A client opens only once a router (or a peer) let it in. Zenoh then says only
+        // "Unable to connect to any of [...]" whether nothing listened, the token was refused
+        // or the certificate was not trusted, so that error gets what to check; any other
+        // (a listen endpoint in use, a bad file) is Zenoh's own.
+        let text = e.to_string();
+        if z.mode == ZenohMode::Client && text.contains("Unable to connect") {
+            let text = text.trim_end().trim_end_matches(['!', '.']).trim_end();
+            zenoh_err(
+                "open session",
+                &scope,
+                format!("{text}; {}", refused_hint(z)),
+            )
         } else {
-            zenoh_err("open session", &scope, e)
+            zenoh_err("open session", &scope, text)
         }
     })?;
     drop(dictionary);
@@ -323,24 +330,27 @@ fn open_session(
     Ok(session)
 }
 
-/// What a client whose session no endpoint accepted should check: the listener is up, the
-/// process holds the run's token (the accepting side refuses a missing or different one
-/// without telling why) and, over `quic/`, trusts the listener's certificate.
+/// What a client whose session no endpoint accepted should check: something of the run listens
+/// there, both sides hold the same token (the accepting side refuses a missing, extra or
+/// different one without saying why) and, over `quic/`, the certificate is trusted for that host.
 fn refused_hint(z: &ZenohConfig) -> String {
     let token = if z.secret.is_some() {
-        "the same TERL_TOKEN as the router (a different token is refused without a reason)"
+        "this process's token (TERL_TOKEN or [cluster] token_file) is the listener's: a listener \
+         with another token, or with none, refuses it"
     } else {
-        "the run's TERL_TOKEN (this process has none; a router that asks for one refuses it)"
+        "this process has no token (TERL_TOKEN or [cluster] token_file): a listener that has one \
+         refuses it"
     };
-    let ca = if z.connect.iter().any(|e| e.starts_with("quic/")) {
-        ", and [cluster] tls_ca must be the CA that signed the listener's certificate (`terl \
-         certs` makes both)"
+    let tls = if z.connect.iter().any(|e| e.starts_with("quic/")) {
+        "; and over quic/, that [cluster] tls_ca is the CA that signed the listener's \
+         certificate and that the endpoint's host is one the certificate names (`terl certs \
+         --host`)"
     } else {
         ""
     };
     format!(
-        "No endpoint of {:?} let this session in: check that the router (or the learner) \
-         listens there, that this process has {token}{ca}",
+        "no endpoint of {:?} let this session in. Check that a router or a peer of the run \
+         listens there; that {token}{tls}",
         z.connect
     )
 }
@@ -859,6 +869,43 @@ mod erased {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A client that no endpoint lets in is told what to check (Zenoh says only "Unable to
+    /// connect"); one that fails for another reason (its own listen endpoint taken) is not.
+    #[test]
+    fn only_a_client_nobody_let_in_gets_the_refusal_hint() {
+        let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let free = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let free_port = free.local_addr().unwrap().port();
+        drop(free);
+        let client = |listen: Vec<String>| ZenohConfig {
+            mode: ZenohMode::Client,
+            connect: vec![format!("tcp/127.0.0.1:{free_port}")],
+            listen,
+            ..Default::default()
+        };
+        let Err(nobody) = open_session(&client(vec![]), Some("hint-test"), "test") else {
+            panic!("a client opened with nothing listening")
+        };
+        let nobody = nobody.to_string();
+        assert!(
+            nobody.contains("Unable to connect")
+                && nobody.contains("no endpoint of")
+                && nobody.contains("this process has no token")
+                && !nobody.contains("tls_ca"),
+            "{nobody}"
+        );
+        let port = taken.local_addr().unwrap().port();
+        let Err(in_use) = open_session(
+            &client(vec![format!("tcp/127.0.0.1:{port}")]),
+            Some("hint-test"),
+            "test",
+        ) else {
+            panic!("a client listened on a taken port")
+        };
+        let in_use = in_use.to_string();
+        assert!(!in_use.contains("no endpoint of"), "{in_use}");
+    }
 
     /// A TLS file that Zenoh would fail on later, hang on or read without end is refused when
     /// the session opens, naming the setting and the file.
