@@ -80,14 +80,7 @@ fn a_server_that_closes_at_once_gets_the_tls_hint() {
 fn a_learner_with_a_token_asked_without_one_is_refused_by_name() {
     let bin = service_binaries();
     let dir = tempfile::tempdir().unwrap();
-    let config = dir.path().join("run.toml");
-    std::fs::write(
-        &config,
-        "tasks = \"reach-v3\"\nnum_envs = 1\n\
-         [sac]\npolicy_hidden = [16]\ncritic_hidden = [16]\nbatch_size = 16\nthreads = 1\n\
-         [cluster]\nlearner_calibrate_secs = 0\n",
-    )
-    .unwrap();
+    let config = common::tiny_run_file(dir.path());
     let run_dir = dir.path().join("run");
     let run_id = format!("status-token-{}", std::process::id());
     let mut learner = Command::new(bin.join("terl-learner"))
@@ -151,14 +144,7 @@ fn an_address_file_that_is_a_fifo_or_not_text_is_an_error_not_a_hang() {
 fn a_stopped_runs_address_served_by_another_run_is_named_not_shown() {
     let bin = service_binaries();
     let dir = tempfile::tempdir().unwrap();
-    let config = dir.path().join("run.toml");
-    std::fs::write(
-        &config,
-        "tasks = \"reach-v3\"\nnum_envs = 1\n\
-         [sac]\npolicy_hidden = [16]\ncritic_hidden = [16]\nbatch_size = 16\nthreads = 1\n\
-         [cluster]\nlearner_calibrate_secs = 0\n",
-    )
-    .unwrap();
+    let config = common::tiny_run_file(dir.path());
     let live_dir = dir.path().join("runs/now-running");
     let mut learner = Command::new(bin.join("terl-learner"))
         .args([

@@ -147,14 +147,7 @@ fn terl_services_refuse_bad_datasets_configs_and_missing_addresses() {
 fn services_with_an_unwritable_log_run_and_stop_cleanly() {
     let bins = service_binaries();
     let dir = tempfile::tempdir().unwrap();
-    let config = dir.path().join("run.toml");
-    std::fs::write(
-        &config,
-        "tasks = \"reach-v3\"\nnum_envs = 1\n\
-         [sac]\npolicy_hidden = [16]\ncritic_hidden = [16]\nbatch_size = 16\nthreads = 1\n\
-         [cluster]\nlearner_calibrate_secs = 0\n",
-    )
-    .unwrap();
+    let config = common::tiny_run_file(dir.path());
     let run_dir = dir.path().join("run");
     let run_id = format!("full-log-{}", std::process::id());
     for service in ["terl-learner", "terl-selector"] {
@@ -198,14 +191,7 @@ fn services_with_an_unwritable_log_run_and_stop_cleanly() {
 fn a_second_learner_of_a_run_is_refused_and_leaves_the_first_one_s_address() {
     let bins = service_binaries();
     let dir = tempfile::tempdir().unwrap();
-    let config = dir.path().join("run.toml");
-    std::fs::write(
-        &config,
-        "tasks = \"reach-v3\"\nnum_envs = 1\n\
-         [sac]\npolicy_hidden = [16]\ncritic_hidden = [16]\nbatch_size = 16\nthreads = 1\n\
-         [cluster]\nlearner_calibrate_secs = 0\n",
-    )
-    .unwrap();
+    let config = common::tiny_run_file(dir.path());
     let run_dir = dir.path().join("run");
     let run_id = format!("two-learners-{}", std::process::id());
     let a = args(config.to_str().unwrap(), &run_id, run_dir.to_str().unwrap());

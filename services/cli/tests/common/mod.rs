@@ -91,3 +91,18 @@ pub fn wait_for_addr(path: &Path, mut child: Option<&mut Child>, limit: Duration
         std::thread::sleep(Duration::from_millis(50));
     }
 }
+
+/// Writes `<dir>/run.toml`: the smallest run a learner starts on (reach-v3, one environment,
+/// 16-unit networks, one thread, no calibration), for tests of a service's start and stop.
+#[allow(dead_code)] // not every test binary that shares this module starts a service
+pub fn tiny_run_file(dir: &Path) -> PathBuf {
+    let config = dir.join("run.toml");
+    std::fs::write(
+        &config,
+        "tasks = \"reach-v3\"\nnum_envs = 1\n\
+         [sac]\npolicy_hidden = [16]\ncritic_hidden = [16]\nbatch_size = 16\nthreads = 1\n\
+         [cluster]\nlearner_calibrate_secs = 0\n",
+    )
+    .unwrap();
+    config
+}
